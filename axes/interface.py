@@ -1,0 +1,73 @@
+"""The contract between the module model and one motion axis.
+
+Time is an integer count of nanoseconds of *simulated* time, passed in by the caller; an
+axis never reads a clock.  That keeps every axis deterministic and lets the simulator jump
+from event to event on a virtual clock.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+from typing import Protocol
+
+
+class AxisEventKind(Enum):
+    TARGET_REACHED = "target_reached"
+    LEFT_SWITCH = "left_switch"
+    RIGHT_SWITCH = "right_switch"
+    HOME_SWITCH = "home_switch"
+    STALL = "stall"
+    DEVIATION = "deviation"
+    REFERENCE_SEARCH_DONE = "reference_search_done"
+
+
+@dataclass(frozen=True, slots=True)
+class AxisEvent:
+    time_ns: int
+    axis: int
+    kind: AxisEventKind
+    #: New level for switch events (True = active); None for the others.
+    active: bool | None = None
+
+
+class Axis(Protocol):
+    """One axis as the TMCL firmware sees it: commands in, axis parameters in and out."""
+
+    index: int
+
+    def advance_to(self, t_ns: int) -> list[AxisEvent]:
+        """Run the motion up to simulated time ``t_ns``; return the events that happened."""
+        ...
+
+    def next_event_ns(self) -> int | None:
+        """Earliest future time at which something observable happens by itself, if any."""
+        ...
+
+    def rotate(self, velocity: int) -> None:
+        """ROR/ROL: velocity mode with a signed target velocity (pps)."""
+        ...
+
+    def stop(self) -> None:
+        """MST: velocity mode, target velocity 0 (a ramped stop)."""
+        ...
+
+    def move_to(self, target: int) -> None:
+        """MVP: positioning mode towards an absolute target."""
+        ...
+
+    def emergency_stop(self) -> None:
+        """Stop at once (heartbeat timeout, deviation, stall)."""
+        ...
+
+    def get_parameter(self, number: int) -> int:
+        """GAP: the value of an axis parameter (already validated against the table)."""
+        ...
+
+    def set_parameter(self, number: int, value: int) -> None:
+        """SAP: write an axis parameter; raise ValueError if the firmware refuses the value."""
+        ...
+
+    def reference_search(self, action: int) -> int:
+        """RFS START (0) / STOP (1) / STATUS (2); STATUS returns 0 when no search runs."""
+        ...

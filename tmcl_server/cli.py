@@ -1,0 +1,109 @@
+"""``tmcl-server``: run simulated TMCM-6212 modules from the shell."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+
+from tmcl_server.server import Server, ServerConfig
+from tmcl_server.tables import FIRMWARE_VERSION_STRING
+from tmcl_server.transports.tcp import DEFAULT_TCP
+
+log = logging.getLogger("tmcl_server")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tmcl-server",
+        description="Simulated TRINAMIC TMCM-6212 modules speaking TMCL "
+                    f"(firmware {FIRMWARE_VERSION_STRING.decode()}).")
+    who = parser.add_mutually_exclusive_group()
+    who.add_argument("--modules", type=int, metavar="N",
+                     help="host N modules with addresses (and CAN ids) 1..N (default 1)")
+    who.add_argument("--address", type=int, metavar="A",
+                     help="host one module with address (and CAN id) A")
+    parser.add_argument("--tcp", action="append", metavar="HOST:PORT",
+                        help=f"serve raw TMCL over TCP (repeatable; default {DEFAULT_TCP}, "
+                             "port 0 picks a free port)")
+    parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
+    parser.add_argument("--pty", action="append", metavar="PATH", default=[],
+                        help="open a virtual serial port and link PATH to it (repeatable)")
+    parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD]", default=[],
+                        help="serve on an existing serial port through pyserial (repeatable)")
+    parser.add_argument("--state-dir", metavar="DIR",
+                        help="keep each module's EEPROM in DIR/module-<address>/ "
+                             "(default: nothing persists)")
+    parser.add_argument("--speed", type=float, default=1.0, metavar="X",
+                        help="run simulated time X times faster than real time")
+    parser.add_argument("--ready-file", metavar="PATH",
+                        help="write the endpoints as JSON to PATH once all accept traffic")
+    parser.add_argument("--log-level", default="WARNING",
+                        choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> ServerConfig:
+    if args.address is not None:
+        if not 1 <= args.address <= 255:
+            raise SystemExit("tmcl-server: --address must be 1..255")
+        addresses = [args.address]
+    else:
+        count = args.modules if args.modules is not None else 1
+        if not 1 <= count <= 255:
+            raise SystemExit("tmcl-server: --modules must be 1..255")
+        addresses = list(range(1, count + 1))
+    endpoints: dict[str, list[str]] = {}
+    tcp = args.tcp if args.tcp else ([] if args.no_tcp else [DEFAULT_TCP])
+    if tcp:
+        endpoints["tcp"] = tcp
+    if args.pty:
+        endpoints["pty"] = args.pty
+    if args.serial:
+        endpoints["serial"] = args.serial
+    if not endpoints:
+        raise SystemExit("tmcl-server: no transport left to serve on")
+    if args.speed <= 0:
+        raise SystemExit("tmcl-server: --speed must be positive")
+    return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
+                        clock="real", speed=args.speed, ready_file=args.ready_file)
+
+
+async def run(config: ServerConfig) -> None:
+    server = Server(config)
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, server.request_stop)
+    await server.start()
+    for module in server.simulation.modules:
+        if module.eeprom.problem:
+            print(f"warning: module {module.slot}: {module.eeprom.problem}; running on factory "
+                  "defaults, nothing is saved", file=sys.stderr, flush=True)
+    addresses = ", ".join(str(m.address) for m in server.simulation.modules)
+    print(f"tmcl-server: TMCM-6212 module(s) at address {addresses}", flush=True)
+    for kind, endpoints in server.endpoints.items():
+        for endpoint in endpoints:
+            print(f"{kind} {endpoint}", flush=True)
+    try:
+        await server.wait_stopped()
+    finally:
+        await server.stop()
+        print("tmcl-server: stopped", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
+    config = config_from_args(args)
+    try:
+        asyncio.run(run(config))
+    except OSError as exc:
+        print(f"tmcl-server: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

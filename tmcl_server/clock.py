@@ -1,0 +1,68 @@
+"""Simulated time.
+
+All models count integer nanoseconds of simulated time.  A clock maps that to the world:
+:class:`RealClock` follows the wall clock (optionally sped up or slowed down with
+``--speed``), :class:`VirtualClock` only moves when a test advances it, and then the
+simulator jumps straight from one event to the next.
+"""
+
+from __future__ import annotations
+
+import time
+
+NS_PER_S = 1_000_000_000
+NS_PER_MS = 1_000_000
+
+
+def seconds_to_ns(seconds: float) -> int:
+    return round(seconds * NS_PER_S)
+
+
+class Clock:
+    """Base class: ``now_ns()`` is the current simulated time."""
+
+    virtual = False
+
+    def now_ns(self) -> int:
+        raise NotImplementedError
+
+    def wall_seconds(self, sim_ns: int) -> float:
+        """How long, in real seconds, a span of simulated time takes on this clock."""
+        raise NotImplementedError
+
+
+class RealClock(Clock):
+    """Simulated time = monotonic wall time since start, times ``speed``."""
+
+    def __init__(self, speed: float = 1.0) -> None:
+        if speed <= 0:
+            raise ValueError("speed must be positive")
+        self.speed = speed
+        self._origin = time.monotonic_ns()
+
+    def now_ns(self) -> int:
+        elapsed = time.monotonic_ns() - self._origin
+        return elapsed if self.speed == 1.0 else int(elapsed * self.speed)
+
+    def wall_seconds(self, sim_ns: int) -> float:
+        return sim_ns / NS_PER_S / self.speed
+
+
+class VirtualClock(Clock):
+    """Time stands still until :meth:`set` moves it forward (used by tests and benchmarks)."""
+
+    virtual = True
+
+    def __init__(self, start_ns: int = 0) -> None:
+        self._now = start_ns
+
+    def now_ns(self) -> int:
+        return self._now
+
+    def set(self, t_ns: int) -> None:
+        if t_ns < self._now:
+            raise ValueError("virtual time cannot go backwards")
+        self._now = t_ns
+
+    def wall_seconds(self, sim_ns: int) -> float:
+        return 0.0

@@ -1,0 +1,124 @@
+"""The module's non-volatile memory: one JSON file per module, written atomically.
+
+Every store is write-through (write a temporary file, fsync, rename over the old file, fsync
+the directory), so a crash at any instant leaves either the old or the new state on disk.
+A file that cannot be read is never overwritten: the module runs on factory defaults with
+persistence switched off and says so (docs/eeprom.md).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+FORMAT_NAME = "tmcl-sim-eeprom"
+FORMAT_VERSION = 1
+FILE_NAME = "eeprom.json"
+
+#: Sections of the file; each maps a decimal key to a JSON value.
+SECTIONS = ("globals", "user_variables", "coordinates", "axis_parameters", "program")
+
+
+class EepromCorrupt(RuntimeError):
+    """The state file exists but cannot be used."""
+
+
+class Eeprom:
+    """Sectioned key/value memory, persisted to ``directory/eeprom.json`` when a directory is set."""
+
+    def __init__(self, directory: str | os.PathLike[str] | None = None) -> None:
+        self.path: Path | None = Path(directory) / FILE_NAME if directory is not None else None
+        self._data: dict[str, dict[str, Any]] = {s: {} for s in SECTIONS}
+        #: Set when the file on disk was unusable; persistence is then off for this run.
+        self.problem: str | None = None
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                self._data = self._load(self.path)
+            except EepromCorrupt as exc:
+                self.problem = str(exc)
+                log.error("%s; starting from factory defaults, the file is left untouched and "
+                          "nothing is saved this run", exc)
+
+    @property
+    def persistent(self) -> bool:
+        return self.path is not None and self.problem is None
+
+    @staticmethod
+    def _load(path: Path) -> dict[str, dict[str, Any]]:
+        if not path.exists():
+            return {s: {} for s in SECTIONS}
+        try:
+            raw = json.loads(path.read_bytes())
+        except (OSError, ValueError) as exc:
+            raise EepromCorrupt(f"EEPROM file {path} is unreadable ({exc})") from exc
+        if not isinstance(raw, dict) or raw.get("format") != FORMAT_NAME:
+            raise EepromCorrupt(f"EEPROM file {path} is not a {FORMAT_NAME} file")
+        version = raw.get("version")
+        if version != FORMAT_VERSION:
+            raise EepromCorrupt(f"EEPROM file {path} has format version {version!r}; "
+                                f"this simulator reads version {FORMAT_VERSION}")
+        data = {s: raw.get(s, {}) for s in SECTIONS}
+        if not all(isinstance(v, dict) for v in data.values()):
+            raise EepromCorrupt(f"EEPROM file {path} has a malformed section")
+        return data
+
+    def _save(self) -> None:
+        if not self.persistent:
+            return
+        assert self.path is not None
+        document = {"format": FORMAT_NAME, "version": FORMAT_VERSION, **self._data}
+        payload = json.dumps(document, indent=1, sort_keys=True).encode()
+        directory = self.path.parent
+        fd, tmp = tempfile.mkstemp(prefix=".eeprom-", suffix=".tmp", dir=directory)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(payload)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, self.path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        dir_fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
+
+    # -- access -------------------------------------------------------------------------------
+
+    def get(self, section: str, key: int | str, default: Any = None) -> Any:
+        return self._data[section].get(str(key), default)
+
+    def items(self, section: str) -> list[tuple[str, Any]]:
+        return list(self._data[section].items())
+
+    def put(self, section: str, key: int | str, value: Any) -> None:
+        self.put_many(section, {key: value})
+
+    def put_many(self, section: str, values: dict[Any, Any]) -> None:
+        """Store several values with a single atomic write."""
+        changed = False
+        target = self._data[section]
+        for key, value in values.items():
+            if target.get(str(key)) != value:
+                target[str(key)] = value
+                changed = True
+        if changed:
+            self._save()
+
+    def replace_section(self, section: str, values: dict[Any, Any]) -> None:
+        self._data[section] = {str(k): v for k, v in values.items()}
+        self._save()
+
+    def erase(self) -> None:
+        """Factory reset: forget everything stored (command 137)."""
+        self._data = {s: {} for s in SECTIONS}
+        self._save()

@@ -1,0 +1,129 @@
+"""Run a simulator in-process from blocking code (tests, scripts, notebooks).
+
+    from tmcl_server.embed import SimulatorThread
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"]) as sim:
+        port = sim.endpoints["tcp"][0]          # hand this to pytrinamic
+        ...
+        sim.advance(2.0)                        # two simulated seconds, in microseconds
+
+The server runs on its own event loop in a background thread; :meth:`SimulatorThread.call`
+runs a function on that loop, so the models are only ever touched from one thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import threading
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from tmcl_server.module import TMCM6212
+from tmcl_server.server import Server, ServerConfig
+from tmcl_server.simulation import Simulation
+
+T = TypeVar("T")
+
+
+class SimulatorThread:
+    def __init__(self, config: ServerConfig | None = None, *, modules: int | None = None,
+                 addresses: list[int] | None = None, clock: str | None = None,
+                 speed: float | None = None, state_dir: str | None = None,
+                 **endpoints: list[str]) -> None:
+        config = config or ServerConfig(endpoints={})
+        if modules is not None:
+            config.addresses = list(range(1, modules + 1))
+        if addresses is not None:
+            config.addresses = list(addresses)
+        if clock is not None:
+            config.clock = clock
+        if speed is not None:
+            config.speed = speed
+        if state_dir is not None:
+            config.state_dir = state_dir
+        for kind, arguments in endpoints.items():
+            config.endpoints[kind] = list(arguments)
+        self.config = config
+        self.server: Server | None = None
+        self.endpoints: dict[str, list[str]] = {}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+        self._ready = concurrent.futures.Future[None]()
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    def start(self) -> SimulatorThread:
+        self._thread = threading.Thread(target=self._run, name="tmcl-sim", daemon=True)
+        self._thread.start()
+        self._ready.result(timeout=30)
+        return self
+
+    def _run(self) -> None:
+        loop = asyncio.new_event_loop()
+        self._loop = loop
+        try:
+            loop.run_until_complete(self._main())
+        finally:
+            loop.close()
+
+    async def _main(self) -> None:
+        try:
+            self.server = Server(self.config)
+            self.endpoints = await self.server.start()
+        except BaseException as exc:
+            self._ready.set_exception(exc)
+            return
+        self._ready.set_result(None)
+        await self.server.wait_stopped()
+        await self.server.stop()
+
+    def stop(self) -> None:
+        if self._loop is not None and self.server is not None and self._thread is not None:
+            if self._thread.is_alive():
+                self._loop.call_soon_threadsafe(self.server.request_stop)
+            self._thread.join(timeout=30)
+        self._thread = None
+
+    def __enter__(self) -> SimulatorThread:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- access from the calling thread -------------------------------------------------------
+
+    def call(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+        """Run ``fn`` on the simulator's loop thread and return its result."""
+        assert self._loop is not None, "simulator not started"
+
+        async def run() -> T:
+            return fn(*args, **kwargs)
+
+        return asyncio.run_coroutine_threadsafe(run(), self._loop).result(timeout=60)
+
+    @property
+    def simulation(self) -> Simulation:
+        assert self.server is not None
+        return self.server.simulation
+
+    def module(self, address: int = 1) -> TMCM6212:
+        """The module object itself: only touch it through :meth:`call`."""
+        return self.call(self.simulation.module, address)
+
+    def advance(self, seconds: float) -> None:
+        """Move the virtual clock forward, handling every event on the way."""
+        self.call(self.simulation.advance, seconds)
+
+    def advance_until(self, condition: Callable[[], bool], timeout: float,
+                      resolution: float = 0.001) -> bool:
+        """Advance until ``condition()`` (run on the loop thread) holds; False on timeout."""
+        return self.call(self.simulation.advance_until, condition, timeout, resolution)
+
+    @property
+    def tcp(self) -> str:
+        """The first TCP endpoint as ``host:port``."""
+        return self.endpoints["tcp"][0]
+
+    @property
+    def pty(self) -> str:
+        return self.endpoints["pty"][0]

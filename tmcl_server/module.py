@@ -1,0 +1,579 @@
+"""The TMCM-6212 module model: parameters, I/O, coordinates, EEPROM, and command dispatch.
+
+Every TMCL command has one handler here named ``_cmd_<mnemonic>`` (for example
+:meth:`TMCM6212._cmd_mvp`); :data:`interpreter.isa.Opcode` gives the names.  Handlers either
+return the reply value (``None`` echoes the request value) or raise :class:`CommandError`
+with a status code from Table 4.  Motion is delegated to the axes (axes/), programs to the
+interpreter (interpreter/).
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Protocol
+
+from axes.interface import Axis, AxisEvent, AxisEventKind
+from axes.kinematic import KinematicAxis
+from axes.parameters import AXIS_PARAMETERS, STORABLE_AXIS_PARAMETERS, ParamSpec
+from interpreter.isa import MoveType, Opcode
+from tmcl_server.clock import NS_PER_MS
+from tmcl_server.eeprom import Eeprom
+from tmcl_server.protocol import AnyReply, RawReply, Reply, Request, to_int32
+from tmcl_server.tables import (
+    ANALOG_MAX,
+    BANK_PARAMETERS,
+    DIGITAL_THRESHOLD,
+    FIRMWARE_VERSION_BINARY,
+    FIRMWARE_VERSION_STRING,
+    GP,
+    MOTOR_ALL,
+    NUMBER_OF_AXES,
+    NUMBER_OF_COORDINATES,
+    NUMBER_OF_INPUTS,
+    NUMBER_OF_OUTPUTS,
+    STORABLE_USER_VARIABLES,
+    IOBank,
+    Status,
+)
+
+log = logging.getLogger(__name__)
+
+AP_ACTUAL_POSITION = 1
+AP_RELATIVE_POSITIONING_OPTION = 127
+AP_ENCODER_POSITION = 209
+FACTORY_RESET_KEY = 1234
+#: Commands whose replies GP 255 never suppresses.
+ALWAYS_REPLIED = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO})
+
+
+class Interface(Enum):
+    """Which kind of bus a request came from: it decides addressing and heartbeat."""
+
+    SERIAL = "serial"  # RS-485 / USB: TCP, pty and real serial ports in the simulator
+    CAN = "can"
+
+
+class ReplySink(Protocol):
+    """Where a module can push replies nobody asked for right now (command 138 events)."""
+
+    def send_unsolicited(self, reply: Reply) -> None: ...
+
+
+class CommandError(Exception):
+    def __init__(self, status: Status) -> None:
+        super().__init__(status.name)
+        self.status = status
+
+
+NO_REPLY = object()  # handler result: send nothing at all (command 137)
+
+
+@dataclass(frozen=True, slots=True)
+class ModuleEvent:
+    """Something observable happened inside the module (for telemetry and interrupts)."""
+
+    time_ns: int
+    kind: str
+    axis: int | None = None
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(slots=True)
+class _ReachWatch:
+    sink: ReplySink
+    interface: Interface
+
+
+AxisFactory = Callable[[int], Axis]
+
+
+class TMCM6212:
+    """One simulated module.  Not thread-safe: the server calls it from one event loop."""
+
+    def __init__(self, slot: int = 1, eeprom: Eeprom | None = None,
+                 axis_factory: AxisFactory = KinematicAxis, start_ns: int = 0) -> None:
+        #: The address the module was created with; names its state directory.
+        self.slot = slot
+        self.eeprom = eeprom if eeprom is not None else Eeprom()
+        self._axis_factory = axis_factory
+        self.listeners: list[Callable[[ModuleEvent], None]] = []
+        self.now_ns = start_ns
+        self._handlers: dict[int, Callable[[Request, ReplySink | None, Interface], Any]] = {}
+        for opcode in Opcode:
+            handler = getattr(self, f"_cmd_{opcode.name.lower()}", None)
+            if handler is not None:
+                self._handlers[opcode] = handler
+        self.power_up()
+
+    # == power-up and factory reset ============================================================
+
+    def power_up(self) -> None:
+        """Reset RAM state and reload what the EEPROM holds, as after switching on."""
+        ee = self.eeprom
+        self.globals: dict[int, dict[int, int]] = {
+            bank: {n: spec.default for n, spec in table.items()}
+            for bank, table in BANK_PARAMETERS.items()
+        }
+        bank0 = self.globals[0]
+        # A simulated bus needs distinct addresses: each module's factory address is its slot.
+        bank0[GP.SERIAL_ADDRESS] = self.slot
+        bank0[GP.CAN_ID] = self.slot
+        for key, value in ee.items("globals"):
+            if int(key) in bank0:
+                bank0[int(key)] = value
+        if self.globals[0][GP.DO_NOT_RESTORE_USER_VARIABLES] == 0:
+            for key, value in ee.items("user_variables"):
+                self.globals[2][int(key)] = value
+        self.axes: list[Axis] = [self._axis_factory(i) for i in range(NUMBER_OF_AXES)]
+        for axis in self.axes:
+            axis.advance_to(self.now_ns)
+            for key, value in (ee.get("axis_parameters", axis.index) or {}).items():
+                axis.set_parameter(int(key), value)
+        self.coordinates = [[0] * NUMBER_OF_COORDINATES for _ in range(NUMBER_OF_AXES)]
+        if self.globals[0][GP.COORDINATE_STORAGE] == 1:
+            self._copy_coordinates_from_eeprom(range(1, NUMBER_OF_COORDINATES))
+        self.outputs = [0] * NUMBER_OF_OUTPUTS
+        self.analog_inputs = [0] * NUMBER_OF_INPUTS
+        self._tick_origin_ms = self.now_ns // NS_PER_MS
+        self._random = random.Random(0)
+        self._reach_request: tuple[int, bool, ReplySink, Interface] | None = None
+        self._reach_watch: dict[int, _ReachWatch] = {}
+        self._last_command_ns = {Interface.SERIAL: self.now_ns, Interface.CAN: self.now_ns}
+        self._heartbeat_tripped = {Interface.SERIAL: False, Interface.CAN: False}
+        self.accumulator = 0  # the interpreter's A register (ACO reads it)
+
+    def factory_reset(self) -> None:
+        """Command 137: erase the EEPROM and restart with factory settings."""
+        self.eeprom.erase()
+        self.power_up()
+
+    # == addressing ============================================================================
+
+    @property
+    def address(self) -> int:
+        return self.globals[0][GP.SERIAL_ADDRESS]
+
+    @property
+    def host_address(self) -> int:
+        return self.globals[0][GP.HOST_ADDRESS]
+
+    @property
+    def can_id(self) -> int:
+        return self.globals[0][GP.CAN_ID]
+
+    @property
+    def can_reply_id(self) -> int:
+        return self.globals[0][GP.CAN_REPLY_ID]
+
+    def accepts_serial(self, address: int) -> bool:
+        secondary = self.globals[0][GP.SERIAL_SECONDARY_ADDRESS]
+        return address == self.address or (secondary != 0 and address == secondary)
+
+    def accepts_can(self, can_id: int) -> bool:
+        secondary = self.globals[0][GP.CAN_SECONDARY_ID]
+        return can_id == self.can_id or (secondary != 0 and can_id == secondary)
+
+    @property
+    def reply_delay_s(self) -> float:
+        """GP 75 telegram pause (ms) before a serial reply."""
+        return self.globals[0][GP.TELEGRAM_PAUSE] / 1000.0
+
+    def make_reply(self, status: int, opcode: int, value: int, interface: Interface) -> Reply:
+        module = self.can_id if interface is Interface.CAN else self.address
+        return Reply(self.host_address, module, status, opcode, to_int32(value))
+
+    def checksum_error_reply(self) -> Reply:
+        return self.make_reply(Status.WRONG_CHECKSUM, 0, 0, Interface.SERIAL)
+
+    # == execution =============================================================================
+
+    def execute(self, request: Request, interface: Interface = Interface.SERIAL,
+                sink: ReplySink | None = None) -> AnyReply | None:
+        """Run one direct-mode command and build its reply (None: no reply is sent)."""
+        self._last_command_ns[interface] = self.now_ns
+        self._heartbeat_tripped[interface] = False
+        handler = self._handlers.get(request.opcode)
+        status: int = Status.OK
+        value = request.value
+        if handler is None:
+            status = Status.INVALID_COMMAND
+        else:
+            try:
+                result = handler(request, sink, interface)
+            except CommandError as exc:
+                status = exc.status
+            else:
+                if result is NO_REPLY:
+                    return None
+                if isinstance(result, RawReply):
+                    return result
+                if result is not None:
+                    value = result
+        if self.globals[0][GP.SUPPRESS_REPLY] and request.opcode not in ALWAYS_REPLIED:
+            return None
+        return self.make_reply(status, request.opcode, value, interface)
+
+    # == time ==================================================================================
+
+    def next_event_ns(self) -> int | None:
+        """Earliest simulated time at which the module changes state by itself."""
+        times = [t for t in (axis.next_event_ns() for axis in self.axes) if t is not None]
+        times.extend(self._heartbeat_deadlines())
+        return min(times) if times else None
+
+    def advance_to(self, t_ns: int) -> None:
+        """Run the module up to ``t_ns``, handling every internal event in time order."""
+        while True:
+            nxt = self.next_event_ns()
+            if nxt is None or nxt > t_ns:
+                break
+            self._step_to(max(nxt, self.now_ns))
+        if t_ns > self.now_ns:
+            self._step_to(t_ns)
+
+    def _step_to(self, t_ns: int) -> None:
+        self.now_ns = t_ns
+        for axis in self.axes:
+            for event in axis.advance_to(t_ns):
+                self._on_axis_event(event)
+        self._check_heartbeats()
+
+    def _heartbeat_deadlines(self) -> list[int]:
+        deadlines = []
+        for interface, gp in ((Interface.SERIAL, GP.SERIAL_HEARTBEAT),
+                              (Interface.CAN, GP.CAN_HEARTBEAT)):
+            period = self.globals[0][gp]
+            if period and not self._heartbeat_tripped[interface]:
+                deadlines.append(self._last_command_ns[interface] + period * NS_PER_MS)
+        return deadlines
+
+    def _check_heartbeats(self) -> None:
+        for interface, gp in ((Interface.SERIAL, GP.SERIAL_HEARTBEAT),
+                              (Interface.CAN, GP.CAN_HEARTBEAT)):
+            period = self.globals[0][gp]
+            if (period and not self._heartbeat_tripped[interface]
+                    and self.now_ns >= self._last_command_ns[interface] + period * NS_PER_MS):
+                self._heartbeat_tripped[interface] = True
+                for axis in self.axes:
+                    axis.emergency_stop()
+                self._emit("heartbeat_timeout", None, interface=interface.value)
+
+    def _on_axis_event(self, event: AxisEvent) -> None:
+        self._emit(event.kind.value, event.axis, time_ns=event.time_ns, active=event.active)
+        if event.kind is AxisEventKind.TARGET_REACHED:
+            watch = self._reach_watch.pop(event.axis, None)
+            if watch is not None:
+                reply = self.make_reply(Status.TARGET_REACHED_EVENT, Opcode.TARGET_REACHED_EVENT,
+                                        1 << event.axis, watch.interface)
+                watch.sink.send_unsolicited(reply)
+
+    def _emit(self, kind: str, axis: int | None, time_ns: int | None = None, **data: Any) -> None:
+        if not self.listeners:
+            return
+        event = ModuleEvent(self.now_ns if time_ns is None else time_ns, kind, axis, data)
+        for listener in list(self.listeners):
+            listener(event)
+
+    # == I/O from the outside world ============================================================
+
+    def set_analog_input(self, port: int, value: int) -> None:
+        if not 0 <= port < NUMBER_OF_INPUTS or not 0 <= value <= ANALOG_MAX:
+            raise ValueError(f"input {port} value {value} out of range")
+        before = self.digital_input(port)
+        self.analog_inputs[port] = value
+        if self.digital_input(port) != before:
+            self._emit("input_changed", None, port=port, level=int(not before))
+
+    def set_digital_input(self, port: int, active: bool) -> None:
+        self.set_analog_input(port, ANALOG_MAX if active else 0)
+
+    def digital_input(self, port: int) -> int:
+        return int(self.analog_inputs[port] >= DIGITAL_THRESHOLD)
+
+    # == checks shared by handlers =============================================================
+
+    @staticmethod
+    def _axis_index(motor: int) -> int:
+        if not 0 <= motor < NUMBER_OF_AXES:
+            raise CommandError(Status.INVALID_VALUE)
+        return motor
+
+    def _axis(self, motor: int) -> Axis:
+        return self.axes[self._axis_index(motor)]
+
+    @staticmethod
+    def _axis_spec(number: int) -> ParamSpec:
+        spec = AXIS_PARAMETERS.get(number)
+        if spec is None:
+            raise CommandError(Status.WRONG_TYPE)
+        return spec
+
+    def _global_spec(self, number: int, bank: int) -> ParamSpec:
+        table = BANK_PARAMETERS.get(bank)
+        if table is None:
+            raise CommandError(Status.INVALID_VALUE)
+        spec = table.get(number)
+        if spec is None:
+            raise CommandError(Status.WRONG_TYPE)
+        return spec
+
+    # == motion commands =======================================================================
+
+    def _cmd_ror(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self._axis(req.motor).rotate(req.value)
+
+    def _cmd_rol(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self._axis(req.motor).rotate(to_int32(-req.value))
+
+    def _cmd_mst(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self._axis(req.motor).stop()
+
+    def _cmd_mvp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        axis = self._axis(req.motor)
+        if req.type == MoveType.ABS:
+            target = req.value
+        elif req.type == MoveType.REL:
+            origin_kind = axis.get_parameter(AP_RELATIVE_POSITIONING_OPTION)
+            origin_param = {0: 0, 1: AP_ACTUAL_POSITION, 2: AP_ENCODER_POSITION}[origin_kind]
+            target = to_int32(axis.get_parameter(origin_param) + req.value)
+        elif req.type == MoveType.COORD:
+            if not 0 <= req.value < NUMBER_OF_COORDINATES:
+                raise CommandError(Status.INVALID_VALUE)
+            target = self.coordinates[axis.index][req.value]
+        else:
+            raise CommandError(Status.WRONG_TYPE)
+        self._arm_reach_watch(axis.index)
+        axis.move_to(target)
+
+    def _cmd_rfs(self, req: Request, sink: ReplySink | None, interface: Interface) -> int | None:
+        axis = self._axis(req.motor)
+        if req.type not in (0, 1, 2):
+            raise CommandError(Status.WRONG_TYPE)
+        result = axis.reference_search(req.type)
+        return result if req.type == 2 else None
+
+    # == axis parameters =======================================================================
+
+    def _cmd_sap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        spec = self._axis_spec(req.type)
+        axis = self._axis(req.motor)
+        if not spec.writable:
+            raise CommandError(Status.WRONG_TYPE)
+        if not spec.accepts(req.value):
+            raise CommandError(Status.INVALID_VALUE)
+        if req.type == 0:
+            self._arm_reach_watch(axis.index)
+        try:
+            axis.set_parameter(req.type, spec.normalise(req.value))
+        except ValueError as exc:
+            raise CommandError(Status.INVALID_VALUE) from exc
+
+    def _cmd_gap(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
+        self._axis_spec(req.type)
+        return self._axis(req.motor).get_parameter(req.type)
+
+    def _cmd_stap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        axis = self._axis(req.motor)
+        if req.type not in STORABLE_AXIS_PARAMETERS:
+            raise CommandError(Status.WRONG_TYPE)
+        stored = dict(self.eeprom.get("axis_parameters", axis.index) or {})
+        stored[str(req.type)] = axis.get_parameter(req.type)
+        self.eeprom.put("axis_parameters", axis.index, stored)
+
+    def _cmd_rsap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        axis = self._axis(req.motor)
+        if req.type not in STORABLE_AXIS_PARAMETERS:
+            raise CommandError(Status.WRONG_TYPE)
+        stored = self.eeprom.get("axis_parameters", axis.index) or {}
+        value = stored.get(str(req.type), AXIS_PARAMETERS[req.type].default)
+        axis.set_parameter(req.type, value)
+
+    # == global parameters =====================================================================
+
+    def read_global(self, number: int, bank: int) -> int:
+        """GGP semantics for callers that already validated the request (also the interpreter)."""
+        if bank == 0:
+            if number == GP.TICK_TIMER:
+                return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & 0x7FFF_FFFF
+            if number == GP.RANDOM_NUMBER:
+                return self._random.randrange(2**31)
+        return self.globals[bank][number]
+
+    def write_global(self, number: int, bank: int, value: int) -> None:
+        if bank == 0:
+            if number == GP.TICK_TIMER:
+                self._tick_origin_ms = self.now_ns // NS_PER_MS - value
+                return
+            if number == GP.RANDOM_NUMBER:
+                self._random.seed(value)
+                return
+            spec = BANK_PARAMETERS[0][number]
+            if spec.auto_stored:
+                self.eeprom.put("globals", number, value)
+        self.globals[bank][number] = value
+        if bank == 0 and number == GP.COORDINATE_STORAGE and value == 1:
+            self._copy_coordinates_to_eeprom(range(1, NUMBER_OF_COORDINATES))
+
+    def _cmd_sgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        spec = self._global_spec(req.type, req.motor)
+        if not spec.writable:
+            raise CommandError(Status.WRONG_TYPE)
+        if not spec.accepts(req.value):
+            raise CommandError(Status.INVALID_VALUE)
+        self.write_global(req.type, req.motor, spec.normalise(req.value))
+
+    def _cmd_ggp(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
+        self._global_spec(req.type, req.motor)
+        return self.read_global(req.type, req.motor)
+
+    def _storable_global(self, req: Request) -> ParamSpec:
+        spec = self._global_spec(req.type, req.motor)
+        if not (spec.storable or spec.auto_stored):
+            raise CommandError(Status.WRONG_TYPE)
+        if req.motor == 2 and req.type >= STORABLE_USER_VARIABLES:
+            raise CommandError(Status.WRONG_TYPE)
+        return spec
+
+    def _cmd_stgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self._storable_global(req)
+        section = "user_variables" if req.motor == 2 else "globals"
+        self.eeprom.put(section, req.type, self.globals[req.motor][req.type])
+
+    def _cmd_rsgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        spec = self._storable_global(req)
+        section = "user_variables" if req.motor == 2 else "globals"
+        default = 0 if req.motor == 2 else spec.default
+        self.globals[req.motor][req.type] = self.eeprom.get(section, req.type, default)
+
+    # == I/O ===================================================================================
+
+    def _cmd_sio(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if req.motor != IOBank.OUTPUTS:
+            raise CommandError(Status.INVALID_VALUE)
+        if not 0 <= req.type < NUMBER_OF_OUTPUTS:
+            raise CommandError(Status.WRONG_TYPE)
+        if req.value not in (0, 1):
+            raise CommandError(Status.INVALID_VALUE)
+        if self.outputs[req.type] != req.value:
+            self.outputs[req.type] = req.value
+            self._emit("output_changed", None, port=req.type, level=req.value)
+
+    def read_input(self, port: int, bank: int) -> int:
+        if bank == IOBank.DIGITAL_INPUTS:
+            return self.digital_input(port)
+        if bank == IOBank.ANALOG_INPUTS:
+            return self.analog_inputs[port]
+        return self.outputs[port]
+
+    def _cmd_gio(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
+        if req.motor not in tuple(IOBank):
+            raise CommandError(Status.INVALID_VALUE)
+        if not 0 <= req.type < NUMBER_OF_INPUTS:
+            raise CommandError(Status.WRONG_TYPE)
+        return self.read_input(req.type, req.motor)
+
+    # == coordinates ===========================================================================
+
+    def _coordinate_request(self, req: Request) -> tuple[int, int | None]:
+        """Validate (coordinate, motor); motor None means the motor-255 EEPROM form."""
+        if not 0 <= req.type < NUMBER_OF_COORDINATES:
+            raise CommandError(Status.WRONG_TYPE)
+        if req.motor == MOTOR_ALL:
+            return req.type, None
+        return req.type, self._axis_index(req.motor)
+
+    def _set_coordinate(self, number: int, motor: int, value: int) -> None:
+        self.coordinates[motor][number] = value
+        if number and self.globals[0][GP.COORDINATE_STORAGE] == 1:
+            self._copy_coordinates_to_eeprom([number], [motor])
+
+    def _copy_coordinates_to_eeprom(self, numbers: Any, motors: Any = range(NUMBER_OF_AXES)) -> None:
+        stored = {k: dict(v) for k, v in self.eeprom.items("coordinates")}
+        for motor in motors:
+            row = stored.setdefault(str(motor), {})
+            for n in numbers:
+                row[str(n)] = self.coordinates[motor][n]
+        self.eeprom.replace_section("coordinates", stored)
+
+    def _copy_coordinates_from_eeprom(self, numbers: Any) -> None:
+        for motor in range(NUMBER_OF_AXES):
+            row = self.eeprom.get("coordinates", motor) or {}
+            for n in numbers:
+                self.coordinates[motor][n] = row.get(str(n), 0)
+
+    @staticmethod
+    def _eeprom_coordinate_range(number: int) -> range:
+        """Motor-255 forms: 0 means all of 1..20, otherwise the one coordinate."""
+        return range(1, NUMBER_OF_COORDINATES) if number == 0 else range(number, number + 1)
+
+    def _cmd_sco(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        number, motor = self._coordinate_request(req)
+        if motor is None:
+            self._copy_coordinates_to_eeprom(self._eeprom_coordinate_range(number))
+        else:
+            self._set_coordinate(number, motor, req.value)
+
+    def _cmd_gco(self, req: Request, sink: ReplySink | None, interface: Interface) -> int | None:
+        number, motor = self._coordinate_request(req)
+        if motor is None:
+            self._copy_coordinates_from_eeprom(self._eeprom_coordinate_range(number))
+            return None
+        return self.coordinates[motor][number]
+
+    def _cmd_cco(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
+        number, motor = self._coordinate_request(req)
+        if motor is None:
+            raise CommandError(Status.INVALID_VALUE)
+        position = self.axes[motor].get_parameter(AP_ACTUAL_POSITION)
+        self._set_coordinate(number, motor, position)
+        return position
+
+    def _cmd_aco(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        number, motor = self._coordinate_request(req)
+        if motor is None:
+            raise CommandError(Status.INVALID_VALUE)
+        self._set_coordinate(number, motor, self.accumulator)
+
+    # == control commands ======================================================================
+
+    def _cmd_get_firmware_version(self, req: Request, sink: ReplySink | None,
+                                  interface: Interface) -> RawReply | int:
+        if req.type == 0:
+            return RawReply(bytes((self.host_address,)) + FIRMWARE_VERSION_STRING,
+                            FIRMWARE_VERSION_STRING)
+        if req.type == 1:
+            return FIRMWARE_VERSION_BINARY
+        raise CommandError(Status.WRONG_TYPE)
+
+    def _cmd_restore_factory_settings(self, req: Request, sink: ReplySink | None,
+                                      interface: Interface) -> object:
+        if req.value != FACTORY_RESET_KEY:
+            raise CommandError(Status.INVALID_VALUE)
+        self.factory_reset()
+        self._emit("factory_reset", None)
+        return NO_REPLY
+
+    def _cmd_target_reached_event(self, req: Request, sink: ReplySink | None,
+                                  interface: Interface) -> None:
+        if req.type not in (0, 1):
+            raise CommandError(Status.WRONG_TYPE)
+        mask = req.value & ((1 << NUMBER_OF_AXES) - 1)
+        if sink is None or mask == 0:
+            self._reach_request = None
+            return
+        self._reach_request = (mask, req.type == 1, sink, interface)
+
+    def _arm_reach_watch(self, axis: int) -> None:
+        """A move starts on ``axis``: watch it if a 138 request covers it."""
+        self._reach_watch.pop(axis, None)
+        if self._reach_request is None:
+            return
+        mask, every_move, sink, interface = self._reach_request
+        if mask >> axis & 1:
+            self._reach_watch[axis] = _ReachWatch(sink, interface)
+            if not every_move:
+                self._reach_request = None

@@ -1,0 +1,167 @@
+"""The asyncio server: one simulation, many transports, one event loop.
+
+Use it from asyncio code (``async with Server(config) as server``), from blocking code and
+tests through :class:`tmcl_server.embed.SimulatorThread`, or from the shell with
+``tmcl-server`` (tmcl_server/cli.py).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tmcl_server.clock import Clock, RealClock, VirtualClock
+from tmcl_server.eeprom import Eeprom
+from tmcl_server.module import TMCM6212
+from tmcl_server.simulation import Simulation
+from tmcl_server.transports.base import Transport
+from tmcl_server.transports.pty import PtyTransport
+from tmcl_server.transports.serial_port import SerialPortTransport
+from tmcl_server.transports.tcp import TcpTransport
+
+log = logging.getLogger(__name__)
+
+#: Builds a transport for one command-line endpoint argument.
+TransportFactory = Callable[[Simulation, str], Transport]
+
+TRANSPORT_FACTORIES: dict[str, TransportFactory] = {
+    "tcp": TcpTransport,
+    "pty": PtyTransport,
+    "serial": SerialPortTransport,
+}
+
+
+@dataclass
+class ServerConfig:
+    """Everything the command line can say, as data (also the embedding API's input)."""
+
+    addresses: list[int] = field(default_factory=lambda: [1])
+    #: Endpoint arguments per transport kind, e.g. {"tcp": ["127.0.0.1:2323"]}.
+    endpoints: dict[str, list[str]] = field(default_factory=lambda: {"tcp": ["127.0.0.1:2323"]})
+    state_dir: str | None = None
+    #: "real" (wall clock x speed) or "virtual" (moves only when advanced).
+    clock: str = "real"
+    speed: float = 1.0
+    ready_file: str | None = None
+
+    def make_clock(self) -> Clock:
+        if self.clock == "virtual":
+            return VirtualClock()
+        if self.clock == "real":
+            return RealClock(self.speed)
+        raise ValueError(f"unknown clock {self.clock!r}")
+
+
+def module_state_dir(state_dir: str | os.PathLike[str], slot: int) -> Path:
+    return Path(state_dir) / f"module-{slot}"
+
+
+def build_simulation(config: ServerConfig) -> Simulation:
+    clock = config.make_clock()
+    modules = []
+    for slot in config.addresses:
+        directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
+        modules.append(TMCM6212(slot, Eeprom(directory), start_ns=clock.now_ns()))
+    return Simulation(modules, clock)
+
+
+def write_atomically(path: str | os.PathLike[str], text: str) -> None:
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, target)
+
+
+class Server:
+    def __init__(self, config: ServerConfig | None = None,
+                 simulation: Simulation | None = None) -> None:
+        self.config = config or ServerConfig()
+        self.simulation = simulation or build_simulation(self.config)
+        self.transports: list[Transport] = []
+        self.endpoints: dict[str, list[str]] = {}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_when = 0.0
+        self._stopped = asyncio.Event()
+
+    @property
+    def clock(self) -> Clock:
+        return self.simulation.clock
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    async def start(self) -> dict[str, list[str]]:
+        self._loop = asyncio.get_running_loop()
+        self.simulation.on_change = self._reschedule
+        try:
+            for kind, arguments in self.config.endpoints.items():
+                factory = TRANSPORT_FACTORIES[kind]
+                for argument in arguments:
+                    transport = factory(self.simulation, argument)
+                    self.transports.append(transport)
+                    self.endpoints.setdefault(transport.kind, []).extend(await transport.start())
+        except BaseException:
+            await self.stop()
+            raise
+        self._reschedule()
+        if self.config.ready_file:
+            write_atomically(self.config.ready_file, json.dumps(self.endpoints) + "\n")
+        return self.endpoints
+
+    async def stop(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        for transport in reversed(self.transports):
+            try:
+                await transport.close()
+            except Exception:  # keep closing the others
+                log.exception("closing %s failed", transport.kind)
+        self.transports.clear()
+        if self.config.ready_file:
+            Path(self.config.ready_file).unlink(missing_ok=True)
+        self._stopped.set()
+
+    def request_stop(self) -> None:
+        self._stopped.set()
+
+    async def wait_stopped(self) -> None:
+        await self._stopped.wait()
+
+    async def __aenter__(self) -> Server:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    # -- real-time scheduling -----------------------------------------------------------------
+
+    def _reschedule(self) -> None:
+        """Arm one loop timer for the next internal event (real clocks only)."""
+        if self._loop is None or self.clock.virtual:
+            return
+        nxt = self.simulation.next_event_ns()
+        if nxt is None:
+            return
+        delay = max(0.0, self.clock.wall_seconds(nxt - self.clock.now_ns()))
+        when = self._loop.time() + delay
+        if self._timer is not None:
+            if self._timer_when <= when:
+                return
+            self._timer.cancel()
+        self._timer_when = when
+        self._timer = self._loop.call_at(when, self._on_timer)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self.simulation.sync()
+        self._reschedule()

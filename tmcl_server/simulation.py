@@ -1,0 +1,129 @@
+"""The simulation: modules on one clock, and the request router every transport feeds.
+
+This is the server-independent core (like pymodbus's datastore context): it owns no sockets.
+Transports hand it frames and get replies back; tests and the embedding API move time with
+:meth:`Simulation.advance` when the clock is virtual.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+
+from tmcl_server.clock import Clock, VirtualClock, seconds_to_ns
+from tmcl_server.module import TMCM6212, Interface, ReplySink
+from tmcl_server.protocol import AnyReply, ChecksumError, Request, decode_request
+
+Routed = tuple["TMCM6212", AnyReply]
+
+
+class Simulation:
+    def __init__(self, modules: Iterable[TMCM6212], clock: Clock) -> None:
+        self.modules = list(modules)
+        self.clock = clock
+        #: Called after every command and every time step, so a server can reschedule its
+        #: timer when a command created an earlier event.
+        self.on_change: Callable[[], None] | None = None
+        for module in self.modules:
+            module.advance_to(clock.now_ns())
+
+    def module(self, address: int) -> TMCM6212:
+        """The module that currently answers to a serial address."""
+        for module in self.modules:
+            if module.address == address:
+                return module
+        raise KeyError(f"no module answers to address {address}")
+
+    # -- time ---------------------------------------------------------------------------------
+
+    @property
+    def now_ns(self) -> int:
+        return self.clock.now_ns()
+
+    def sync(self) -> None:
+        """Bring every module up to the clock's current time."""
+        t = self.clock.now_ns()
+        for module in self.modules:
+            if module.now_ns < t:
+                module.advance_to(t)
+
+    def next_event_ns(self) -> int | None:
+        times = [t for t in (m.next_event_ns() for m in self.modules) if t is not None]
+        return min(times) if times else None
+
+    def advance(self, seconds: float) -> None:
+        """Virtual clock only: move time forward, stepping through every event in order."""
+        self.advance_to_ns(self.clock.now_ns() + seconds_to_ns(seconds))
+
+    def advance_to_ns(self, target_ns: int) -> None:
+        clock = self._virtual_clock()
+        while True:
+            nxt = self.next_event_ns()
+            step = target_ns if nxt is None or nxt > target_ns else max(nxt, clock.now_ns())
+            clock.set(step)
+            self.sync()
+            if step >= target_ns:
+                break
+        self._changed()
+
+    def advance_until(self, condition: Callable[[], bool], timeout: float,
+                      resolution: float = 0.001) -> bool:
+        """Virtual clock only: advance until ``condition()`` holds or ``timeout`` seconds pass.
+
+        The condition is checked at every event and at least every ``resolution`` seconds.
+        Returns whether it held.
+        """
+        clock = self._virtual_clock()
+        deadline = clock.now_ns() + seconds_to_ns(timeout)
+        step = max(1, seconds_to_ns(resolution))
+        while not condition():
+            now = clock.now_ns()
+            if now >= deadline:
+                return False
+            nxt = self.next_event_ns()
+            target = min(deadline, now + step)
+            if nxt is not None and now < nxt < target:
+                target = nxt
+            self.advance_to_ns(target)
+        return True
+
+    def _virtual_clock(self) -> VirtualClock:
+        if not isinstance(self.clock, VirtualClock):
+            raise RuntimeError("time can only be advanced by hand on a virtual clock")
+        return self.clock
+
+    def _changed(self) -> None:
+        if self.on_change is not None:
+            self.on_change()
+
+    # -- routing ------------------------------------------------------------------------------
+
+    def handle_serial_frame(self, frame: bytes, sink: ReplySink | None = None) -> list[Routed]:
+        """Route one 9-byte frame like an RS-485 bus: every module with that address acts."""
+        address = frame[0]
+        targets = [m for m in self.modules if m.accepts_serial(address)]
+        if not targets:
+            return []
+        self.sync()
+        try:
+            request = decode_request(frame)
+        except ChecksumError:
+            return [(m, m.checksum_error_reply()) for m in targets]
+        return self._execute(targets, request, Interface.SERIAL, sink)
+
+    def handle_can_request(self, request: Request, sink: ReplySink | None = None) -> list[Routed]:
+        """Route one CAN request (``request.address`` is the frame's CAN id)."""
+        targets = [m for m in self.modules if m.accepts_can(request.address)]
+        if not targets:
+            return []
+        self.sync()
+        return self._execute(targets, request, Interface.CAN, sink)
+
+    def _execute(self, targets: list[TMCM6212], request: Request, interface: Interface,
+                 sink: ReplySink | None) -> list[Routed]:
+        routed: list[Routed] = []
+        for module in targets:
+            reply = module.execute(request, interface, sink)
+            if reply is not None:
+                routed.append((module, reply))
+        self._changed()
+        return routed

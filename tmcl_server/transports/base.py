@@ -1,0 +1,69 @@
+"""Pieces shared by the byte-stream transports (TCP, pty, serial port)."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+
+from tmcl_server.protocol import FrameAssembler, Reply
+from tmcl_server.simulation import Simulation
+
+log = logging.getLogger(__name__)
+
+
+class Transport(ABC):
+    """A listening endpoint.  ``kind`` is its key in the ready file (``tcp``, ``pty``, ...)."""
+
+    kind: str
+
+    @abstractmethod
+    async def start(self) -> list[str]:
+        """Open the endpoint; return the addresses hosts can use (for the ready file)."""
+
+    @abstractmethod
+    async def close(self) -> None:
+        """Stop serving and release every resource (sockets, pty links)."""
+
+
+class StreamSession:
+    """One byte stream speaking 9-byte TMCL frames: a TCP client, a pty, a serial port.
+
+    It owns the 5 ms resynchronisation of torn frames and the GP 75 reply delay, and it is
+    the sink for replies that arrive later (command 138 events).
+    """
+
+    __slots__ = ("_assembler", "_loop", "_write", "closed", "simulation")
+
+    def __init__(self, simulation: Simulation, write: Callable[[bytes], None],
+                 loop: asyncio.AbstractEventLoop) -> None:
+        self.simulation = simulation
+        self._write = write
+        self._loop = loop
+        self._assembler = FrameAssembler()
+        self.closed = False
+
+    def feed(self, data: bytes) -> None:
+        for frame in self._assembler.feed(data, time.monotonic_ns()):
+            for module, reply in self.simulation.handle_serial_frame(frame, self):
+                self._send(reply.encode(), module.reply_delay_s)
+
+    def _send(self, data: bytes, delay_s: float = 0.0) -> None:
+        if self.closed:
+            return
+        if delay_s > 0:
+            self._loop.call_later(delay_s, self._send, data)
+            return
+        try:
+            self._write(data)
+        except OSError as exc:  # the peer vanished; nothing else is affected
+            log.debug("write failed: %s", exc)
+            self.closed = True
+
+    def send_unsolicited(self, reply: Reply) -> None:
+        self._send(reply.encode())
+
+    def close(self) -> None:
+        self.closed = True

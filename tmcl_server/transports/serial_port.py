@@ -1,0 +1,94 @@
+"""A real serial port through pyserial: a USB-RS485 adapter, or one end of a socat/com0com
+pair so that a TMCL-IDE on another machine or OS can reach the simulator."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+
+import serial
+
+from tmcl_server.simulation import Simulation
+from tmcl_server.tables import BAUD_RATES
+from tmcl_server.transports.base import StreamSession, Transport
+
+log = logging.getLogger(__name__)
+
+
+def parse_serial_spec(text: str) -> tuple[str, int | None]:
+    """``DEVICE[:BAUD]``; a pyserial URL keeps its own ``host:port``."""
+    head, sep, tail = text.rpartition(":")
+    if not sep or not tail.isdigit() or not head:
+        return text, None
+    if "://" in head and ":" not in head.split("://", 1)[1]:
+        return text, None  # socket://host:port has no baud suffix
+    return head, int(tail)
+
+
+class SerialPortTransport(Transport):
+    kind = "serial"
+
+    def __init__(self, simulation: Simulation, spec: str) -> None:
+        self.simulation = simulation
+        self.device, baud = parse_serial_spec(spec)
+        if baud is None:  # the module's own GP 65 setting decides, as on the real part
+            baud = BAUD_RATES[simulation.modules[0].globals[0][65]] if simulation.modules else 9600
+        self.baudrate = baud
+        self._port: serial.SerialBase | None = None
+        self._session: StreamSession | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._reader_fd: int | None = None
+
+    async def start(self) -> list[str]:
+        loop = asyncio.get_running_loop()
+        self._port = serial.serial_for_url(self.device, baudrate=self.baudrate, timeout=0)
+        self._session = StreamSession(self.simulation, self._port.write, loop)
+        try:
+            fd = self._port.fileno()
+        except (AttributeError, NotImplementedError, OSError, ValueError):
+            fd = None
+        if isinstance(fd, int):
+            self._reader_fd = fd
+            loop.add_reader(fd, self._on_readable)
+        else:  # ports without a descriptor (Windows, URL handlers): a small reader thread
+            self._port.timeout = 0.01
+            self._thread = threading.Thread(target=self._read_loop, args=(loop,), daemon=True)
+            self._thread.start()
+        return [f"{self.device}@{self.baudrate}"]
+
+    def _on_readable(self) -> None:
+        assert self._port is not None and self._session is not None
+        try:
+            data = self._port.read(max(1, self._port.in_waiting))
+        except (OSError, serial.SerialException) as exc:
+            log.warning("serial %s read failed: %s", self.device, exc)
+            return
+        if data:
+            self._session.feed(data)
+
+    def _read_loop(self, loop: asyncio.AbstractEventLoop) -> None:
+        assert self._port is not None and self._session is not None
+        while not self._stop.is_set():
+            try:
+                data = self._port.read(256)
+            except (OSError, serial.SerialException):
+                break
+            if data:
+                loop.call_soon_threadsafe(self._session.feed, data)
+
+    async def close(self) -> None:
+        self._stop.set()
+        if self._session is not None:
+            self._session.close()
+        if self._reader_fd is not None:
+            asyncio.get_running_loop().remove_reader(self._reader_fd)
+            self._reader_fd = None
+        if self._thread is not None:
+            await asyncio.to_thread(self._thread.join, 1.0)
+        if self._port is not None:
+            with contextlib.suppress(Exception):
+                self._port.close()
+            self._port = None
