@@ -21,6 +21,7 @@ RESYNC_GAP_NS = 5_000_000
 _FRAME = struct.Struct(">BBBBiB")
 _BODY = struct.Struct(">BBBBi")
 _CAN = struct.Struct(">BBBi")
+_CAN_REPLY_TAIL = struct.Struct(">BBi")
 
 
 def checksum(data: bytes | bytearray | memoryview) -> int:
@@ -67,8 +68,8 @@ class Reply:
 
     def encode_can(self) -> bytes:
         """CAN payload: the module's id byte replaces host+module, no checksum."""
-        return bytes((self.module & 0xFF,)) + _CAN.pack(self.status, self.opcode & 0xFF,
-                                                         to_int32(self.value))
+        return bytes((self.module & 0xFF,)) + _CAN_REPLY_TAIL.pack(
+            self.status, self.opcode & 0xFF, to_int32(self.value))
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,7 +125,7 @@ def decode_can_request(can_id: int, data: bytes | bytearray) -> Request:
 
 def decode_can_reply(data: bytes | bytearray) -> Reply:
     module = data[0]
-    status, opcode, value = _CAN.unpack_from(data, 1)
+    status, opcode, value = _CAN_REPLY_TAIL.unpack_from(data, 1)
     return Reply(0, module, status, opcode, value)
 
 
