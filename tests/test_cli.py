@@ -123,3 +123,12 @@ def test_argument_parsing(argv, addresses, endpoints):
 def test_no_transport_is_refused():
     with pytest.raises(SystemExit):
         config_from_args(build_parser().parse_args(["--no-tcp"]))
+
+
+def test_example_script_runs_self_contained():
+    result = subprocess.run([sys.executable, "scripts/example_pytrinamic.py", "--self-contained"],
+                            capture_output=True, text=True, timeout=60,
+                            cwd=Path(__file__).resolve().parent.parent)
+    assert result.returncode == 0, result.stderr
+    assert "firmware: 6212V105" in result.stdout
+    assert "reached 102400" in result.stdout
