@@ -33,6 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
                         help="open a virtual serial port and link PATH to it (repeatable)")
     parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD]", default=[],
                         help="serve on an existing serial port through pyserial (repeatable)")
+    parser.add_argument("--mqtt", action="append", metavar="URL", default=[],
+                        help="bridge to an MQTT broker, e.g. mqtt://127.0.0.1:1883/tmcl "
+                             "(mqtts:// for TLS; credentials in the URL or in "
+                             "TMCL_MQTT_USERNAME/TMCL_MQTT_PASSWORD)")
+    parser.add_argument("--mqtt-rate", type=float, default=10.0, metavar="HZ",
+                        help="at most this many state messages per module and second (default 10)")
     parser.add_argument("--state-dir", metavar="DIR",
                         help="keep each module's EEPROM in DIR/module-<address>/ "
                              "(default: nothing persists)")
@@ -63,12 +69,17 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         endpoints["pty"] = args.pty
     if args.serial:
         endpoints["serial"] = args.serial
+    if args.mqtt:
+        endpoints["mqtt"] = args.mqtt
     if not endpoints:
         raise SystemExit("tmcl-server: no transport left to serve on")
     if args.speed <= 0:
         raise SystemExit("tmcl-server: --speed must be positive")
+    if args.mqtt_rate <= 0:
+        raise SystemExit("tmcl-server: --mqtt-rate must be positive")
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
-                        clock="real", speed=args.speed, ready_file=args.ready_file)
+                        clock="real", speed=args.speed, ready_file=args.ready_file,
+                        mqtt_rate=args.mqtt_rate)
 
 
 async def run(config: ServerConfig) -> None:
