@@ -19,12 +19,12 @@ from paho.mqtt.properties import Properties
 
 from interpreter.isa import Opcode
 from tmcl_server.embed import SimulatorThread
+from tmcl_server.mosquitto import MOSQUITTO, Broker
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_server.server import ServerConfig
 from tmcl_server.transports.mqtt import MqttSettings
 
 from .conftest import RawClient
-from .mqtt_broker import MOSQUITTO, Broker
 
 pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed "
                                 "(./scripts/test.sh installs it with apt-get)")

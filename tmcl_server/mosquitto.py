@@ -1,4 +1,8 @@
-"""A real mosquitto broker on a free loopback port, started and stopped by tests."""
+"""A throwaway mosquitto broker on a free loopback port, for tests and benchmarks.
+
+    broker = Broker(tmp_dir)        # started; broker.url == "mqtt://127.0.0.1:<port>"
+    broker.stop(); broker.start()   # a restart keeps sessions (persistence is on)
+"""
 
 from __future__ import annotations
 
