@@ -33,6 +33,15 @@ def parse_host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, in
     return host, number
 
 
+def listening_endpoints(server: asyncio.Server) -> list[str]:
+    """``host:port`` of every socket a server listens on (the port a ``:0`` request got)."""
+    endpoints = []
+    for sock in server.sockets:
+        host, port = sock.getsockname()[:2]
+        endpoints.append(f"[{host}]:{port}" if ":" in host else f"{host}:{port}")
+    return endpoints
+
+
 class _TcpProtocol(asyncio.Protocol):
     def __init__(self, simulation: Simulation, connections: set[_TcpProtocol]) -> None:
         self._simulation = simulation
@@ -74,11 +83,7 @@ class TcpTransport(Transport):
         self._server = await loop.create_server(
             lambda: _TcpProtocol(self.simulation, self.connections), self.host, self.port,
             reuse_address=True)
-        endpoints = []
-        for sock in self._server.sockets:
-            host, port = sock.getsockname()[:2]
-            endpoints.append(f"[{host}]:{port}" if ":" in host else f"{host}:{port}")
-        return endpoints
+        return listening_endpoints(self._server)
 
     async def close(self) -> None:
         if self._server is not None:
