@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 import weakref
-from collections import Counter
+from collections import Counter, deque
 from typing import Protocol
 
 import can
@@ -47,6 +47,8 @@ class SimulatedCanBus:
     def __init__(self, name: str = DEFAULT_BUS_NAME) -> None:
         self.name = name
         self._parties: tuple[CanParty, ...] = ()
+        self._pending: deque[tuple[can.Message, CanParty | None]] = deque()
+        self._delivering = False
         #: Frames carried (``frames``) and party failures (``party_errors``).
         self.stats: Counter[str] = Counter()
 
@@ -62,7 +64,22 @@ class SimulatedCanBus:
         return self._parties
 
     def send(self, frame: can.Message, sender: CanParty | None) -> None:
-        """Put ``frame`` on the wire: every party but the sender receives it."""
+        """Put ``frame`` on the wire: every party but the sender receives it.
+
+        A frame sent while another is being delivered (a module's reply) waits for it, so
+        every party hears the frames in the order they were sent, as on a wire.
+        """
+        self._pending.append((frame, sender))
+        if self._delivering:
+            return
+        self._delivering = True
+        try:
+            while self._pending:
+                self._deliver(*self._pending.popleft())
+        finally:
+            self._delivering = False
+
+    def _deliver(self, frame: can.Message, sender: CanParty | None) -> None:
         self.stats["frames"] += 1
         for party in self._parties:  # a snapshot: parties may attach or detach meanwhile
             if party is sender:
