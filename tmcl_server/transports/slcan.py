@@ -110,8 +110,8 @@ class SlcanSession:
                     self._junk = False
                     self.stats["bad_commands"] += 1
                     self._write(ERROR)
-                else:
-                    self._write(self._command(line))
+                elif answer := self._command(line):
+                    self._write(answer)
             elif chunk and not self._junk:
                 self._line += chunk
                 if len(self._line) > MAX_LINE:
@@ -132,8 +132,10 @@ class SlcanSession:
             self.stats["bad_commands"] += 1
             return ERROR
         self.stats["transmitted"] += 1
+        # The adapter acknowledges once the frame is queued, before any answer can arrive.
+        self._write(b"Z\r" if frame.is_extended_id else b"z\r")
         self.bus.send(frame, self)
-        return b"Z\r" if frame.is_extended_id else b"z\r"
+        return b""
 
     def _control(self, line: bytes) -> bytes:
         command, argument = line[:1], line[1:]
