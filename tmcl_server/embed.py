@@ -95,6 +95,8 @@ class SimulatorThread:
     def call(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
         """Run ``fn`` on the simulator's loop thread and return its result."""
         assert self._loop is not None, "simulator not started"
+        if threading.current_thread() is self._thread:  # already there (nested call)
+            return fn(*args, **kwargs)
 
         async def run() -> T:
             return fn(*args, **kwargs)

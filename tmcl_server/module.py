@@ -47,7 +47,12 @@ AP_RELATIVE_POSITIONING_OPTION = 127
 AP_ENCODER_POSITION = 209
 FACTORY_RESET_KEY = 1234
 #: Commands whose replies GP 255 never suppresses.
-ALWAYS_REPLIED = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO})
+ALWAYS_REPLIED = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO)})
+#: Commands that only read: they cannot create or move an internal event.
+READ_ONLY_OPCODES = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO),
+                               int(Opcode.GET_FIRMWARE_VERSION)})
+_OK = int(Status.OK)
+_INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
 
 class Interface(Enum):
@@ -55,6 +60,8 @@ class Interface(Enum):
 
     SERIAL = "serial"  # RS-485 / USB: TCP, pty and real serial ports in the simulator
     CAN = "can"
+
+    __hash__ = object.__hash__  # Enum hashes by name in Python code; this is on the hot path
 
 
 class ReplySink(Protocol):
@@ -66,7 +73,7 @@ class ReplySink(Protocol):
 class CommandError(Exception):
     def __init__(self, status: Status) -> None:
         super().__init__(status.name)
-        self.status = status
+        self.status = int(status)
 
 
 NO_REPLY = object()  # handler result: send nothing at all (command 137)
@@ -145,6 +152,8 @@ class TMCM6212:
         self._last_command_ns = {Interface.SERIAL: self.now_ns, Interface.CAN: self.now_ns}
         self._heartbeat_tripped = {Interface.SERIAL: False, Interface.CAN: False}
         self.accumulator = 0  # the interpreter's A register (ACO reads it)
+        self._due_ns: int | None = None
+        self._due_stale = True
 
     def factory_reset(self) -> None:
         """Command 137: erase the EEPROM and restart with factory settings."""
@@ -183,8 +192,9 @@ class TMCM6212:
         return self.globals[0][GP.TELEGRAM_PAUSE] / 1000.0
 
     def make_reply(self, status: int, opcode: int, value: int, interface: Interface) -> Reply:
-        module = self.can_id if interface is Interface.CAN else self.address
-        return Reply(self.host_address, module, status, opcode, to_int32(value))
+        bank0 = self.globals[0]
+        module = bank0[GP.CAN_ID] if interface is Interface.CAN else bank0[GP.SERIAL_ADDRESS]
+        return Reply(bank0[GP.HOST_ADDRESS], module, status, opcode, to_int32(value))
 
     def checksum_error_reply(self) -> Reply:
         return self.make_reply(Status.WRONG_CHECKSUM, 0, 0, Interface.SERIAL)
@@ -194,49 +204,67 @@ class TMCM6212:
     def execute(self, request: Request, interface: Interface = Interface.SERIAL,
                 sink: ReplySink | None = None) -> AnyReply | None:
         """Run one direct-mode command and build its reply (None: no reply is sent)."""
+        opcode = request.opcode
         self._last_command_ns[interface] = self.now_ns
         self._heartbeat_tripped[interface] = False
-        handler = self._handlers.get(request.opcode)
-        status: int = Status.OK
+        if opcode not in READ_ONLY_OPCODES:
+            self._due_stale = True
+        handler = self._handlers.get(opcode)
+        status = _OK
         value = request.value
         if handler is None:
-            status = Status.INVALID_COMMAND
+            status = _INVALID_COMMAND
         else:
             try:
                 result = handler(request, sink, interface)
             except CommandError as exc:
                 status = exc.status
             else:
-                if result is NO_REPLY:
-                    return None
-                if isinstance(result, RawReply):
-                    return result
                 if result is not None:
+                    if result is NO_REPLY:
+                        return None
+                    if isinstance(result, RawReply):
+                        return result
                     value = result
-        if self.globals[0][GP.SUPPRESS_REPLY] and request.opcode not in ALWAYS_REPLIED:
+        if self.globals[0][GP.SUPPRESS_REPLY] and opcode not in ALWAYS_REPLIED:
             return None
-        return self.make_reply(status, request.opcode, value, interface)
+        return self.make_reply(status, opcode, value, interface)
 
     # == time ==================================================================================
+    #
+    # Axes are brought up to date lazily: advancing the module only steps every axis when an
+    # event is due; otherwise an axis catches up when a command touches it (:meth:`axis`).
+    # The time of the next event is cached and recomputed after anything that may change it.
 
     def next_event_ns(self) -> int | None:
         """Earliest simulated time at which the module changes state by itself."""
-        times = [t for t in (axis.next_event_ns() for axis in self.axes) if t is not None]
-        times.extend(self._heartbeat_deadlines())
-        return min(times) if times else None
+        if self._due_stale:
+            times = [t for t in (axis.next_event_ns() for axis in self.axes) if t is not None]
+            times.extend(self._heartbeat_deadlines())
+            self._due_ns = min(times) if times else None
+            self._due_stale = False
+        return self._due_ns
 
     def advance_to(self, t_ns: int) -> None:
         """Run the module up to ``t_ns``, handling every internal event in time order."""
         while True:
-            nxt = self.next_event_ns()
-            if nxt is None or nxt > t_ns:
+            due = self.next_event_ns()
+            if due is None or due > t_ns:
                 break
-            self._step_to(max(nxt, self.now_ns))
+            self._step_to(max(due, self.now_ns))
         if t_ns > self.now_ns:
-            self._step_to(t_ns)
+            self.now_ns = t_ns
+
+    def axis(self, index: int) -> Axis:
+        """Axis ``index``, brought up to the module's current time (use this, not ``axes``)."""
+        axis = self.axes[index]
+        for event in axis.advance_to(self.now_ns):  # none are due: advance_to handled them
+            self._on_axis_event(event)
+        return axis
 
     def _step_to(self, t_ns: int) -> None:
         self.now_ns = t_ns
+        self._due_stale = True
         for axis in self.axes:
             for event in axis.advance_to(t_ns):
                 self._on_axis_event(event)
@@ -258,8 +286,8 @@ class TMCM6212:
             if (period and not self._heartbeat_tripped[interface]
                     and self.now_ns >= self._last_command_ns[interface] + period * NS_PER_MS):
                 self._heartbeat_tripped[interface] = True
-                for axis in self.axes:
-                    axis.emergency_stop()
+                for index in range(NUMBER_OF_AXES):
+                    self.axis(index).emergency_stop()
                 self._emit("heartbeat_timeout", None, interface=interface.value)
 
     def _on_axis_event(self, event: AxisEvent) -> None:
@@ -303,7 +331,7 @@ class TMCM6212:
         return motor
 
     def _axis(self, motor: int) -> Axis:
-        return self.axes[self._axis_index(motor)]
+        return self.axis(self._axis_index(motor))
 
     @staticmethod
     def _axis_spec(number: int) -> ParamSpec:
@@ -528,7 +556,7 @@ class TMCM6212:
         number, motor = self._coordinate_request(req)
         if motor is None:
             raise CommandError(Status.INVALID_VALUE)
-        position = self.axes[motor].get_parameter(AP_ACTUAL_POSITION)
+        position = self.axis(motor).get_parameter(AP_ACTUAL_POSITION)
         self._set_coordinate(number, motor, position)
         return position
 

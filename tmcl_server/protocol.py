@@ -12,6 +12,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import NamedTuple
 
 FRAME_LENGTH = 9
 CAN_PAYLOAD_LENGTH = 7
@@ -20,6 +21,7 @@ RESYNC_GAP_NS = 5_000_000
 
 _FRAME = struct.Struct(">BBBBiB")
 _BODY = struct.Struct(">BBBBi")
+_BODY_UNSIGNED = struct.Struct(">BBBBI")
 _CAN = struct.Struct(">BBBi")
 _CAN_REPLY_TAIL = struct.Struct(">BBi")
 
@@ -34,9 +36,11 @@ def to_int32(value: int) -> int:
     return value - 0x1_0000_0000 if value & 0x8000_0000 else value
 
 
-@dataclass(frozen=True, slots=True)
-class Request:
-    """One TMCL command as it arrives (address is the serial target address or CAN id)."""
+class Request(NamedTuple):
+    """One TMCL command as it arrives (address is the serial target address or CAN id).
+
+    A NamedTuple rather than a dataclass: it is built for every request on the hot path.
+    """
 
     address: int
     opcode: int
@@ -53,8 +57,7 @@ class Request:
         return _CAN.pack(self.opcode, self.type, self.motor, to_int32(self.value))
 
 
-@dataclass(frozen=True, slots=True)
-class Reply:
+class Reply(NamedTuple):
     host: int
     module: int
     status: int
@@ -62,9 +65,9 @@ class Reply:
     value: int  # signed 32-bit
 
     def encode(self) -> bytes:
-        body = _BODY.pack(self.host & 0xFF, self.module & 0xFF, self.status, self.opcode & 0xFF,
-                          to_int32(self.value))
-        return body + bytes((checksum(body),))
+        body = _BODY_UNSIGNED.pack(self.host & 0xFF, self.module & 0xFF, self.status,
+                                   self.opcode & 0xFF, self.value & 0xFFFFFFFF)
+        return body + bytes((sum(body) & 0xFF,))
 
     def encode_can(self) -> bytes:
         """CAN payload: the module's id byte replaces host+module, no checksum."""
@@ -102,10 +105,10 @@ def decode_request(frame: bytes | bytearray | memoryview) -> Request:
     """Parse a 9-byte frame; raise ChecksumError (with the address) if the checksum is wrong."""
     if len(frame) != FRAME_LENGTH:
         raise ValueError(f"a TMCL frame has {FRAME_LENGTH} bytes, got {len(frame)}")
-    address, opcode, type_, motor, value, check = _FRAME.unpack(frame)
-    if checksum(memoryview(frame)[:8]) != check:
-        raise ChecksumError(address, bytes(frame))
-    return Request(address, opcode, type_, motor, value)
+    fields = _FRAME.unpack(frame)
+    if sum(frame[:8]) & 0xFF != fields[5]:
+        raise ChecksumError(fields[0], bytes(frame))
+    return tuple.__new__(Request, fields[:5])  # skips the NamedTuple's Python-level __new__
 
 
 def decode_reply(frame: bytes | bytearray) -> Reply:
@@ -142,6 +145,15 @@ class FrameAssembler:
         self._buffer = bytearray()
         self._last_byte_ns: int | None = None
         self.gap_ns = gap_ns
+
+    @property
+    def idle(self) -> bool:
+        """True when no partial frame is held (a whole frame can bypass :meth:`feed`)."""
+        return not self._buffer
+
+    def touch(self, now_ns: int) -> None:
+        """Record that bytes arrived at ``now_ns`` without buffering them."""
+        self._last_byte_ns = now_ns
 
     @property
     def pending(self) -> int:

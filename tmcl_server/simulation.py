@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 
 from tmcl_server.clock import Clock, VirtualClock, seconds_to_ns
-from tmcl_server.module import TMCM6212, Interface, ReplySink
+from tmcl_server.module import READ_ONLY_OPCODES, TMCM6212, Interface, ReplySink
 from tmcl_server.protocol import AnyReply, ChecksumError, Request, decode_request
 
 Routed = tuple["TMCM6212", AnyReply]
@@ -100,7 +100,7 @@ class Simulation:
     def handle_serial_frame(self, frame: bytes, sink: ReplySink | None = None) -> list[Routed]:
         """Route one 9-byte frame like an RS-485 bus: every module with that address acts."""
         address = frame[0]
-        targets = [m for m in self.modules if m.accepts_serial(address)]
+        targets = [m for m in self.modules if m.accepts_serial(address)]  # usually one
         if not targets:
             return []
         self.sync()
@@ -125,5 +125,6 @@ class Simulation:
             reply = module.execute(request, interface, sink)
             if reply is not None:
                 routed.append((module, reply))
-        self._changed()
+        if request.opcode not in READ_ONLY_OPCODES:
+            self._changed()
         return routed

@@ -57,8 +57,11 @@ def _g(number: int, name: str, access: str, lo: int, hi: int, default: int = 0,
     return ParamSpec(number, name, access, lo, hi, default, None, unsigned)
 
 
-class GP(IntEnum):
-    """Bank 0 parameter numbers the firmware itself looks at."""
+class GP:
+    """Bank 0 parameter numbers the firmware itself looks at.
+
+    Plain ints, not an IntEnum: they index dictionaries on every request.
+    """
 
     BAUD_RATE = 65
     SERIAL_ADDRESS = 66

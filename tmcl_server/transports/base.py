@@ -6,10 +6,10 @@ import asyncio
 import logging
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Protocol
 
-from tmcl_server.protocol import FrameAssembler, Reply
+from tmcl_server.protocol import FRAME_LENGTH, FrameAssembler, Reply
 from tmcl_server.simulation import Simulation
 
 log = logging.getLogger(__name__)
@@ -55,9 +55,23 @@ class StreamSession:
         self.closed = False
 
     def feed(self, data: bytes) -> None:
-        for frame in self._assembler.feed(data, time.monotonic_ns()):
+        assembler = self._assembler
+        now = time.monotonic_ns()
+        if len(data) == FRAME_LENGTH and assembler.idle:  # one whole frame: the usual case
+            assembler.touch(now)
+            frames: Iterable[bytes] = (data,)
+        else:
+            frames = assembler.feed(data, now)
+        for frame in frames:
             for module, reply in self.simulation.handle_serial_frame(frame, self):
-                self._send(reply.encode(), module.reply_delay_s)
+                delay = module.reply_delay_s
+                if delay or self.closed:
+                    self._send(reply.encode(), delay)
+                else:  # the common case, kept short: it runs for every request
+                    try:
+                        self._write(reply.encode())
+                    except OSError:
+                        self.closed = True
 
     def _send(self, data: bytes, delay_s: float = 0.0) -> None:
         if self.closed:

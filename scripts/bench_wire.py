@@ -1,0 +1,170 @@
+#!/usr/bin/env python3
+"""Lockstep request/reply rate and latency of the simulator's wire, next to a bare echo server.
+
+Runs, in one go and on the same machine:
+* a bare asyncio server that only echoes 9-byte frames (the ceiling of Python on loopback),
+* ``tmcl-server`` (TCP and a pty), each in its own process,
+and measures, for 1 and 16 lockstep TCP clients and for one pty client, requests per second
+and p50/p99 round-trip latency.  Every figure is the median of ``--repeat`` runs.
+
+    .venv/bin/python scripts/bench_wire.py [--seconds 2] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import serial
+
+REQUEST = bytes([1, 6, 4, 0, 0, 0, 0, 0, 11])  # GAP 4, 0
+
+ECHO_SERVER = r"""
+import asyncio, sys
+class Echo(asyncio.Protocol):
+    def connection_made(self, t):
+        self.t = t
+        import socket
+        t.get_extra_info("socket").setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.buf = b""
+    def data_received(self, data):
+        self.buf += data
+        while len(self.buf) >= 9:
+            self.t.write(self.buf[:9]); self.buf = self.buf[9:]
+async def main():
+    server = await asyncio.get_running_loop().create_server(Echo, "127.0.0.1", 0)
+    print(server.sockets[0].getsockname()[1], flush=True)
+    await server.serve_forever()
+asyncio.run(main())
+"""
+
+
+def lockstep_tcp(endpoint: str, seconds: float, latencies: list[int], counts: list[int]) -> None:
+    host, port = endpoint.rsplit(":", 1)
+    sock = socket.create_connection((host, int(port)))
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    local: list[int] = []
+    deadline = time.perf_counter() + seconds
+    while time.perf_counter() < deadline:
+        t0 = time.perf_counter_ns()
+        sock.sendall(REQUEST)
+        got = 0
+        while got < 9:
+            got += len(sock.recv(9 - got))
+        local.append(time.perf_counter_ns() - t0)
+    sock.close()
+    latencies.extend(local)
+    counts.append(len(local))
+
+
+def lockstep_pty(path: str, seconds: float, latencies: list[int], counts: list[int]) -> None:
+    port = serial.Serial(path, 115200, timeout=2)
+    local: list[int] = []
+    deadline = time.perf_counter() + seconds
+    while time.perf_counter() < deadline:
+        t0 = time.perf_counter_ns()
+        port.write(REQUEST)
+        if len(port.read(9)) != 9:
+            raise RuntimeError("pty reply timed out")
+        local.append(time.perf_counter_ns() - t0)
+    port.close()
+    latencies.extend(local)
+    counts.append(len(local))
+
+
+def measure(target, endpoint: str, clients: int, seconds: float) -> dict[str, float]:
+    latencies: list[int] = []
+    counts: list[int] = []
+    threads = [threading.Thread(target=target, args=(endpoint, seconds, latencies, counts))
+               for _ in range(clients)]
+    start = time.perf_counter()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    elapsed = time.perf_counter() - start
+    latencies.sort()
+    return {
+        "rate": sum(counts) / elapsed,
+        "p50_us": latencies[len(latencies) // 2] / 1000,
+        "p99_us": latencies[int(len(latencies) * 0.99)] / 1000,
+    }
+
+
+def median_of(runs: list[dict[str, float]]) -> dict[str, float]:
+    return {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+
+
+def start_echo() -> tuple[subprocess.Popen, str]:
+    proc = subprocess.Popen([sys.executable, "-c", ECHO_SERVER], stdout=subprocess.PIPE, text=True)
+    port = proc.stdout.readline().strip()
+    return proc, f"127.0.0.1:{port}"
+
+
+def start_simulator(tmp: Path) -> tuple[subprocess.Popen, dict[str, list[str]]]:
+    ready = tmp / "ready.json"
+    proc = subprocess.Popen([sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0",
+                             "--pty", str(tmp / "ttyBENCH"), "--ready-file", str(ready)],
+                            stdout=subprocess.DEVNULL)
+    deadline = time.monotonic() + 20
+    while not ready.exists():
+        if time.monotonic() > deadline:
+            raise RuntimeError("simulator did not start")
+        time.sleep(0.01)
+    return proc, json.loads(ready.read_text())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=2.0, help="length of one run")
+    parser.add_argument("--repeat", type=int, default=3, help="runs per figure (median)")
+    args = parser.parse_args()
+
+    with tempfile.TemporaryDirectory() as tmpdir:
+        echo, echo_endpoint = start_echo()
+        sim, endpoints = start_simulator(Path(tmpdir))
+        try:
+            cases = (
+                ("echo  tcp  1 client ", lockstep_tcp, echo_endpoint, 1),
+                ("sim   tcp  1 client ", lockstep_tcp, endpoints["tcp"][0], 1),
+                ("echo  tcp 16 clients", lockstep_tcp, echo_endpoint, 16),
+                ("sim   tcp 16 clients", lockstep_tcp, endpoints["tcp"][0], 16),
+                ("sim   pty  1 client ", lockstep_pty, endpoints["pty"][0], 1),
+            )
+            # Interleave the cases (echo, sim, echo, sim, ...) so that drifting background
+            # load hits both sides of every ratio alike.
+            runs: dict[str, list[dict[str, float]]] = {label: [] for label, *_ in cases}
+            for _ in range(args.repeat):
+                for label, target, endpoint, clients in cases:
+                    runs[label].append(measure(target, endpoint, clients, args.seconds))
+            rows = [(label, median_of(r)) for label, r in runs.items()]
+            ratios = [statistics.median(s["rate"] / e["rate"] for s, e in
+                                        zip(runs[sim_label], runs[echo_label], strict=True))
+                      for sim_label, echo_label in (("sim   tcp  1 client ", "echo  tcp  1 client "),
+                                                    ("sim   tcp 16 clients", "echo  tcp 16 clients"))]
+        finally:
+            for proc in (echo, sim):
+                proc.terminate()
+                proc.wait(10)
+
+    print(f"machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}; "
+          f"median of {args.repeat} runs of {args.seconds:g} s")
+    print(f"{'':22} {'req/s':>9} {'p50 us':>8} {'p99 us':>8}")
+    for label, r in rows:
+        print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f}")
+    one, many = ratios
+    print(f"ratio sim/echo (median of paired runs): 1 client {one:.0%}, 16 clients {many:.0%} "
+          "(goal: 1 client >= 80%)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,115 @@
+"""Shared fixtures: modules in-process, and a raw TMCL client over a real socket."""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Iterator
+
+import pytest
+
+from tmcl_server.clock import VirtualClock
+from tmcl_server.eeprom import Eeprom
+from tmcl_server.module import TMCM6212
+from tmcl_server.protocol import Reply, Request, decode_reply
+from tmcl_server.simulation import Simulation
+
+
+class Collector:
+    """A reply sink that records unsolicited replies (command 138 events)."""
+
+    def __init__(self) -> None:
+        self.replies: list[Reply] = []
+
+    def send_unsolicited(self, reply: Reply) -> None:
+        self.replies.append(reply)
+
+
+class Bench:
+    """One module on a virtual clock, driven through the router exactly like a transport."""
+
+    def __init__(self, module: TMCM6212) -> None:
+        self.module = module
+        self.simulation = Simulation([module], VirtualClock())
+        self.sink = Collector()
+
+    def send(self, opcode: int, type_: int = 0, motor: int = 0, value: int = 0,
+             address: int | None = None) -> Reply | None:
+        frame = Request(self.module.address if address is None else address,
+                        opcode, type_, motor, value).encode()
+        routed = self.simulation.handle_serial_frame(frame, self.sink)
+        if not routed:
+            return None
+        (_, reply), = routed
+        return reply  # type: ignore[return-value]
+
+    def ok(self, opcode: int, type_: int = 0, motor: int = 0, value: int = 0) -> int:
+        reply = self.send(opcode, type_, motor, value)
+        assert reply is not None and reply.status == 100, reply
+        return reply.value
+
+    def status(self, opcode: int, type_: int = 0, motor: int = 0, value: int = 0) -> int:
+        reply = self.send(opcode, type_, motor, value)
+        assert reply is not None
+        return reply.status
+
+    def advance(self, seconds: float) -> None:
+        self.simulation.advance(seconds)
+
+
+@pytest.fixture
+def bench(tmp_path) -> Bench:
+    return Bench(TMCM6212(1, Eeprom(tmp_path / "module-1")))
+
+
+class RawClient:
+    """A socket speaking raw 9-byte frames, with explicit timeouts (no sleeping)."""
+
+    def __init__(self, endpoint: str, timeout: float = 2.0) -> None:
+        host, port = endpoint.rsplit(":", 1)
+        self.sock = socket.create_connection((host, int(port)), timeout=timeout)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def send_raw(self, data: bytes) -> None:
+        self.sock.sendall(data)
+
+    def recv_exact(self, n: int) -> bytes:
+        data = b""
+        while len(data) < n:
+            chunk = self.sock.recv(n - len(data))
+            if not chunk:
+                raise ConnectionError("server closed the connection")
+            data += chunk
+        return data
+
+    def request(self, address: int, opcode: int, type_: int = 0, motor: int = 0,
+                value: int = 0) -> Reply:
+        self.send_raw(Request(address, opcode, type_, motor, value).encode())
+        return decode_reply(self.recv_exact(9))
+
+    def expect_silence(self, seconds: float = 0.2) -> None:
+        """Assert that nothing arrives within ``seconds`` (a bound, not a sleep-and-hope)."""
+        self.sock.settimeout(seconds)
+        try:
+            data = self.sock.recv(64)
+        except TimeoutError:
+            return
+        finally:
+            self.sock.settimeout(2.0)
+        raise AssertionError(f"expected silence, got {data.hex(' ')}")
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def raw_client_factory() -> Iterator:
+    clients: list[RawClient] = []
+
+    def make(endpoint: str) -> RawClient:
+        client = RawClient(endpoint)
+        clients.append(client)
+        return client
+
+    yield make
+    for client in clients:
+        client.close()

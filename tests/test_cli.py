@@ -1,0 +1,134 @@
+"""``tmcl-server`` as a real process: endpoints, ready file, signals, crash safety."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from interpreter.isa import Opcode
+from tmcl_server.cli import build_parser, config_from_args
+
+from .conftest import RawClient
+
+
+class ServerProcess:
+    def __init__(self, tmp_path: Path, *args: str) -> None:
+        self.ready_file = tmp_path / f"ready-{time.monotonic_ns()}.json"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "tmcl_server", "--ready-file", str(self.ready_file), *args],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 20
+        while not self.ready_file.exists():  # readiness, not a result: poll with a deadline
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                out, err = self.proc.communicate(timeout=5)
+                raise AssertionError(f"server did not start: {out}\n{err}")
+            time.sleep(0.01)
+        self.endpoints = json.loads(self.ready_file.read_text())
+
+    def stop(self, sig: int = signal.SIGTERM) -> tuple[int, str, str]:
+        self.proc.send_signal(sig)
+        out, err = self.proc.communicate(timeout=20)
+        return self.proc.returncode, out, err
+
+
+def test_endpoints_ready_file_and_clean_shutdown(tmp_path):
+    link = tmp_path / "ttyTMCL0"
+    server = ServerProcess(tmp_path, "--tcp", "127.0.0.1:0", "--pty", str(link), "--modules", "2")
+    try:
+        assert set(server.endpoints) == {"tcp", "pty"}
+        assert server.endpoints["pty"] == [str(link)]
+        assert link.is_symlink() and os.readlink(link).startswith("/dev/pts/")
+        client = RawClient(server.endpoints["tcp"][0])
+        assert client.request(2, Opcode.GGP, 66, 0).value == 2
+        client.close()
+    finally:
+        code, out, err = server.stop(signal.SIGTERM)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert f"tcp {server.endpoints['tcp'][0]}" in lines
+    assert f"pty {link}" in lines
+    assert not link.exists(), "the pty link must be removed on shutdown"
+    assert not server.ready_file.exists()
+
+
+def test_sigint_also_stops_cleanly(tmp_path):
+    server = ServerProcess(tmp_path, "--tcp", "127.0.0.1:0")
+    code, out, _ = server.stop(signal.SIGINT)
+    assert code == 0 and "stopped" in out
+
+
+def test_state_survives_a_kill(tmp_path):
+    state = tmp_path / "state"
+    server = ServerProcess(tmp_path, "--tcp", "127.0.0.1:0", "--state-dir", str(state))
+    client = RawClient(server.endpoints["tcp"][0])
+    client.request(1, Opcode.SGP, 20, 2, 2020)
+    client.request(1, Opcode.STGP, 20, 2)
+    client.request(1, Opcode.SGP, 76, 0, 3)  # bank 0: stored when set
+    client.close()
+    server.stop(signal.SIGKILL)  # no chance to flush anything
+    assert (state / "module-1" / "eeprom.json").exists()
+    again = ServerProcess(tmp_path, "--tcp", "127.0.0.1:0", "--state-dir", str(state))
+    try:
+        client = RawClient(again.endpoints["tcp"][0])
+        assert client.request(1, Opcode.GGP, 20, 2).value == 2020
+        assert client.request(1, Opcode.GGP, 1, 2).host == 3
+        client.close()
+    finally:
+        again.stop()
+
+
+def test_corrupt_state_is_reported_at_start(tmp_path):
+    state = tmp_path / "state" / "module-1"
+    state.mkdir(parents=True)
+    (state / "eeprom.json").write_text("garbage")
+    server = ServerProcess(tmp_path, "--tcp", "127.0.0.1:0", "--state-dir", str(state.parent))
+    code, _, err = server.stop()
+    assert code == 0
+    assert "eeprom.json is unreadable" in err and "factory defaults" in err
+    assert (state / "eeprom.json").read_text() == "garbage"
+
+
+def test_occupied_port_is_a_clear_error(tmp_path):
+    server = ServerProcess(tmp_path, "--tcp", "127.0.0.1:0")
+    try:
+        taken = server.endpoints["tcp"][0]
+        result = subprocess.run([sys.executable, "-m", "tmcl_server", "--tcp", taken],
+                                capture_output=True, text=True, timeout=20)
+        assert result.returncode == 1
+        assert "address already in use" in result.stderr.lower()
+    finally:
+        server.stop()
+
+
+@pytest.mark.parametrize(("argv", "addresses", "endpoints"), [
+    ([], [1], {"tcp": ["127.0.0.1:2323"]}),
+    (["--modules", "3"], [1, 2, 3], {"tcp": ["127.0.0.1:2323"]}),
+    (["--address", "7", "--pty", "/tmp/x"], [7], {"tcp": ["127.0.0.1:2323"], "pty": ["/tmp/x"]}),
+    (["--tcp", ":0", "--tcp", "0.0.0.0:5000"], [1], {"tcp": [":0", "0.0.0.0:5000"]}),
+    (["--no-tcp", "--serial", "/dev/ttyUSB0:115200"], [1], {"serial": ["/dev/ttyUSB0:115200"]}),
+])
+def test_argument_parsing(argv, addresses, endpoints):
+    config = config_from_args(build_parser().parse_args(argv))
+    assert config.addresses == addresses
+    assert config.endpoints == endpoints
+
+
+def test_no_transport_is_refused():
+    with pytest.raises(SystemExit):
+        config_from_args(build_parser().parse_args(["--no-tcp"]))
+
+
+def test_example_script_runs_self_contained():
+    result = subprocess.run([sys.executable, "scripts/example_pytrinamic.py", "--self-contained"],
+                            capture_output=True, text=True, timeout=60,
+                            cwd=Path(__file__).resolve().parent.parent)
+    assert result.returncode == 0, result.stderr
+    assert "firmware: 6212V105" in result.stdout
+    assert "reached 102400" in result.stdout
