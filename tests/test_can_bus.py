@@ -157,9 +157,9 @@ def test_modules_do_not_take_each_others_replies_for_requests() -> None:
     host = Host(bus_of(sim))
     replies = host.command(1, Opcode.ROR, 0, 0, 1000)  # the reply starts with 01 64 01 ...
     assert [r.data[0] for r in replies] == [1]
-    assert sim.module(2).axes[0].get_parameter(AP_ACTUAL_SPEED) == 0
+    assert sim.module(2).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
     sim.advance(0.5)
-    assert sim.module(2).axes[0].get_parameter(AP_ACTUAL_SPEED) == 0
+    assert sim.module(2).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
 
 
 @pytest.mark.parametrize("length", [7, 8])
@@ -175,7 +175,7 @@ def test_target_reached_event_goes_out_on_the_bus(sim: Simulation, host: Host, l
     decoded = decode_can_reply(event.data)
     assert (decoded.module, decoded.status, decoded.opcode, decoded.value) == (
         3, Status.TARGET_REACHED_EVENT, Opcode.TARGET_REACHED_EVENT, 0b10)
-    assert sim.module(3).axes[1].get_parameter(AP_ACTUAL_POSITION) == 2000
+    assert sim.module(3).axis(1).get_parameter(AP_ACTUAL_POSITION) == 2000
 
 
 def test_can_heartbeat_stops_a_moving_axis(sim: Simulation, host: Host) -> None:
@@ -186,10 +186,10 @@ def test_can_heartbeat_stops_a_moving_axis(sim: Simulation, host: Host) -> None:
     (speed,) = host.command(1, Opcode.GAP, AP_ACTUAL_SPEED, 0)  # a command: the timer restarts
     assert decode_can_reply(speed.data).value > 0
     sim.advance(0.09)
-    assert sim.module(1).axes[0].get_parameter(AP_ACTUAL_SPEED) > 0
+    assert sim.module(1).axis(0).get_parameter(AP_ACTUAL_SPEED) > 0
     sim.advance(0.5)
-    assert sim.module(1).axes[0].get_parameter(AP_ACTUAL_SPEED) == 0
-    assert sim.module(3).axes[0].get_parameter(AP_ACTUAL_SPEED) > 0
+    assert sim.module(1).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
+    assert sim.module(3).axis(0).get_parameter(AP_ACTUAL_SPEED) > 0
 
 
 def test_serial_traffic_does_not_feed_the_can_heartbeat(sim: Simulation, host: Host) -> None:
@@ -198,4 +198,4 @@ def test_serial_traffic_does_not_feed_the_can_heartbeat(sim: Simulation, host: H
     for _ in range(10):
         sim.advance(0.03)
         sim.handle_serial_frame(Request(1, Opcode.GAP, AP_ACTUAL_SPEED, 0, 0).encode())
-    assert sim.module(1).axes[0].get_parameter(AP_ACTUAL_SPEED) == 0
+    assert sim.module(1).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
