@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import socket
 import time
 from collections import Counter
 from enum import Enum
@@ -23,7 +22,7 @@ import can
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import Transport
 from tmcl_server.transports.canbus import SimulatedCanBus, bus_of
-from tmcl_server.transports.tcp import listening_endpoints, parse_host_port
+from tmcl_server.transports.tcp import disable_nagle, listening_endpoints, parse_host_port
 
 log = logging.getLogger(__name__)
 
@@ -101,9 +100,7 @@ class SocketcandClient(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
-        sock = transport.get_extra_info("socket")
-        if sock is not None and sock.family in (socket.AF_INET, socket.AF_INET6):
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        disable_nagle(transport)
         self.server.clients.add(self)
         self.stats["connections"] += 1
         transport.write(HI)

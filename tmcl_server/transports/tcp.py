@@ -42,6 +42,13 @@ def listening_endpoints(server: asyncio.Server) -> list[str]:
     return endpoints
 
 
+def disable_nagle(transport: asyncio.BaseTransport) -> None:
+    """Send small replies at once: a request/reply protocol must not wait for more data."""
+    sock = transport.get_extra_info("socket")
+    if sock is not None and sock.family in (socket.AF_INET, socket.AF_INET6):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+
 class _TcpProtocol(asyncio.Protocol):
     def __init__(self, simulation: Simulation, connections: set[_TcpProtocol]) -> None:
         self._simulation = simulation
@@ -52,9 +59,7 @@ class _TcpProtocol(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
-        sock = transport.get_extra_info("socket")
-        if sock is not None and sock.family in (socket.AF_INET, socket.AF_INET6):
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        disable_nagle(transport)
         self._session = StreamSession(self._simulation, transport.write,
                                       asyncio.get_running_loop())
         self._connections.add(self)
