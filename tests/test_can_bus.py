@@ -7,6 +7,9 @@ the wire with python-can and pytrinamic.
 
 from __future__ import annotations
 
+import gc
+import weakref
+
 import can
 import pytest
 from hypothesis import given
@@ -17,6 +20,7 @@ from tmcl_server.protocol import Request, decode_can_reply
 from tmcl_server.server import ServerConfig, build_simulation
 from tmcl_server.simulation import Simulation
 from tmcl_server.tables import FIRMWARE_VERSION_STRING, GP, Status
+from tmcl_server.transports import canbus
 from tmcl_server.transports.canbus import SimulatedCanBus, bus_of, module_node_of
 
 AP_TARGET_POSITION = 0
@@ -199,3 +203,14 @@ def test_serial_traffic_does_not_feed_the_can_heartbeat(sim: Simulation, host: H
         sim.advance(0.03)
         sim.handle_serial_frame(Request(1, Opcode.GAP, AP_ACTUAL_SPEED, 0, 0).encode())
     assert sim.module(1).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
+
+
+def test_a_simulation_and_its_bus_are_freed_together() -> None:
+    sim = make_simulation(1)
+    Host(bus_of(sim)).command(1, Opcode.GGP, GP.CAN_ID, 0)
+    gone = weakref.ref(sim)
+    assert sim in canbus._BUSES and sim in canbus._NODES
+    del sim
+    gc.collect()
+    assert gone() is None  # so its entries (weak keys) left the registry with it
+    assert len(canbus._BUSES) == len(canbus._NODES)

@@ -122,7 +122,8 @@ class ModuleNode:
 
     def __init__(self, bus: SimulatedCanBus, simulation: Simulation) -> None:
         self.bus = bus
-        self.simulation = simulation
+        # Weak: the registry below maps the simulation to this node, and must not keep it alive.
+        self.simulation: Simulation = weakref.proxy(simulation)
         self.stats: Counter[str] = Counter()
         self._sinks = {length: _EventSink(self, length) for length in REQUEST_LENGTHS}
 
