@@ -31,6 +31,24 @@ class AxisEvent:
     active: bool | None = None
 
 
+@dataclass(frozen=True, slots=True)
+class AxisStatus:
+    """A non-destructive look at an axis (telemetry): reading it clears no flags."""
+
+    position: int
+    target: int
+    velocity: int
+    #: "position" (MVP, ramp to a target) or "velocity" (ROR/ROL/MST), or a finer name the
+    #: motion engine uses (for example the TMC4210 ramp mode).
+    mode: str
+    position_reached: bool
+    home_switch: bool = False
+    left_switch: bool = False
+    right_switch: bool = False
+    load: int = 0
+    error_flags: int = 0
+
+
 class Axis(Protocol):
     """One axis as the TMCL firmware sees it: commands in, axis parameters in and out."""
 
@@ -70,4 +88,8 @@ class Axis(Protocol):
 
     def reference_search(self, action: int) -> int:
         """RFS START (0) / STOP (1) / STATUS (2); STATUS returns 0 when no search runs."""
+        ...
+
+    def status(self) -> AxisStatus:
+        """Everything telemetry shows about the axis, without side effects."""
         ...

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from axes.interface import AxisEvent, AxisEventKind
+from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.parameters import AXIS_PARAMETERS
 
 NS = 1_000_000_000
@@ -168,6 +168,12 @@ class KinematicAxis:
 
     def reference_search(self, action: int) -> int:
         return 0
+
+    def status(self) -> AxisStatus:
+        x, v = self._state(self._now_ns)
+        return AxisStatus(position=round(x), target=self._target, velocity=round(v),
+                          mode="position" if self._positioning else "velocity",
+                          position_reached=bool(self.get_parameter(AP_POSITION_REACHED)))
 
     # -- parameters ---------------------------------------------------------------------------
 

@@ -46,6 +46,12 @@ def build_parser() -> argparse.ArgumentParser:
                      const=f"127.0.0.1:{DEFAULT_SOCKETCAND_PORT}", default=[],
                      help="a socketcand server (raw mode) on the simulated CAN bus; default "
                           f"127.0.0.1:{DEFAULT_SOCKETCAND_PORT}")
+    parser.add_argument("--mqtt", action="append", metavar="URL", default=[],
+                        help="bridge to an MQTT broker, e.g. mqtt://127.0.0.1:1883/tmcl "
+                             "(mqtts:// for TLS; credentials in the URL or in "
+                             "TMCL_MQTT_USERNAME/TMCL_MQTT_PASSWORD)")
+    parser.add_argument("--mqtt-rate", type=float, default=10.0, metavar="HZ",
+                        help="at most this many state messages per module and second (default 10)")
     parser.add_argument("--state-dir", metavar="DIR",
                         help="keep each module's EEPROM in DIR/module-<address>/ "
                              "(default: nothing persists)")
@@ -80,12 +86,17 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                          ("slcan", args.slcan_pty), ("socketcand", args.socketcand)):
         if values:
             endpoints[kind] = values
+    if args.mqtt:
+        endpoints["mqtt"] = args.mqtt
     if not endpoints:
         raise SystemExit("tmcl-server: no transport left to serve on")
     if args.speed <= 0:
         raise SystemExit("tmcl-server: --speed must be positive")
+    if args.mqtt_rate <= 0:
+        raise SystemExit("tmcl-server: --mqtt-rate must be positive")
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
-                        clock="real", speed=args.speed, ready_file=args.ready_file)
+                        clock="real", speed=args.speed, ready_file=args.ready_file,
+                        mqtt_rate=args.mqtt_rate)
 
 
 async def run(config: ServerConfig) -> None:

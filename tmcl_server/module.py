@@ -255,6 +255,32 @@ class TMCM6212:
         if t_ns > self.now_ns:
             self.now_ns = t_ns
 
+    def invalidate_schedule(self) -> None:
+        """Forget the cached next-event time (the world changed from outside)."""
+        self._due_stale = True
+
+    def snapshot(self) -> dict[str, Any]:
+        """A JSON-ready picture of the module for telemetry (docs/mqtt.md names the fields)."""
+        axes = []
+        for index in range(NUMBER_OF_AXES):
+            s = self.axis(index).status()
+            axes.append({
+                "position": s.position, "target": s.target, "velocity": s.velocity,
+                "mode": s.mode, "reached": s.position_reached, "home": s.home_switch,
+                "left": s.left_switch, "right": s.right_switch, "load": s.load,
+                "errors": s.error_flags,
+            })
+        return {
+            "t": self.now_ns / 1e9,
+            "address": self.address,
+            "axes": axes,
+            "outputs": list(self.outputs),
+            "inputs": [self.digital_input(p) for p in range(NUMBER_OF_INPUTS)],
+            "analog": list(self.analog_inputs),
+            "program": {"state": self.read_global(GP.APPLICATION_STATUS, 0),
+                        "pc": self.read_global(GP.PROGRAM_COUNTER, 0)},
+        }
+
     def axis(self, index: int) -> Axis:
         """Axis ``index``, brought up to the module's current time (use this, not ``axes``)."""
         axis = self.axes[index]

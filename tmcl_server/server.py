@@ -8,6 +8,7 @@ tests through :class:`tmcl_server.embed.SimulatorThread`, or from the shell with
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import logging
 import os
@@ -23,6 +24,7 @@ from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import Transport
 from tmcl_server.transports.can_bridge import PythonCanTransport
 from tmcl_server.transports.canbus import CanBusTransport
+from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ, MqttBridge
 from tmcl_server.transports.pty import PtyTransport
 from tmcl_server.transports.serial_port import SerialPortTransport
 from tmcl_server.transports.slcan import SlcanPtyTransport
@@ -43,6 +45,7 @@ TRANSPORT_FACTORIES: dict[str, TransportFactory] = {
     "can": PythonCanTransport,
     "slcan": SlcanPtyTransport,
     "socketcand": SocketcandTransport,
+    "mqtt": MqttBridge,
 }
 
 
@@ -58,6 +61,8 @@ class ServerConfig:
     clock: str = "real"
     speed: float = 1.0
     ready_file: str | None = None
+    #: Highest rate of MQTT state messages per module (Hz).
+    mqtt_rate: float = DEFAULT_RATE_HZ
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -113,6 +118,8 @@ class Server:
         try:
             for kind, arguments in self.config.endpoints.items():
                 factory = TRANSPORT_FACTORIES[kind]
+                if factory is MqttBridge:
+                    factory = functools.partial(MqttBridge, rate_hz=self.config.mqtt_rate)
                 for argument in arguments:
                     transport = factory(self.simulation, argument)
                     self.transports.append(transport)

@@ -118,6 +118,18 @@ class Simulation:
         self.sync()
         return self._execute(targets, request, Interface.CAN, sink)
 
+    def execute_on(self, targets: list[TMCM6212], request: Request, interface: Interface,
+                   sink: ReplySink | None = None) -> list[Routed]:
+        """Run a request on given modules, whatever its address (topic-addressed hosts)."""
+        self.sync()
+        return self._execute(targets, request, interface, sink)
+
+    def notify_changed(self) -> None:
+        """Something outside a command changed the world: internal events may have moved."""
+        for module in self.modules:
+            module.invalidate_schedule()
+        self._changed()
+
     def _execute(self, targets: list[TMCM6212], request: Request, interface: Interface,
                  sink: ReplySink | None) -> list[Routed]:
         routed: list[Routed] = []

@@ -1,0 +1,333 @@
+"""The MQTT bridge against a real mosquitto broker, with a separate aiomqtt client."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Callable
+
+import aiomqtt
+import pytest
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+
+from interpreter.isa import Opcode
+from tmcl_server.embed import SimulatorThread
+from tmcl_server.protocol import Request, decode_reply
+from tmcl_server.server import ServerConfig
+from tmcl_server.transports.mqtt import MqttSettings
+
+from .conftest import RawClient
+from .mqtt_broker import MOSQUITTO, Broker
+
+pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed "
+                                "(./scripts/test.sh installs it with apt-get)")
+
+
+@pytest.fixture
+def broker(tmp_path):
+    b = Broker(tmp_path)
+    yield b
+    b.stop()
+
+
+def start_sim(broker: Broker, **config) -> SimulatorThread:
+    cfg = ServerConfig(clock="virtual", mqtt_rate=50,
+                       endpoints={"tcp": ["127.0.0.1:0"], "mqtt": [f"{broker.url}/rig/tmcl"]},
+                       **config)
+    return SimulatorThread(cfg).start()
+
+
+class Probe:
+    """A test-side MQTT client that records every message it gets, in order."""
+
+    def __init__(self, client: aiomqtt.Client) -> None:
+        self.client = client
+        self.messages: list[aiomqtt.Message] = []
+        self._arrived = asyncio.Event()
+        self._task = asyncio.create_task(self._collect())
+
+    async def _collect(self) -> None:
+        try:
+            async for message in self.client.messages:
+                self.messages.append(message)
+                self._arrived.set()
+        except aiomqtt.MqttError:
+            pass  # the test closed its client
+
+    def mark(self) -> int:
+        """Position after the messages seen so far (for ``wait(..., since=...)``)."""
+        return len(self.messages)
+
+    async def wait(self, predicate: Callable[[aiomqtt.Message], bool],
+                   timeout: float = 5.0, since: int = 0) -> aiomqtt.Message:
+        deadline = time.monotonic() + timeout
+        while True:
+            for message in self.messages[since:]:
+                if predicate(message):
+                    return message
+            self._arrived.clear()
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"no matching message; got {[m.topic.value for m in self.messages]}")
+            try:
+                await asyncio.wait_for(self._arrived.wait(), remaining)
+            except TimeoutError:
+                pass
+
+    def on(self, topic: str) -> list[aiomqtt.Message]:
+        return [m for m in self.messages if m.topic.value == topic]
+
+
+def probe_client(broker: Broker, **kwargs) -> aiomqtt.Client:
+    return aiomqtt.Client("127.0.0.1", broker.port, protocol=aiomqtt.ProtocolVersion.V5,
+                          **kwargs)
+
+
+def json_of(message: aiomqtt.Message) -> dict:
+    return json.loads(message.payload)
+
+
+def test_settings_from_url():
+    s = MqttSettings.from_url("mqtts://bob:p%40ss@broker.lan/lab/rig1", env={})
+    assert (s.host, s.port, s.tls, s.prefix, s.username, s.password) == (
+        "broker.lan", 8883, True, "lab/rig1", "bob", "p@ss")
+    s = MqttSettings.from_url("mqtt://127.0.0.1", env={"TMCL_MQTT_USERNAME": "u",
+                                                       "TMCL_MQTT_PASSWORD": "pw"})
+    assert (s.port, s.prefix, s.username, s.password) == (1883, "tmcl", "u", "pw")
+    assert "pw" not in s.display
+    with pytest.raises(ValueError):
+        MqttSettings.from_url("http://x")
+    with pytest.raises(ValueError):
+        MqttSettings.from_url("mqtt://x/a/#")
+
+
+def test_state_follows_a_move_and_requests_in_json_and_binary(broker):
+    sim = start_sim(broker)
+
+    async def scenario():
+        async with probe_client(broker) as client:
+            probe = Probe(client)
+            await client.subscribe("rig/tmcl/#", qos=1)
+            assert (await probe.wait(lambda m: m.topic.value == "rig/tmcl/status")).payload == b"online"
+            first = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/state")
+            assert first.retain and json_of(first)["axes"][0]["position"] == 0
+            await client.publish("rig/tmcl/1/request", json.dumps(
+                {"cmd": "MVP", "type": "ABS", "motor": 0, "value": 51200}), qos=1)
+            reply = json_of(await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/reply"))
+            assert reply == {"status": 100, "status_name": "OK", "cmd": "MVP", "opcode": 4,
+                             "value": 51200}
+            await asyncio.to_thread(sim.advance, 0.5)
+            moving = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/state"
+                                      and 0 < json_of(m)["axes"][0]["position"] < 51200)
+            mark = probe.mark()
+            axis = json_of(moving)["axes"][0]
+            assert axis["target"] == 51200 and axis["velocity"] > 0 and not axis["reached"]
+            assert axis["mode"] == "position"
+            await asyncio.to_thread(sim.advance, 3)
+            done = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/state"
+                                    and json_of(m)["axes"][0]["reached"], since=mark)
+            assert json_of(done)["axes"][0]["position"] == 51200
+            # the same module, binary frames
+            await client.publish("rig/tmcl/1/request", Request(1, Opcode.GAP, 1, 0, 0).encode(),
+                                 qos=1)
+            binary = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/reply"
+                                      and len(m.payload) == 9)
+            assert decode_reply(binary.payload).value == 51200
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        sim.stop()
+
+
+def test_events_arrive_in_order_with_simulated_time(broker):
+    sim = start_sim(broker)
+
+    async def scenario():
+        async with probe_client(broker) as client:
+            probe = Probe(client)
+            await client.subscribe("rig/tmcl/1/event", qos=1)
+            await client.subscribe("rig/tmcl/status", qos=1)
+            await probe.wait(lambda m: m.topic.value == "rig/tmcl/status")
+            for motor, target in ((0, 60000), (1, 1000), (2, 20000)):
+                await client.publish("rig/tmcl/1/request", json.dumps(
+                    {"cmd": "MVP", "motor": motor, "value": target}), qos=1)
+            await client.publish("rig/tmcl/1/sim/input/2", b"1", qos=1)
+            is_event = lambda m: m.topic.value == "rig/tmcl/1/event"  # noqa: E731
+            await probe.wait(lambda m: is_event(m) and json_of(m)["kind"] == "input_changed")
+            await asyncio.to_thread(sim.advance, 5)
+            await probe.wait(lambda m: is_event(m) and json_of(m).get("axis") == 0)
+            events = [json_of(m) for m in probe.on("rig/tmcl/1/event")]
+            reached = [e for e in events if e["kind"] == "target_reached"]
+            assert [e["axis"] for e in reached] == [1, 2, 0]
+            times = [e["t"] for e in reached]
+            assert times == sorted(times) and 0 < times[0] < times[-1] <= 5
+            assert events[0] == {"t": 0.0, "kind": "input_changed", "port": 2, "level": 1}
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        sim.stop()
+
+
+def test_response_topic_and_correlation_data(broker):
+    sim = start_sim(broker)
+
+    async def scenario():
+        async with probe_client(broker) as client:
+            probe = Probe(client)
+            await client.subscribe("answers/me", qos=1)
+            properties = Properties(PacketTypes.PUBLISH)
+            properties.ResponseTopic = "answers/me"
+            properties.CorrelationData = b"req-17"
+            await client.publish("rig/tmcl/1/request", json.dumps({"cmd": 136, "type": 1}),
+                                 qos=1, properties=properties)
+            reply = await probe.wait(lambda m: True)
+            assert reply.properties.CorrelationData == b"req-17"
+            assert json_of(reply)["value"] == (6212 << 16) | (1 << 8) | 5
+            await client.publish("rig/tmcl/1/request", json.dumps(
+                {"cmd": "GET_FIRMWARE_VERSION"}), qos=1, properties=properties)
+            version = await probe.wait(lambda m: "text" in json_of(m))
+            assert json_of(version)["text"] == "6212V105"
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        sim.stop()
+
+
+@pytest.mark.parametrize(("payload", "message"), [
+    (b"{not json", "not valid JSON"),
+    (b'{"cmd": "FLY"}', "unknown mnemonic 'FLY'"),
+    (b'{"cmd": "MVP", "type": "SIDEWAYS"}', "unknown type 'SIDEWAYS'"),
+    (b'{"cmd": "SAP", "type": 4, "moter": 0}', "unknown field(s) moter"),
+    (b'{"cmd": "SAP", "value": 1e3}', "value must be an integer"),
+    (b'{"type": 4}', 'needs "cmd"'),
+    (b"[1, 2]", "must be a JSON object"),
+    (b"\x01\x02\x03", "not valid JSON"),
+])
+def test_bad_requests_get_clear_errors(broker, payload, message):
+    sim = start_sim(broker)
+
+    async def scenario():
+        async with probe_client(broker) as client:
+            probe = Probe(client)
+            await client.subscribe("rig/tmcl/1/reply", qos=1)
+            await client.publish("rig/tmcl/1/request", payload, qos=1)
+            reply = json_of(await probe.wait(lambda m: True))
+            assert message in reply["error"]
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        sim.stop()
+
+
+def test_bad_checksum_and_bad_values_get_tmcl_statuses(broker):
+    sim = start_sim(broker)
+
+    async def scenario():
+        async with probe_client(broker) as client:
+            probe = Probe(client)
+            await client.subscribe("rig/tmcl/1/reply", qos=1)
+            frame = bytearray(Request(1, Opcode.SAP, 4, 0, 5).encode())
+            frame[8] ^= 1
+            await client.publish("rig/tmcl/1/request", bytes(frame), qos=1)
+            assert decode_reply((await probe.wait(lambda m: True)).payload).status == 1
+            await client.publish("rig/tmcl/1/request", json.dumps(
+                {"cmd": "SAP", "type": 4, "motor": 9, "value": 5}), qos=1)
+            reply = await probe.wait(lambda m: m.payload[:1] == b"{")
+            assert json_of(reply)["status_name"] == "INVALID_VALUE"
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        sim.stop()
+
+
+def test_broker_restart_is_survived_and_nothing_is_lost(broker):
+    sim = start_sim(broker)
+    tcp = RawClient(sim.tcp)
+    session = f"probe-{uuid.uuid4().hex[:8]}"
+
+    async def subscribe_persistently():
+        async with probe_client(broker, identifier=session, clean_start=False,
+                                properties=_session_expiry()) as client:
+            await client.subscribe("rig/tmcl/#", qos=1)
+
+    async def after_restart():
+        async with probe_client(broker, identifier=session, clean_start=False,
+                                properties=_session_expiry()) as client:
+            probe = Probe(client)
+            event = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/event"
+                                     and json_of(m)["kind"] == "target_reached", timeout=15)
+            assert json_of(event)["axis"] == 3
+            await probe.wait(lambda m: m.topic.value == "rig/tmcl/status"
+                             and m.payload == b"online")
+            state = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/state"
+                                     and json_of(m)["axes"][3]["position"] == 4000)
+            assert json_of(state)["axes"][3]["reached"]
+            await client.publish("rig/tmcl/1/request", json.dumps({"cmd": "GAP", "type": 1,
+                                                                   "motor": 3}), qos=1)
+            reply = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/reply")
+            assert json_of(reply)["value"] == 4000
+
+    try:
+        asyncio.run(subscribe_persistently())
+        broker.stop()
+        # With the broker gone, the simulator keeps serving its other transports ...
+        assert tcp.request(1, Opcode.MVP, 0, 3, 4000).status == 100
+        sim.advance(2)  # ... and an event happens that MQTT owes the world
+        assert tcp.request(1, Opcode.GAP, 8, 3).value == 1
+        broker.start()
+        asyncio.run(after_restart())
+    finally:
+        tcp.close()
+        sim.stop()
+
+
+def _session_expiry() -> Properties:
+    properties = Properties(PacketTypes.CONNECT)
+    properties.SessionExpiryInterval = 300
+    return properties
+
+
+def test_last_will_says_offline_when_the_process_dies(broker, tmp_path):
+    ready = tmp_path / "ready.json"
+    proc = subprocess.Popen([sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0",
+                             "--mqtt", f"{broker.url}/dies", "--ready-file", str(ready)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    async def scenario():
+        async with probe_client(broker) as client:
+            probe = Probe(client)
+            await client.subscribe("dies/status", qos=1)
+            await probe.wait(lambda m: m.payload == b"online", timeout=20)
+            proc.send_signal(signal.SIGKILL)
+            await probe.wait(lambda m: m.payload == b"offline", timeout=10)
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        proc.kill()
+        proc.wait(10)
+
+
+def test_clean_shutdown_says_offline(broker):
+    sim = start_sim(broker)
+
+    async def scenario():
+        async with probe_client(broker) as client:
+            probe = Probe(client)
+            await client.subscribe("rig/tmcl/status", qos=1)
+            await probe.wait(lambda m: m.payload == b"online")
+            await asyncio.to_thread(sim.stop)
+            await probe.wait(lambda m: m.payload == b"offline")
+
+    asyncio.run(scenario())

@@ -1,0 +1,320 @@
+"""MQTT bridge: live state, events and remote TMCL requests through a real broker (aiomqtt).
+
+Topics, with PREFIX taken from the URL path (``mqtt://host:1883/tmcl`` -> ``tmcl``) and A the
+address a module was started with (its slot):
+
+* ``PREFIX/status``            ``online`` / ``offline`` (retained, last will)
+* ``PREFIX/A/state``           retained JSON snapshot, on change, at most ``rate`` per second
+* ``PREFIX/A/event``           one JSON message per module event, in order
+* ``PREFIX/A/request``         a 9-byte TMCL frame or JSON -> reply on ``PREFIX/A/reply``
+                               (or the MQTT 5 response topic, correlation data copied)
+* ``PREFIX/A/sim/...``         set the simulated world (inputs, switches, load, slip)
+
+Field names and payloads are documented in docs/mqtt.md.  The bridge keeps every reply and
+event it owes in an outbox until the broker has taken it, so a broker restart loses nothing
+the simulator accepted; it reconnects with back-off and republishes the retained state.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import os
+import ssl
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+from urllib.parse import unquote, urlsplit
+
+import aiomqtt
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
+
+from tmcl_server.clock import NS_PER_S
+from tmcl_server.module import TMCM6212, Interface, ModuleEvent
+from tmcl_server.protocol import FRAME_LENGTH, ChecksumError, Reply, decode_request
+from tmcl_server.remote import RequestError, reply_to_json, request_from_json
+from tmcl_server.simulation import Simulation
+from tmcl_server.transports.base import Transport
+from tmcl_server.world_topics import WorldTopicError, apply_sim_message
+
+log = logging.getLogger(__name__)
+
+DEFAULT_PREFIX = "tmcl"
+DEFAULT_RATE_HZ = 10.0
+ENV_USERNAME = "TMCL_MQTT_USERNAME"
+ENV_PASSWORD = "TMCL_MQTT_PASSWORD"
+BACKOFF_START_S = 0.2
+BACKOFF_MAX_S = 5.0
+
+
+@dataclass(frozen=True)
+class MqttSettings:
+    host: str
+    port: int
+    prefix: str = DEFAULT_PREFIX
+    tls: bool = False
+    username: str | None = None
+    password: str | None = None
+
+    @classmethod
+    def from_url(cls, url: str, env: dict[str, str] | None = None) -> MqttSettings:
+        env = dict(os.environ) if env is None else env
+        parts = urlsplit(url if "://" in url else f"mqtt://{url}")
+        if parts.scheme not in ("mqtt", "mqtts"):
+            raise ValueError(f"MQTT URL must start with mqtt:// or mqtts://, got {url!r}")
+        tls = parts.scheme == "mqtts"
+        prefix = parts.path.strip("/") or DEFAULT_PREFIX
+        if parts.fragment or url.endswith("#") or "+" in prefix:
+            raise ValueError(f"MQTT topic prefix may not contain wildcards: {prefix!r}")
+        return cls(
+            host=parts.hostname or "127.0.0.1",
+            port=parts.port or (8883 if tls else 1883),
+            prefix=prefix,
+            tls=tls,
+            username=unquote(parts.username) if parts.username else env.get(ENV_USERNAME),
+            password=unquote(parts.password) if parts.password else env.get(ENV_PASSWORD),
+        )
+
+    @property
+    def display(self) -> str:
+        """The URL without credentials (for logs and the ready file)."""
+        scheme = "mqtts" if self.tls else "mqtt"
+        return f"{scheme}://{self.host}:{self.port}/{self.prefix}"
+
+
+@dataclass
+class _Outgoing:
+    topic: str
+    payload: bytes
+    qos: int = 1
+    retain: bool = False
+    correlation: bytes | None = None
+
+
+@dataclass
+class _ModuleFeed:
+    """Per-module publishing state."""
+
+    module: TMCM6212
+    base: str
+    last_state: bytes | None = None
+    listener: Callable[[ModuleEvent], None] | None = field(default=None, repr=False)
+
+
+class _ReplyRoute:
+    """Where replies to one request go (also later ones: command 138 events)."""
+
+    def __init__(self, bridge: MqttBridge, topic: str, correlation: bytes | None,
+                 as_json: bool) -> None:
+        self._bridge = bridge
+        self._topic = topic
+        self._correlation = correlation
+        self._as_json = as_json
+
+    def send(self, reply: Any) -> None:
+        payload = (json.dumps(reply_to_json(reply)).encode() if self._as_json
+                   else reply.encode())
+        self._bridge.enqueue(_Outgoing(self._topic, payload, correlation=self._correlation))
+
+    def send_unsolicited(self, reply: Reply) -> None:
+        self.send(reply)
+
+
+class MqttBridge(Transport):
+    kind = "mqtt"
+
+    def __init__(self, simulation: Simulation, url: str, rate_hz: float = DEFAULT_RATE_HZ,
+                 connect_timeout: float = 5.0) -> None:
+        if rate_hz <= 0:
+            raise ValueError("--mqtt-rate must be positive")
+        self.simulation = simulation
+        self.settings = MqttSettings.from_url(url)
+        self.rate_hz = rate_hz
+        self.connect_timeout = connect_timeout
+        self._outbox: deque[_Outgoing] = deque()
+        self._outbox_ready = asyncio.Event()
+        self._connected = asyncio.Event()
+        self._feeds = [_ModuleFeed(m, f"{self.settings.prefix}/{m.slot}")
+                       for m in simulation.modules]
+        self._task: asyncio.Task[None] | None = None
+        self.connections = 0  # successful connections so far (for tests and logs)
+
+    @property
+    def status_topic(self) -> str:
+        return f"{self.settings.prefix}/status"
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    async def start(self) -> list[str]:
+        for feed in self._feeds:
+            feed.listener = self._event_listener(feed)
+            feed.module.listeners.append(feed.listener)
+        self._task = asyncio.create_task(self._run(), name="mqtt-bridge")
+        try:
+            await asyncio.wait_for(self._connected.wait(), self.connect_timeout)
+        except TimeoutError:
+            log.warning("MQTT broker %s not reachable yet; retrying in the background",
+                        self.settings.display)
+        return [self.settings.display]
+
+    async def close(self) -> None:
+        for feed in self._feeds:
+            if feed.listener in feed.module.listeners:
+                feed.module.listeners.remove(feed.listener)
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+
+    def enqueue(self, message: _Outgoing) -> None:
+        self._outbox.append(message)
+        self._outbox_ready.set()
+
+    # -- connection ---------------------------------------------------------------------------
+
+    def _client(self) -> aiomqtt.Client:
+        s = self.settings
+        tls_context = ssl.create_default_context() if s.tls else None
+        return aiomqtt.Client(
+            s.host, s.port, username=s.username, password=s.password,
+            identifier=f"tmcl-sim-{s.prefix}-{os.getpid()}",
+            protocol=aiomqtt.ProtocolVersion.V5,
+            will=aiomqtt.Will(self.status_topic, b"offline", qos=1, retain=True),
+            tls_context=tls_context, keepalive=10, timeout=5)
+
+    async def _run(self) -> None:
+        backoff = BACKOFF_START_S
+        while True:
+            try:
+                async with self._client() as client:
+                    backoff = BACKOFF_START_S
+                    await self._session(client)
+            except Exception as exc:  # MqttError, or a group of them from the session's tasks
+                log.info("MQTT connection to %s lost (%s); retrying in %.1f s",
+                         self.settings.display, exc, backoff)
+            finally:
+                self._connected.clear()
+            await asyncio.sleep(backoff)
+            backoff = min(backoff * 2, BACKOFF_MAX_S)
+
+    async def _session(self, client: aiomqtt.Client) -> None:
+        prefix = self.settings.prefix
+        await client.subscribe(f"{prefix}/+/request", qos=1)
+        await client.subscribe(f"{prefix}/+/sim/#", qos=1)
+        await client.publish(self.status_topic, b"online", qos=1, retain=True)
+        for feed in self._feeds:
+            feed.last_state = None  # the broker may have lost it: publish afresh
+        self.connections += 1
+        self._connected.set()
+        try:
+            async with asyncio.TaskGroup() as group:
+                group.create_task(self._publish_outbox(client))
+                group.create_task(self._publish_state(client))
+                group.create_task(self._receive(client))
+        except asyncio.CancelledError:  # shutting down: say so (the will is for crashes)
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(
+                    client.publish(self.status_topic, b"offline", qos=1, retain=True), 2)
+            raise
+
+    # -- outgoing -----------------------------------------------------------------------------
+
+    async def _publish_outbox(self, client: aiomqtt.Client) -> None:
+        while True:
+            await self._outbox_ready.wait()
+            while self._outbox:
+                message = self._outbox[0]
+                properties = None
+                if message.correlation is not None:
+                    properties = Properties(PacketTypes.PUBLISH)
+                    properties.CorrelationData = message.correlation
+                await client.publish(message.topic, message.payload, qos=message.qos,
+                                     retain=message.retain, properties=properties)
+                self._outbox.popleft()  # only once the broker has it
+            self._outbox_ready.clear()
+
+    async def _publish_state(self, client: aiomqtt.Client) -> None:
+        period = 1.0 / self.rate_hz
+        while True:
+            self.simulation.sync()
+            for feed in self._feeds:
+                payload = json.dumps(feed.module.snapshot(), separators=(",", ":")).encode()
+                if payload != feed.last_state:
+                    await client.publish(f"{feed.base}/state", payload, qos=1, retain=True)
+                    feed.last_state = payload
+            await asyncio.sleep(period)
+
+    def _event_listener(self, feed: _ModuleFeed) -> Callable[[ModuleEvent], None]:
+        topic = f"{feed.base}/event"
+
+        def on_event(event: ModuleEvent) -> None:
+            body = {"t": event.time_ns / NS_PER_S, "kind": event.kind}
+            if event.axis is not None:
+                body["axis"] = event.axis
+            body.update({k: v for k, v in event.data.items() if v is not None})
+            self.enqueue(_Outgoing(topic, json.dumps(body, separators=(",", ":")).encode()))
+
+        return on_event
+
+    # -- incoming -----------------------------------------------------------------------------
+
+    async def _receive(self, client: aiomqtt.Client) -> None:
+        prefix_parts = len(self.settings.prefix.split("/"))
+        async for message in client.messages:
+            parts = message.topic.value.split("/")[prefix_parts:]
+            feed = self._feed(parts[0] if parts else "")
+            if feed is None:
+                continue
+            payload = message.payload if isinstance(message.payload, bytes) else (
+                str(message.payload).encode() if message.payload is not None else b"")
+            try:
+                if parts[1:] == ["request"]:
+                    self._handle_request(feed, payload, message.properties)
+                elif parts[1:2] == ["sim"]:
+                    self._handle_sim(feed, parts[2:], payload)
+            except Exception:  # one bad message must never end the session
+                log.exception("MQTT message on %s failed", message.topic.value)
+
+    def _feed(self, address: str) -> _ModuleFeed | None:
+        for feed in self._feeds:
+            if str(feed.module.slot) == address:
+                return feed
+        return None
+
+    def _handle_request(self, feed: _ModuleFeed, payload: bytes,
+                        properties: Properties | None) -> None:
+        response_topic = getattr(properties, "ResponseTopic", None) if properties else None
+        correlation = getattr(properties, "CorrelationData", None) if properties else None
+        topic = response_topic or f"{feed.base}/reply"
+        as_json = payload[:1] == b"{" or len(payload) != FRAME_LENGTH
+        route = _ReplyRoute(self, topic, correlation, as_json)
+        if as_json:
+            try:
+                request = request_from_json(payload, feed.module.address)
+            except RequestError as exc:
+                self.enqueue(_Outgoing(topic, json.dumps({"error": str(exc)}).encode(),
+                                       correlation=correlation))
+                return
+        else:
+            try:
+                request = decode_request(payload)
+            except ChecksumError:
+                route.send(feed.module.checksum_error_reply())
+                return
+        for _, reply in self.simulation.execute_on([feed.module], request, Interface.SERIAL,
+                                                   route):
+            route.send(reply)
+
+    def _handle_sim(self, feed: _ModuleFeed, path: list[str], payload: bytes) -> None:
+        try:
+            apply_sim_message(feed.module, path, payload)
+        except WorldTopicError as exc:
+            self.enqueue(_Outgoing(f"{feed.base}/sim_error",
+                                   json.dumps({"topic": "/".join(["sim", *path]),
+                                               "error": str(exc)}).encode()))
+        self.simulation.notify_changed()
