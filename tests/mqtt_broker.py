@@ -50,9 +50,9 @@ class Broker:
             try:
                 socket.create_connection(("127.0.0.1", self.port), timeout=0.2).close()
                 return
-            except OSError:
+            except OSError as exc:
                 if self.proc.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError(f"mosquitto did not start: {self.proc.stderr.read()}")
+                    raise RuntimeError(f"mosquitto did not start: {self.proc.stderr.read()}") from exc
                 time.sleep(0.02)
 
     def stop(self) -> None:

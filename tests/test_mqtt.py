@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import signal
 import subprocess
@@ -74,11 +75,10 @@ class Probe:
             self._arrived.clear()
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                raise AssertionError(f"no matching message; got {[m.topic.value for m in self.messages]}")
-            try:
+                topics = [m.topic.value for m in self.messages]
+                raise AssertionError(f"no matching message; got {topics}")
+            with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._arrived.wait(), remaining)
-            except TimeoutError:
-                pass
 
     def on(self, topic: str) -> list[aiomqtt.Message]:
         return [m for m in self.messages if m.topic.value == topic]
