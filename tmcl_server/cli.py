@@ -10,6 +10,7 @@ import sys
 
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.tables import FIRMWARE_VERSION_STRING
+from tmcl_server.transports.socketcand import DEFAULT_SOCKETCAND_PORT
 from tmcl_server.transports.tcp import DEFAULT_TCP
 
 log = logging.getLogger("tmcl_server")
@@ -33,6 +34,18 @@ def build_parser() -> argparse.ArgumentParser:
                         help="open a virtual serial port and link PATH to it (repeatable)")
     parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD]", default=[],
                         help="serve on an existing serial port through pyserial (repeatable)")
+    can = parser.add_argument_group("CAN (see docs/can.md)")
+    can.add_argument("--can", action="append", metavar="INTERFACE:CHANNEL[:BITRATE]", default=[],
+                     help="join the simulated CAN bus to a python-can bus, e.g. socketcan:can0, "
+                          "virtual:NAME (repeatable)")
+    can.add_argument("--can-bus", metavar="NAME",
+                     help="name of the simulated CAN bus (default can0; socketcand clients open it)")
+    can.add_argument("--slcan-pty", action="append", metavar="PATH", default=[],
+                     help="a virtual SLCAN (Lawicel) USB-CAN adapter on a pty linked at PATH")
+    can.add_argument("--socketcand", action="append", metavar="[HOST:]PORT", nargs="?",
+                     const=f"127.0.0.1:{DEFAULT_SOCKETCAND_PORT}", default=[],
+                     help="a socketcand server (raw mode) on the simulated CAN bus; default "
+                          f"127.0.0.1:{DEFAULT_SOCKETCAND_PORT}")
     parser.add_argument("--mqtt", action="append", metavar="URL", default=[],
                         help="bridge to an MQTT broker, e.g. mqtt://127.0.0.1:1883/tmcl "
                              "(mqtts:// for TLS; credentials in the URL or in "
@@ -69,6 +82,10 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         endpoints["pty"] = args.pty
     if args.serial:
         endpoints["serial"] = args.serial
+    for kind, values in (("can_bus", [args.can_bus] if args.can_bus else []), ("can", args.can),
+                         ("slcan", args.slcan_pty), ("socketcand", args.socketcand)):
+        if values:
+            endpoints[kind] = values
     if args.mqtt:
         endpoints["mqtt"] = args.mqtt
     if not endpoints:

@@ -22,9 +22,13 @@ from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import Transport
+from tmcl_server.transports.can_bridge import PythonCanTransport
+from tmcl_server.transports.canbus import CanBusTransport
 from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ, MqttBridge
 from tmcl_server.transports.pty import PtyTransport
 from tmcl_server.transports.serial_port import SerialPortTransport
+from tmcl_server.transports.slcan import SlcanPtyTransport
+from tmcl_server.transports.socketcand import SocketcandTransport
 from tmcl_server.transports.tcp import TcpTransport
 
 log = logging.getLogger(__name__)
@@ -36,6 +40,11 @@ TRANSPORT_FACTORIES: dict[str, TransportFactory] = {
     "tcp": TcpTransport,
     "pty": PtyTransport,
     "serial": SerialPortTransport,
+    # CAN (docs/can.md): the simulated bus, python-can buses, and the two gateways into it.
+    "can_bus": CanBusTransport,
+    "can": PythonCanTransport,
+    "slcan": SlcanPtyTransport,
+    "socketcand": SocketcandTransport,
     "mqtt": MqttBridge,
 }
 

@@ -7,6 +7,7 @@ import logging
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
+from typing import Protocol
 
 from tmcl_server.protocol import FRAME_LENGTH, FrameAssembler, Reply
 from tmcl_server.simulation import Simulation
@@ -26,6 +27,14 @@ class Transport(ABC):
     @abstractmethod
     async def close(self) -> None:
         """Stop serving and release every resource (sockets, pty links)."""
+
+
+class ByteSession(Protocol):
+    """What a byte-stream endpoint (a pty, a serial port) feeds: TMCL frames or SLCAN lines."""
+
+    def feed(self, data: bytes) -> None: ...
+
+    def close(self) -> None: ...
 
 
 class StreamSession:

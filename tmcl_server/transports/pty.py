@@ -15,7 +15,7 @@ import tty
 from pathlib import Path
 
 from tmcl_server.simulation import Simulation
-from tmcl_server.transports.base import StreamSession, Transport
+from tmcl_server.transports.base import ByteSession, StreamSession, Transport
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,7 @@ class PtyTransport(Transport):
         self.device: str | None = None
         self._master: int | None = None
         self._slave: int | None = None
-        self._session: StreamSession | None = None
+        self._session: ByteSession | None = None
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
@@ -52,9 +52,13 @@ class PtyTransport(Transport):
         self._master, self._slave = master, slave
         self.device = os.ttyname(slave)
         replace_symlink(self.device, self.link)
-        self._session = StreamSession(self.simulation, self._write, loop)
+        self._session = self._make_session(loop)
         loop.add_reader(master, self._on_readable)
         return [str(self.link)]
+
+    def _make_session(self, loop: asyncio.AbstractEventLoop) -> ByteSession:
+        """What speaks on the port: 9-byte TMCL here, SLCAN in the CAN adapter (slcan.py)."""
+        return StreamSession(self.simulation, self._write, loop)
 
     def _on_readable(self) -> None:
         assert self._master is not None and self._session is not None

@@ -33,6 +33,22 @@ def parse_host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, in
     return host, number
 
 
+def listening_endpoints(server: asyncio.Server) -> list[str]:
+    """``host:port`` of every socket a server listens on (the port a ``:0`` request got)."""
+    endpoints = []
+    for sock in server.sockets:
+        host, port = sock.getsockname()[:2]
+        endpoints.append(f"[{host}]:{port}" if ":" in host else f"{host}:{port}")
+    return endpoints
+
+
+def disable_nagle(transport: asyncio.BaseTransport) -> None:
+    """Send small replies at once: a request/reply protocol must not wait for more data."""
+    sock = transport.get_extra_info("socket")
+    if sock is not None and sock.family in (socket.AF_INET, socket.AF_INET6):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+
 class _TcpProtocol(asyncio.Protocol):
     def __init__(self, simulation: Simulation, connections: set[_TcpProtocol]) -> None:
         self._simulation = simulation
@@ -43,9 +59,7 @@ class _TcpProtocol(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
-        sock = transport.get_extra_info("socket")
-        if sock is not None and sock.family in (socket.AF_INET, socket.AF_INET6):
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        disable_nagle(transport)
         self._session = StreamSession(self._simulation, transport.write,
                                       asyncio.get_running_loop())
         self._connections.add(self)
@@ -74,11 +88,7 @@ class TcpTransport(Transport):
         self._server = await loop.create_server(
             lambda: _TcpProtocol(self.simulation, self.connections), self.host, self.port,
             reuse_address=True)
-        endpoints = []
-        for sock in self._server.sockets:
-            host, port = sock.getsockname()[:2]
-            endpoints.append(f"[{host}]:{port}" if ":" in host else f"{host}:{port}")
-        return endpoints
+        return listening_endpoints(self._server)
 
     async def close(self) -> None:
         if self._server is not None:

@@ -1,0 +1,229 @@
+"""python-can hosts on the simulated CAN bus through the socketcand server, end to end."""
+
+from __future__ import annotations
+
+import socket
+import threading
+from collections import Counter
+from collections.abc import Callable, Iterator
+
+import can
+import pytest
+
+from interpreter.isa import Opcode
+from tmcl_server.embed import SimulatorThread
+from tmcl_server.protocol import Reply, Request, decode_can_reply
+from tmcl_server.tables import GP, Status
+from tmcl_server.transports.canbus import module_node_of
+
+AP_ACTUAL_SPEED = 3
+AP_MAX_SPEED = 4
+WAIT_S = 5.0  # a fail-safe for a reply that is due, never a pause to hope in
+
+
+class CanHost:
+    """A TMCL host on socketcand, listening to one reply id (as pytrinamic's filter does)."""
+
+    def __init__(self, sim: SimulatorThread, reply_id: int | None = 2, channel: str = "can0") -> None:
+        host, port = sim.endpoints["socketcand"][0].rsplit(":", 1)
+        filters = None if reply_id is None else [{"can_id": reply_id, "can_mask": 0x7FF,
+                                                  "extended": False}]
+        self.bus = can.Bus(interface="socketcand", host=host, port=int(port), channel=channel,
+                           can_filters=filters)
+
+    def send(self, can_id: int, opcode: int, type_: int = 0, motor: int = 0, value: int = 0,
+             length: int = 8) -> None:
+        data = Request(can_id, opcode, type_, motor, value).encode_can()
+        self.bus.send(can.Message(arbitration_id=can_id, is_extended_id=False,
+                                  data=data + bytes(length - len(data))))
+
+    def receive(self) -> can.Message:
+        frame = self.bus.recv(timeout=WAIT_S)
+        assert frame is not None, "no reply"
+        return frame
+
+    def command(self, can_id: int, opcode: int, type_: int = 0, motor: int = 0, value: int = 0,
+                length: int = 8) -> Reply:
+        self.send(can_id, opcode, type_, motor, value, length)
+        reply = decode_can_reply(self.receive().data)
+        assert reply.opcode == opcode
+        return reply
+
+    def close(self) -> None:
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def sim(tmcl_sim_factory: Callable[..., SimulatorThread]) -> SimulatorThread:
+    return tmcl_sim_factory(addresses=[1, 3, 5], socketcand=["127.0.0.1:0"])
+
+
+@pytest.fixture
+def make_host(sim: SimulatorThread) -> Iterator[Callable[..., CanHost]]:
+    hosts: list[CanHost] = []
+
+    def make(**kwargs: object) -> CanHost:
+        hosts.append(CanHost(sim, **kwargs))  # type: ignore[arg-type]
+        return hosts[-1]
+
+    yield make
+    for host in hosts:
+        host.close()
+
+
+def node_stats(sim: SimulatorThread) -> Counter[str]:
+    return sim.call(lambda: Counter(module_node_of(sim.simulation).stats))
+
+
+def server_stats(sim: SimulatorThread) -> Counter[str]:
+    assert sim.server is not None
+    (transport,) = [t for t in sim.server.transports if t.kind == "socketcand"]
+    return sim.call(lambda: Counter(transport.stats))  # type: ignore[attr-defined]
+
+
+class RawClient:
+    """A socketcand client by hand, for what python-can never sends."""
+
+    def __init__(self, sim: SimulatorThread, open_bus: str | None = "can0") -> None:
+        host, port = sim.endpoints["socketcand"][0].rsplit(":", 1)
+        self.sock = socket.create_connection((host, int(port)), timeout=WAIT_S)
+        self._buffer = b""
+        assert self.element() == "< hi >"
+        if open_bus is not None:
+            self.sock.sendall(f"< open {open_bus} >".encode())
+
+    def element(self) -> str:
+        while b">" not in self._buffer:
+            chunk = self.sock.recv(4096)
+            if not chunk:
+                raise ConnectionError("closed by the server")
+            self._buffer += chunk
+        element, _, self._buffer = self._buffer.partition(b">")
+        return element.decode().strip() + " >"
+
+
+def test_three_modules_two_hosts_each_talking_to_its_own(sim: SimulatorThread,
+                                                         make_host: Callable[..., CanHost]) -> None:
+    sniffer = make_host(reply_id=None)
+    alice = make_host(reply_id=2)
+    bob = make_host(reply_id=6)
+    assert bob.command(5, Opcode.SGP, GP.CAN_REPLY_ID, 0, 6).status == Status.OK  # comes on 6
+    rounds = 30
+    failures: list[str] = []
+
+    def run(host: CanHost, modules: tuple[int, ...]) -> None:
+        try:
+            for i in range(rounds):
+                module, motor, value = modules[i % len(modules)], i % 6, 1000 + i * 7 + modules[0]
+                host.command(module, Opcode.SAP, AP_MAX_SPEED, motor, value)
+                reply = host.command(module, Opcode.GAP, AP_MAX_SPEED, motor)
+                if (reply.module, reply.value) != (module, value):
+                    failures.append(f"{module}/{motor}: {reply}")
+        except AssertionError as exc:
+            failures.append(str(exc))
+
+    threads = [threading.Thread(target=run, args=(alice, (1, 3))),
+               threading.Thread(target=run, args=(bob, (5,)))]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=60)
+    assert failures == []
+    # The sniffer heard the whole wire: both hosts' requests and every reply.
+    heard = Counter(sniffer.receive().arbitration_id for _ in range(2 + 4 * 2 * rounds))
+    assert heard == {1: rounds, 3: rounds, 2: 2 * rounds, 5: 2 * rounds + 1, 6: 2 * rounds + 1}
+
+
+def test_duplicate_id_produces_two_replies(make_host: Callable[..., CanHost]) -> None:
+    host = make_host()
+    host.command(5, Opcode.SGP, GP.CAN_SECONDARY_ID, 0, 1)
+    host.send(1, Opcode.GGP, GP.CAN_ID, 0)
+    replies = sorted((decode_can_reply(host.receive().data) for _ in range(2)),
+                     key=lambda r: r.module)
+    assert [(r.module, r.value) for r in replies] == [(1, 1), (5, 5)]
+
+
+def test_foreign_ids_get_silence(sim: SimulatorThread, make_host: Callable[..., CanHost]) -> None:
+    host = make_host()
+    for can_id in (4, 7, 0x7FF):
+        host.send(can_id, Opcode.GGP, GP.CAN_ID, 0)
+    # Replies keep their order on the wire: a reply to a foreign id would come first.
+    reply = host.command(3, Opcode.GGP, GP.CAN_ID, 0)
+    assert (reply.module, reply.value) == (3, 3)
+    assert node_stats(sim)["foreign"] == 3
+
+
+@pytest.mark.parametrize("length", [7, 8])
+def test_reply_length_mirrors_the_request(make_host: Callable[..., CanHost], length: int) -> None:
+    host = make_host()
+    host.send(1, Opcode.GAP, AP_MAX_SPEED, 0, length=length)
+    frame = host.receive()
+    assert frame.dlc == length and frame.arbitration_id == 2
+    assert decode_can_reply(frame.data).status == Status.OK
+
+
+def test_can_heartbeat_stops_a_moving_axis(sim: SimulatorThread,
+                                           make_host: Callable[..., CanHost]) -> None:
+    host = make_host()
+    host.command(1, Opcode.SGP, GP.CAN_HEARTBEAT, 0, 100)
+    host.command(1, Opcode.ROR, 0, 2, 3000)
+    sim.advance(0.05)
+    assert host.command(1, Opcode.GAP, AP_ACTUAL_SPEED, 2).value > 0
+    sim.advance(0.5)  # no command for 500 ms: the heartbeat trips after 100
+    assert host.command(1, Opcode.GAP, AP_ACTUAL_SPEED, 2).value == 0
+
+
+def test_a_reconnecting_host_finds_the_state_intact(sim: SimulatorThread,
+                                                    make_host: Callable[..., CanHost]) -> None:
+    first = make_host()
+    first.command(3, Opcode.SAP, AP_MAX_SPEED, 4, 4321)
+    first.command(3, Opcode.ROR, 0, 1, 800)
+    first.close()
+    sim.advance(1.0)
+    second = make_host()
+    assert second.command(3, Opcode.GAP, AP_MAX_SPEED, 4).value == 4321
+    assert second.command(3, Opcode.GAP, AP_ACTUAL_SPEED, 1).value > 0
+
+
+def test_bad_frames_junk_and_a_flood_leave_the_bus_serving(
+        sim: SimulatorThread, make_host: Callable[..., CanHost]) -> None:
+    host = make_host()
+    vandal = RawClient(sim)
+    assert vandal.element() == "< ok >"
+    vandal.sock.sendall(b"< rawmode >")
+    assert vandal.element() == "< ok >"
+    bad_frames = (b"< send 001 3 6 1 0 >"                      # wrong length
+                  b"< sendrtr 001 7 >"                         # remote
+                  b"< send 00000001 7 6 1 0 0 0 0 0 >")        # extended id
+    junk = (b"\x00\xff garbage <<< >>> < send zz 9 > < send 001 9 1 2 3 4 5 6 7 8 9 > "
+            b"< frobnicate > < send 001 2 100 1 >\r\n")
+    vandal.sock.sendall((bad_frames + junk) * 300 + b"< " + b"x" * 5000)
+    for i in range(20):  # the bus keeps serving, in order, while the flood is handled
+        assert host.command(5, Opcode.SAP, AP_MAX_SPEED, 0, 100 + i).status == Status.OK
+    assert host.command(5, Opcode.GAP, AP_MAX_SPEED, 0).value == 119
+    vandal.sock.sendall(b"< echo >")  # the vandal's own connection still works too
+    while (element := vandal.element()) != "< echo >":
+        assert element.startswith("< error unknown command") or element.startswith("< frame")
+    stats, node = server_stats(sim), node_stats(sim)
+    assert (node["bad_length"], node["remote"], node["extended"]) == (300, 300, 300)
+    assert stats["bad_commands"] == 3 * 300  # zz, 9 bytes, 100: ignored, as socketcand does
+    assert stats["unknown_commands"] == 2 * 300  # "< >" (from <<< >>>) and frobnicate
+    assert stats["junk_bytes"] > 5000
+
+
+def test_a_client_vanishing_mid_element_harms_nobody(sim: SimulatorThread,
+                                                      make_host: Callable[..., CanHost]) -> None:
+    host = make_host()
+    for _ in range(5):
+        quitter = RawClient(sim)
+        quitter.sock.sendall(b"< rawmode >< send 001 8 6 ")
+        quitter.sock.close()
+    assert host.command(1, Opcode.GGP, GP.CAN_ID, 0).value == 1
+
+
+def test_an_unknown_bus_is_refused(sim: SimulatorThread) -> None:
+    client = RawClient(sim, open_bus="vcan9")
+    assert client.element() == "< error could not open bus >"
+    assert client.sock.recv(1) == b""  # and the connection is closed, as socketcand does
+    with pytest.raises(can.CanError):
+        CanHost(sim, channel="vcan9")

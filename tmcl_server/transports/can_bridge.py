@@ -1,0 +1,81 @@
+"""``--can INTERFACE:CHANNEL[:BITRATE]``: join the simulated bus to any python-can bus.
+
+``socketcan:can0`` (a real adapter or a vcan), ``pcan:PCAN_USBBUS1``, ``slcan:/dev/ttyACM0``,
+``virtual:NAME`` (python-can's in-process bus) ... Frames from that bus reach the modules and
+every gateway; frames the modules and gateways send go out on it.  Options beyond channel and
+bit rate come from python-can's own configuration (``~/can.ini``, ``CAN_*`` variables).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections import Counter
+
+import can
+
+from tmcl_server.simulation import Simulation
+from tmcl_server.transports.base import Transport
+from tmcl_server.transports.canbus import bus_of
+
+log = logging.getLogger(__name__)
+
+#: How long the python-can reader thread blocks per read; bounds the time close() takes.
+READ_TIMEOUT_S = 0.05
+
+
+def parse_can_spec(text: str) -> tuple[str, str, int | None]:
+    """``INTERFACE:CHANNEL[:BITRATE]``; the channel may itself contain colons."""
+    interface, sep, rest = text.partition(":")
+    if not sep or not interface or not rest:
+        raise ValueError(f"expected INTERFACE:CHANNEL[:BITRATE], got {text!r}")
+    channel, sep, tail = rest.rpartition(":")
+    if sep and channel and tail.isdigit():
+        return interface, channel, int(tail)
+    return interface, rest, None
+
+
+class PythonCanTransport(Transport):
+    kind = "can"
+
+    def __init__(self, simulation: Simulation, spec: str) -> None:
+        self.spec = spec
+        self.interface, self.channel, self.bitrate = parse_can_spec(spec)
+        self.bus = bus_of(simulation)
+        self.stats: Counter[str] = Counter()
+        self._can: can.BusABC | None = None
+        self._notifier: can.Notifier | None = None
+
+    async def start(self) -> list[str]:
+        options = {} if self.bitrate is None else {"bitrate": self.bitrate}
+        self._can = await asyncio.to_thread(
+            can.Bus, interface=self.interface, channel=self.channel, **options)
+        self._notifier = can.Notifier(self._can, [self._from_outside], timeout=READ_TIMEOUT_S,
+                                      loop=asyncio.get_running_loop())
+        self.bus.attach(self)
+        return [self.spec]
+
+    def _from_outside(self, frame: can.Message) -> None:
+        self.stats["received"] += 1
+        self.bus.send(frame, self)
+
+    def on_frame(self, frame: can.Message) -> None:
+        if self._can is None:
+            return
+        try:
+            self._can.send(frame)
+            self.stats["sent"] += 1
+        except can.CanError as exc:  # bus off, transmit buffer full: the frame is lost
+            self.stats["send_errors"] += 1
+            log.warning("%s: frame %s not sent: %s", self.spec, frame, exc)
+
+    async def close(self) -> None:
+        self.bus.detach(self)
+        if self._notifier is not None:
+            self._notifier.stop(1.0)  # its reader thread ends within READ_TIMEOUT_S
+            self._notifier = None
+        if self._can is not None:
+            with contextlib.suppress(Exception):
+                self._can.shutdown()
+            self._can = None

@@ -1,0 +1,209 @@
+"""The simulated CAN bus: a wire inside the simulator that modules and gateways share.
+
+Every party attached to a :class:`SimulatedCanBus` sees every frame any *other* party sends,
+as on a real wire (a CAN controller does not receive its own frames).  The parties are:
+
+* the simulator's modules, together as one :class:`ModuleNode` (below),
+* python-can buses (``--can INTERFACE:CHANNEL``, can_bridge.py),
+* the virtual SLCAN adapter (``--slcan-pty``, slcan.py),
+* every socketcand client (``--socketcand``, socketcand.py).
+
+Frames are :class:`can.Message` objects and are delivered synchronously, in order, on the
+server's event loop.  Each simulation has exactly one bus (``--can-bus NAME`` names it).
+"""
+
+from __future__ import annotations
+
+import logging
+import weakref
+from collections import Counter, deque
+from typing import Protocol
+
+import can
+
+from tmcl_server.protocol import CAN_PAYLOAD_LENGTH, AnyReply, Reply, decode_can_request
+from tmcl_server.simulation import Simulation
+from tmcl_server.transports.base import Transport
+
+log = logging.getLogger(__name__)
+
+DEFAULT_BUS_NAME = "can0"
+#: Data lengths of a TMCL request: 7, or 8 when the host appends a pad byte (pytrinamic does).
+REQUEST_LENGTHS = (CAN_PAYLOAD_LENGTH, CAN_PAYLOAD_LENGTH + 1)
+#: GP 70 factory default, used when no module claims a 138 event (its CAN id changed since).
+DEFAULT_REPLY_ID = 2
+
+
+class CanParty(Protocol):
+    """Something attached to the simulated bus."""
+
+    def on_frame(self, frame: can.Message) -> None:
+        """A frame another party sent.  Must not raise; the bus logs it if it does."""
+
+
+class SimulatedCanBus:
+    """One wire.  Not thread-safe: every party lives on the server's event loop."""
+
+    def __init__(self, name: str = DEFAULT_BUS_NAME) -> None:
+        self.name = name
+        self._parties: tuple[CanParty, ...] = ()
+        self._pending: deque[tuple[can.Message, CanParty | None]] = deque()
+        self._delivering = False
+        #: Frames carried (``frames``) and party failures (``party_errors``).
+        self.stats: Counter[str] = Counter()
+
+    def attach(self, party: CanParty) -> None:
+        if party not in self._parties:
+            self._parties = (*self._parties, party)
+
+    def detach(self, party: CanParty) -> None:
+        self._parties = tuple(p for p in self._parties if p is not party)
+
+    @property
+    def parties(self) -> tuple[CanParty, ...]:
+        return self._parties
+
+    def send(self, frame: can.Message, sender: CanParty | None) -> None:
+        """Put ``frame`` on the wire: every party but the sender receives it.
+
+        A frame sent while another is being delivered (a module's reply) waits for it, so
+        every party hears the frames in the order they were sent, as on a wire.
+        """
+        self._pending.append((frame, sender))
+        if self._delivering:
+            return
+        self._delivering = True
+        try:
+            while self._pending:
+                self._deliver(*self._pending.popleft())
+        finally:
+            self._delivering = False
+
+    def _deliver(self, frame: can.Message, sender: CanParty | None) -> None:
+        self.stats["frames"] += 1
+        for party in self._parties:  # a snapshot: parties may attach or detach meanwhile
+            if party is sender:
+                continue
+            try:
+                party.on_frame(frame)
+            except Exception:  # one broken party must not silence the wire for the others
+                self.stats["party_errors"] += 1
+                log.exception("CAN party %r failed on frame %s", party, frame)
+
+
+def can_reply_data(reply: AnyReply, request_length: int) -> bytes:
+    """The reply payload, padded with 0 to mirror an 8-byte request (the version string is 8)."""
+    data = reply.encode_can()
+    if len(data) < request_length:
+        data += bytes(request_length - len(data))
+    return data
+
+
+class _EventSink:
+    """Where a module's 138 "target reached" event goes: onto the bus, as long as its request."""
+
+    __slots__ = ("length", "node")
+
+    def __init__(self, node: ModuleNode, length: int) -> None:
+        self.node = node
+        self.length = length
+
+    def send_unsolicited(self, reply: Reply) -> None:
+        self.node.send_event(reply, self.length)
+
+
+class ModuleNode:
+    """The simulator's modules on the bus: each one acts on frames with its CAN id (GP 71/83).
+
+    The modules form one party, so a module never takes another module's reply for a request
+    (it would on a real wire if its CAN id equalled a reply id, e.g. module 2 with GP 70 = 2).
+    Frames that are not TMCL requests are ignored and counted in :attr:`stats`.
+    """
+
+    def __init__(self, bus: SimulatedCanBus, simulation: Simulation) -> None:
+        self.bus = bus
+        # Weak: the registry below maps the simulation to this node, and must not keep it alive.
+        self.simulation: Simulation = weakref.proxy(simulation)
+        self.stats: Counter[str] = Counter()
+        self._sinks = {length: _EventSink(self, length) for length in REQUEST_LENGTHS}
+
+    def on_frame(self, frame: can.Message) -> None:
+        try:
+            self._handle(frame)
+        except Exception:  # never let one frame stop the bus
+            self.stats["errors"] += 1
+            log.exception("CAN frame %s failed", frame)
+
+    def _handle(self, frame: can.Message) -> None:
+        if frame.is_error_frame:
+            self.stats["error_frames"] += 1
+            return
+        if frame.is_remote_frame:
+            self.stats["remote"] += 1
+            return
+        if frame.is_extended_id:
+            self.stats["extended"] += 1
+            return
+        can_id = frame.arbitration_id
+        if not any(module.accepts_can(can_id) for module in self.simulation.modules):
+            self.stats["foreign"] += 1
+            return
+        length = len(frame.data)
+        if frame.is_fd or length not in REQUEST_LENGTHS:
+            self.stats["bad_length"] += 1
+            return
+        self.stats["requests"] += 1
+        request = decode_can_request(can_id, frame.data)
+        for module, reply in self.simulation.handle_can_request(request, self._sinks[length]):
+            self._send(module.can_reply_id, can_reply_data(reply, length))
+
+    def send_event(self, reply: Reply, length: int) -> None:
+        """A 138 event: the module is found by its CAN id, which the reply carries."""
+        reply_id = next((m.can_reply_id for m in self.simulation.modules if m.can_id == reply.module),
+                        DEFAULT_REPLY_ID)
+        self._send(reply_id, can_reply_data(reply, length))
+
+    def _send(self, can_id: int, data: bytes) -> None:
+        self.stats["replies"] += 1
+        self.bus.send(can.Message(arbitration_id=can_id, is_extended_id=False, data=data), self)
+
+
+_BUSES: weakref.WeakKeyDictionary[Simulation, SimulatedCanBus] = weakref.WeakKeyDictionary()
+_NODES: weakref.WeakKeyDictionary[Simulation, ModuleNode] = weakref.WeakKeyDictionary()
+
+
+def bus_of(simulation: Simulation) -> SimulatedCanBus:
+    """The simulation's bus, created (with its modules attached) on first use."""
+    bus = _BUSES.get(simulation)
+    if bus is None:
+        bus = _BUSES[simulation] = SimulatedCanBus()
+        node = _NODES[simulation] = ModuleNode(bus, simulation)
+        bus.attach(node)
+    return bus
+
+
+def module_node_of(simulation: Simulation) -> ModuleNode:
+    """The modules' party on the simulation's bus (its ``stats`` count ignored frames)."""
+    bus_of(simulation)
+    return _NODES[simulation]
+
+
+class CanBusTransport(Transport):
+    """``--can-bus NAME``: name the simulated bus (socketcand clients ``open`` it by name)."""
+
+    kind = "can_bus"
+
+    def __init__(self, simulation: Simulation, name: str) -> None:
+        if not name or any(c.isspace() or c in "<>" for c in name) or len(name) > 16:
+            raise ValueError(f"bad CAN bus name {name!r} (1..16 characters, no blanks or <>)")
+        self.bus = bus_of(simulation)
+        if self.bus.name not in (DEFAULT_BUS_NAME, name):
+            raise ValueError(f"this simulation already has CAN bus {self.bus.name!r}; "
+                             "one simulator runs one bus")
+        self.bus.name = name
+
+    async def start(self) -> list[str]:
+        return [self.bus.name]
+
+    async def close(self) -> None:
+        """Nothing to release: the bus lives as long as its simulation."""

@@ -1,0 +1,230 @@
+"""A virtual SLCAN (Lawicel) USB-CAN adapter on a pseudo-terminal, plugged into the simulated bus.
+
+Hosts open the link (``--slcan-pty /tmp/ttySLCAN0``) like a CANable or CANUSB dongle:
+python-can's ``slcan`` interface, pytrinamic's ``slcan_tmcl``, slcand, ... The adapter speaks
+the ASCII protocol: ``Sn``/``sxxyy`` bit rate, ``O``/``L`` open (listen-only), ``C`` close,
+``t``/``T``/``r``/``R`` transmit (answered ``z``/``Z``), ``F`` status, ``V``/``N`` version
+and serial number, ``Z`` time stamps; CR acknowledges, BEL refuses.  While open, every frame
+another party puts on the bus arrives as a ``t``/``T``/``r``/``R`` line.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import re
+import termios
+import time
+from collections import Counter
+from collections.abc import Callable
+
+import can
+
+from tmcl_server.simulation import Simulation
+from tmcl_server.transports.base import ByteSession
+from tmcl_server.transports.canbus import SimulatedCanBus, bus_of
+from tmcl_server.transports.pty import PtyTransport
+
+log = logging.getLogger(__name__)
+
+OK = b"\r"
+ERROR = b"\a"
+#: Longest command line kept (``T`` + 8 id + 1 dlc + 16 data = 26); longer lines are junk.
+MAX_LINE = 64
+#: Lawicel ``Sn`` codes.
+BITRATES = {0: 10_000, 1: 20_000, 2: 50_000, 3: 100_000, 4: 125_000, 5: 250_000,
+            6: 500_000, 7: 800_000, 8: 1_000_000}
+HARDWARE_VERSION = b"V1013"
+SERIAL_NUMBER = b"NTMCL"
+#: ``F`` status bit 3: a frame for the host was lost (nobody read the port).
+STATUS_DATA_OVERRUN = 0x08
+
+#: ``t``/``T``/``r``/``R`` lines: id, one-digit DLC, then two hex digits per data byte.
+_TRANSMIT = {
+    ord("t"): (re.compile(rb"t([0-9A-Fa-f]{3})([0-8])([0-9A-Fa-f]*)"), False, False),
+    ord("T"): (re.compile(rb"T([0-9A-Fa-f]{8})([0-8])([0-9A-Fa-f]*)"), True, False),
+    ord("r"): (re.compile(rb"r([0-9A-Fa-f]{3})([0-8])"), False, True),
+    ord("R"): (re.compile(rb"R([0-9A-Fa-f]{8})([0-8])"), True, True),
+}
+
+
+def encode_slcan_frame(frame: can.Message, timestamp_ms: int | None = None) -> bytes | None:
+    """The line an adapter prints for a received frame (None: not representable in SLCAN)."""
+    if frame.is_error_frame or frame.is_fd:
+        return None
+    if frame.is_extended_id:
+        head = f"{'R' if frame.is_remote_frame else 'T'}{frame.arbitration_id:08X}{frame.dlc}"
+    else:
+        head = f"{'r' if frame.is_remote_frame else 't'}{frame.arbitration_id:03X}{frame.dlc}"
+    body = "" if frame.is_remote_frame else frame.data.hex().upper()
+    stamp = "" if timestamp_ms is None else f"{timestamp_ms % 60_000:04X}"
+    return f"{head}{body}{stamp}\r".encode("ascii")
+
+
+def decode_slcan_transmit(line: bytes) -> can.Message | None:
+    """Parse a ``t``/``T``/``r``/``R`` command; None if it is malformed."""
+    spec = _TRANSMIT.get(line[0]) if line else None
+    if spec is None:
+        return None
+    pattern, extended, remote = spec
+    match = pattern.fullmatch(line)
+    if match is None:
+        return None
+    can_id, dlc = int(match[1], 16), int(match[2])
+    if can_id > (0x1FFF_FFFF if extended else 0x7FF):
+        return None
+    data = b"" if remote else bytes.fromhex(match[3].decode("ascii"))
+    if not remote and len(data) != dlc:
+        return None
+    return can.Message(arbitration_id=can_id, is_extended_id=extended, is_remote_frame=remote,
+                       dlc=dlc, data=data)
+
+
+class SlcanSession:
+    """One adapter: Lawicel commands in, answers and received frames out."""
+
+    def __init__(self, bus: SimulatedCanBus, write: Callable[[bytes], None],
+                 discard_output: Callable[[], None]) -> None:
+        self.bus = bus
+        self._write = write
+        self._discard_output = discard_output
+        self._line = bytearray()
+        self._junk = False  # the current line overflowed: answer BEL at its end
+        self.open = False
+        self.listen_only = False
+        self.bitrate = BITRATES[8]
+        self.timestamps = False
+        self.status = 0
+        self.stats: Counter[str] = Counter()
+        bus.attach(self)
+
+    # -- host -> adapter ----------------------------------------------------------------------
+
+    def feed(self, data: bytes) -> None:
+        for chunk in re.split(rb"(\r)", data.replace(b"\n", b"")):
+            if chunk == b"\r":
+                line, self._line = bytes(self._line), bytearray()
+                if self._junk:
+                    self._junk = False
+                    self.stats["bad_commands"] += 1
+                    self._write(ERROR)
+                elif answer := self._command(line):
+                    self._write(answer)
+            elif chunk and not self._junk:
+                self._line += chunk
+                if len(self._line) > MAX_LINE:
+                    self._line.clear()
+                    self._junk = True
+
+    def _command(self, line: bytes) -> bytes:
+        if line[:1] in (b"t", b"T", b"r", b"R"):
+            return self._transmit(line)
+        answer = self._control(line)
+        if answer == ERROR:
+            self.stats["bad_commands"] += 1
+        return answer
+
+    def _transmit(self, line: bytes) -> bytes:
+        frame = decode_slcan_transmit(line)
+        if frame is None or not self.open or self.listen_only:
+            self.stats["bad_commands"] += 1
+            return ERROR
+        self.stats["transmitted"] += 1
+        # The adapter acknowledges once the frame is queued, before any answer can arrive.
+        self._write(b"Z\r" if frame.is_extended_id else b"z\r")
+        self.bus.send(frame, self)
+        return b""
+
+    def _control(self, line: bytes) -> bytes:
+        command, argument = line[:1], line[1:]
+        if command == b"":
+            return OK
+        if command in (b"O", b"L") and not argument:
+            if self.open:
+                return ERROR
+            self._discard_output()  # whatever a previous host left unread is stale now
+            self.open, self.listen_only = True, command == b"L"
+            return OK
+        if command == b"C" and not argument:
+            self._discard_output()
+            self.open = self.listen_only = False
+            return OK
+        if command == b"S" and len(argument) == 1 and argument[0] - ord("0") in BITRATES:
+            if self.open:
+                return ERROR
+            self.bitrate = BITRATES[argument[0] - ord("0")]
+            return OK
+        if command == b"s" and re.fullmatch(rb"[0-9A-Fa-f]{4}", argument):
+            return ERROR if self.open else OK
+        if command == b"F" and not argument:
+            if not self.open:
+                return ERROR
+            status, self.status = self.status, 0
+            return f"F{status:02X}\r".encode("ascii")
+        if command == b"V" and not argument:
+            return HARDWARE_VERSION + OK
+        if command == b"N" and not argument:
+            return SERIAL_NUMBER + OK
+        if command == b"Z" and argument in (b"0", b"1"):
+            self.timestamps = argument == b"1"
+            return OK
+        if command in (b"M", b"m") and re.fullmatch(rb"[0-9A-Fa-f]{8}", argument):
+            return OK  # acceptance filters are accepted but every frame passes
+        if command in (b"X", b"Q", b"W") and len(argument) == 1 and argument in b"012":
+            return OK
+        return ERROR
+
+    # -- bus -> host --------------------------------------------------------------------------
+
+    def on_frame(self, frame: can.Message) -> None:
+        if not self.open:
+            return
+        stamp = time.monotonic_ns() // 1_000_000 if self.timestamps else None
+        line = encode_slcan_frame(frame, stamp)
+        if line is not None:
+            self.stats["received"] += 1
+            self._write(line)
+
+    def overrun(self) -> None:
+        self.status |= STATUS_DATA_OVERRUN
+        self.stats["overruns"] += 1
+
+    def close(self) -> None:
+        self.open = False
+        self.bus.detach(self)
+
+
+class SlcanPtyTransport(PtyTransport):
+    kind = "slcan"
+
+    def __init__(self, simulation: Simulation, link: str) -> None:
+        super().__init__(simulation, link)
+        self.session: SlcanSession | None = None
+        self._warned_full = False
+
+    def _make_session(self, loop: asyncio.AbstractEventLoop) -> ByteSession:
+        self.session = SlcanSession(bus_of(self.simulation), self._write, self._discard_output)
+        return self.session
+
+    def _discard_output(self) -> None:
+        if self._slave is not None:
+            with contextlib.suppress(termios.error):
+                termios.tcflush(self._slave, termios.TCIFLUSH)
+
+    def _write(self, data: bytes) -> None:
+        """Like a USB adapter whose host stopped reading: frames are lost, the F flags say so."""
+        assert self._master is not None
+        try:
+            written = os.write(self._master, data)
+        except BlockingIOError:
+            written = 0
+        if written == len(data):
+            self._warned_full = False
+            return
+        if self.session is not None:
+            self.session.overrun()
+        if not self._warned_full:
+            self._warned_full = True
+            log.warning("slcan %s: nobody reads the port, frames dropped", self.link)
