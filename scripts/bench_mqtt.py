@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import socket
 import statistics
 import tempfile
 import time
@@ -29,8 +30,13 @@ from tmcl_server.server import ServerConfig
 PREFIX = "bench"
 
 
+def make_client(port: int) -> aiomqtt.Client:
+    return aiomqtt.Client("127.0.0.1", port, protocol=aiomqtt.ProtocolVersion.V5,
+                          socket_options=[(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)])
+
+
 async def round_trips(port: int, payload: bytes, seconds: float) -> dict[str, float]:
-    async with aiomqtt.Client("127.0.0.1", port, protocol=aiomqtt.ProtocolVersion.V5) as client:
+    async with make_client(port) as client:
         await client.subscribe(f"{PREFIX}/1/reply", qos=1)
         messages = client.messages
         latencies: list[int] = []
@@ -48,7 +54,7 @@ async def round_trips(port: int, payload: bytes, seconds: float) -> dict[str, fl
 
 
 async def telemetry(port: int, seconds: float) -> dict[str, float]:
-    async with aiomqtt.Client("127.0.0.1", port, protocol=aiomqtt.ProtocolVersion.V5) as client:
+    async with make_client(port) as client:
         await client.subscribe(f"{PREFIX}/1/state", qos=1)
         for motor in range(6):
             await client.publish(f"{PREFIX}/1/request", json.dumps(

@@ -35,6 +35,7 @@ class Broker:
             "persistence true\n"
             f"persistence_location {directory}/\n"
             "autosave_interval 0\n"
+            "set_tcp_nodelay true\n"
             "log_dest none\n"
             # started as root, mosquitto would drop to user "mosquitto" and then could not
             # write its database into our temporary directory

@@ -22,6 +22,7 @@ import contextlib
 import json
 import logging
 import os
+import socket
 import ssl
 from collections import deque
 from collections.abc import Callable
@@ -185,7 +186,9 @@ class MqttBridge(Transport):
             identifier=f"tmcl-sim-{s.prefix}-{os.getpid()}",
             protocol=aiomqtt.ProtocolVersion.V5,
             will=aiomqtt.Will(self.status_topic, b"offline", qos=1, retain=True),
-            tls_context=tls_context, keepalive=10, timeout=5)
+            tls_context=tls_context, keepalive=10, timeout=5,
+            # small request/reply messages: Nagle + delayed ACK would add ~40 ms each way
+            socket_options=[(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)])
 
     async def _run(self) -> None:
         backoff = BACKOFF_START_S
