@@ -81,6 +81,34 @@ def lockstep_pty(path: str, seconds: float, latencies: list[int], counts: list[i
     counts.append(len(local))
 
 
+def lockstep_pytrinamic(endpoint: str, seconds: float, latencies: list[int],
+                        counts: list[int]) -> None:
+    """The same lockstep loop through pytrinamic's socket_serial_tmcl, as users drive it.
+
+    Against the echo server the request is chosen so that its echo parses as a valid reply
+    (the type byte lands in the status field: type 100 reads as status 100).
+    """
+    from pytrinamic.connections.socket_tmcl_interface import SocketTmclInterface
+
+    iface = SocketTmclInterface(endpoint)
+    echo = endpoint == ECHO_ENDPOINT[0]
+    local: list[int] = []
+    deadline = time.perf_counter() + seconds
+    while time.perf_counter() < deadline:
+        t0 = time.perf_counter_ns()
+        if echo:
+            iface.send(6, 100, 0, 0)
+        else:
+            iface.get_axis_parameter(4, 0)
+        local.append(time.perf_counter_ns() - t0)
+    iface.close()
+    latencies.extend(local)
+    counts.append(len(local))
+
+
+ECHO_ENDPOINT: list[str] = [""]
+
+
 def measure(target, endpoint: str, clients: int, seconds: float) -> dict[str, float]:
     latencies: list[int] = []
     counts: list[int] = []
@@ -131,6 +159,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmpdir:
         echo, echo_endpoint = start_echo()
+        ECHO_ENDPOINT[0] = echo_endpoint
         sim, endpoints = start_simulator(Path(tmpdir))
         try:
             cases = (
@@ -139,6 +168,8 @@ def main() -> None:
                 ("echo  tcp 16 clients", lockstep_tcp, echo_endpoint, 16),
                 ("sim   tcp 16 clients", lockstep_tcp, endpoints["tcp"][0], 16),
                 ("sim   pty  1 client ", lockstep_pty, endpoints["pty"][0], 1),
+                ("echo  tcp  pytrinamic", lockstep_pytrinamic, echo_endpoint, 1),
+                ("sim   tcp  pytrinamic", lockstep_pytrinamic, endpoints["tcp"][0], 1),
             )
             # Interleave the cases (echo, sim, echo, sim, ...) so that drifting background
             # load hits both sides of every ratio alike.
@@ -149,8 +180,10 @@ def main() -> None:
             rows = [(label, median_of(r)) for label, r in runs.items()]
             ratios = [statistics.median(s["rate"] / e["rate"] for s, e in
                                         zip(runs[sim_label], runs[echo_label], strict=True))
-                      for sim_label, echo_label in (("sim   tcp  1 client ", "echo  tcp  1 client "),
-                                                    ("sim   tcp 16 clients", "echo  tcp 16 clients"))]
+                      for sim_label, echo_label in (
+                          ("sim   tcp  1 client ", "echo  tcp  1 client "),
+                          ("sim   tcp 16 clients", "echo  tcp 16 clients"),
+                          ("sim   tcp  pytrinamic", "echo  tcp  pytrinamic"))]
         finally:
             for proc in (echo, sim):
                 proc.terminate()
@@ -161,9 +194,9 @@ def main() -> None:
     print(f"{'':22} {'req/s':>9} {'p50 us':>8} {'p99 us':>8}")
     for label, r in rows:
         print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f}")
-    one, many = ratios
-    print(f"ratio sim/echo (median of paired runs): 1 client {one:.0%}, 16 clients {many:.0%} "
-          "(goal: 1 client >= 80%)")
+    one, many, pytri = ratios
+    print(f"ratio sim/echo (median of paired runs): 1 raw client {one:.0%}, 16 raw clients "
+          f"{many:.0%}, 1 pytrinamic client {pytri:.0%} (goal: 1 client >= 80%)")
 
 
 if __name__ == "__main__":

@@ -51,6 +51,9 @@ ALWAYS_REPLIED = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO)})
 #: Commands that only read: they cannot create or move an internal event.
 READ_ONLY_OPCODES = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO),
                                int(Opcode.GET_FIRMWARE_VERSION)})
+#: Bank-0 parameters that decide which frames a module answers.
+ADDRESS_PARAMETERS = frozenset({GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.CAN_ID,
+                                GP.CAN_SECONDARY_ID})
 _OK = int(Status.OK)
 _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
@@ -108,6 +111,8 @@ class TMCM6212:
         self.eeprom = eeprom if eeprom is not None else Eeprom()
         self._axis_factory = axis_factory
         self.listeners: list[Callable[[ModuleEvent], None]] = []
+        #: Called when the serial or CAN addresses may have changed (routers cache them).
+        self.on_address_change: Callable[[], None] | None = None
         self.now_ns = start_ns
         self._handlers: dict[int, Callable[[Request, ReplySink | None, Interface], Any]] = {}
         for opcode in Opcode:
@@ -154,6 +159,8 @@ class TMCM6212:
         self.accumulator = 0  # the interpreter's A register (ACO reads it)
         self._due_ns: int | None = None
         self._due_stale = True
+        self._reply_delay_s = self.globals[0][GP.TELEGRAM_PAUSE] / 1000.0
+        self._addresses_changed()
 
     def factory_reset(self) -> None:
         """Command 137: erase the EEPROM and restart with factory settings."""
@@ -178,6 +185,10 @@ class TMCM6212:
     def can_reply_id(self) -> int:
         return self.globals[0][GP.CAN_REPLY_ID]
 
+    def _addresses_changed(self) -> None:
+        if self.on_address_change is not None:
+            self.on_address_change()
+
     def accepts_serial(self, address: int) -> bool:
         secondary = self.globals[0][GP.SERIAL_SECONDARY_ADDRESS]
         return address == self.address or (secondary != 0 and address == secondary)
@@ -188,13 +199,16 @@ class TMCM6212:
 
     @property
     def reply_delay_s(self) -> float:
-        """GP 75 telegram pause (ms) before a serial reply."""
-        return self.globals[0][GP.TELEGRAM_PAUSE] / 1000.0
+        """GP 75 telegram pause (ms) before a serial reply, in seconds."""
+        return self._reply_delay_s
 
     def make_reply(self, status: int, opcode: int, value: int, interface: Interface) -> Reply:
         bank0 = self.globals[0]
         module = bank0[GP.CAN_ID] if interface is Interface.CAN else bank0[GP.SERIAL_ADDRESS]
-        return Reply(bank0[GP.HOST_ADDRESS], module, status, opcode, to_int32(value))
+        if not -0x8000_0000 <= value <= 0x7FFF_FFFF:
+            value = to_int32(value)
+        # tuple.__new__ skips the NamedTuple's Python-level __new__ (hot path)
+        return tuple.__new__(Reply, (bank0[GP.HOST_ADDRESS], module, status, opcode, value))
 
     def checksum_error_reply(self) -> Reply:
         return self.make_reply(Status.WRONG_CHECKSUM, 0, 0, Interface.SERIAL)
@@ -357,7 +371,12 @@ class TMCM6212:
         return motor
 
     def _axis(self, motor: int) -> Axis:
-        return self.axis(self._axis_index(motor))
+        if not 0 <= motor < NUMBER_OF_AXES:
+            raise CommandError(Status.INVALID_VALUE)
+        axis = self.axes[motor]
+        for event in axis.advance_to(self.now_ns):  # see axis(): normally none
+            self._on_axis_event(event)
+        return axis
 
     @staticmethod
     def _axis_spec(number: int) -> ParamSpec:
@@ -469,8 +488,13 @@ class TMCM6212:
             if spec.auto_stored:
                 self.eeprom.put("globals", number, value)
         self.globals[bank][number] = value
-        if bank == 0 and number == GP.COORDINATE_STORAGE and value == 1:
-            self._copy_coordinates_to_eeprom(range(1, NUMBER_OF_COORDINATES))
+        if bank == 0:
+            if number in ADDRESS_PARAMETERS:
+                self._addresses_changed()
+            elif number == GP.TELEGRAM_PAUSE:
+                self._reply_delay_s = value / 1000.0
+            elif number == GP.COORDINATE_STORAGE and value == 1:
+                self._copy_coordinates_to_eeprom(range(1, NUMBER_OF_COORDINATES))
 
     def _cmd_sgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         spec = self._global_spec(req.type, req.motor)

@@ -139,37 +139,31 @@ class FrameAssembler:
     clock), so the rule is deterministic under test.
     """
 
-    __slots__ = ("_buffer", "_last_byte_ns", "gap_ns")
+    __slots__ = ("buffer", "gap_ns", "last_byte_ns")
 
     def __init__(self, gap_ns: int = RESYNC_GAP_NS) -> None:
-        self._buffer = bytearray()
-        self._last_byte_ns: int | None = None
+        #: Bytes of an incomplete frame.  Empty means a whole 9-byte read is a frame by
+        #: itself: stream sessions check this and skip :meth:`feed` on their hot path
+        #: (setting ``last_byte_ns`` themselves).
+        self.buffer = bytearray()
+        self.last_byte_ns: int | None = None
         self.gap_ns = gap_ns
-
-    @property
-    def idle(self) -> bool:
-        """True when no partial frame is held (a whole frame can bypass :meth:`feed`)."""
-        return not self._buffer
-
-    def touch(self, now_ns: int) -> None:
-        """Record that bytes arrived at ``now_ns`` without buffering them."""
-        self._last_byte_ns = now_ns
 
     @property
     def pending(self) -> int:
         """Number of bytes of an incomplete frame held back."""
-        return len(self._buffer)
+        return len(self.buffer)
 
     def feed(self, data: bytes, now_ns: int) -> Iterator[bytes]:
-        if (self._buffer and self._last_byte_ns is not None
-                and now_ns - self._last_byte_ns > self.gap_ns):
-            self._buffer.clear()
-        self._last_byte_ns = now_ns
-        if not self._buffer and len(data) == FRAME_LENGTH:
-            yield bytes(data)  # fast path: one whole frame per read (lockstep hosts)
+        buffer = self.buffer
+        if buffer and self.last_byte_ns is not None and now_ns - self.last_byte_ns > self.gap_ns:
+            buffer.clear()
+        self.last_byte_ns = now_ns
+        if not buffer and len(data) == FRAME_LENGTH:
+            yield bytes(data)
             return
-        self._buffer += data
-        while len(self._buffer) >= FRAME_LENGTH:
-            frame = bytes(self._buffer[:FRAME_LENGTH])
-            del self._buffer[:FRAME_LENGTH]
+        buffer += data
+        while len(buffer) >= FRAME_LENGTH:
+            frame = bytes(buffer[:FRAME_LENGTH])
+            del buffer[:FRAME_LENGTH]
             yield frame

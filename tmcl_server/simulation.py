@@ -23,7 +23,9 @@ class Simulation:
         #: Called after every command and every time step, so a server can reschedule its
         #: timer when a command created an earlier event.
         self.on_change: Callable[[], None] | None = None
+        self._serial_map: dict[int, list[TMCM6212]] | None = None
         for module in self.modules:
+            module.on_address_change = self._forget_addresses
             module.advance_to(clock.now_ns())
 
     def module(self, address: int) -> TMCM6212:
@@ -97,10 +99,24 @@ class Simulation:
 
     # -- routing ------------------------------------------------------------------------------
 
+    def _forget_addresses(self) -> None:
+        self._serial_map = None
+
+    def _build_serial_map(self) -> dict[int, list[TMCM6212]]:
+        """Serial address -> modules answering it (rebuilt when a module's address changes)."""
+        table: dict[int, list[TMCM6212]] = {}
+        for address in range(256):
+            answering = [m for m in self.modules if m.accepts_serial(address)]
+            if answering:
+                table[address] = answering
+        return table
+
     def handle_serial_frame(self, frame: bytes, sink: ReplySink | None = None) -> list[Routed]:
         """Route one 9-byte frame like an RS-485 bus: every module with that address acts."""
-        address = frame[0]
-        targets = [m for m in self.modules if m.accepts_serial(address)]  # usually one
+        serial_map = self._serial_map
+        if serial_map is None:
+            serial_map = self._serial_map = self._build_serial_map()
+        targets = serial_map.get(frame[0])
         if not targets:
             return []
         self.sync()

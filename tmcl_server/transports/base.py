@@ -57,8 +57,8 @@ class StreamSession:
     def feed(self, data: bytes) -> None:
         assembler = self._assembler
         now = time.monotonic_ns()
-        if len(data) == FRAME_LENGTH and assembler.idle:  # one whole frame: the usual case
-            assembler.touch(now)
+        if len(data) == FRAME_LENGTH and not assembler.buffer:  # one whole frame: usual case
+            assembler.last_byte_ns = now
             frames: Iterable[bytes] = (data,)
         else:
             frames = assembler.feed(data, now)
