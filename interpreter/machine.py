@@ -222,7 +222,8 @@ class Interpreter:
     def store(self, address: int, ins: Instruction) -> None:
         if not 0 <= address < PROGRAM_MEMORY_SIZE:
             raise IndexError(f"program address {address} outside 0..{PROGRAM_MEMORY_SIZE - 1}")
-        self.code[address] = Instruction(*ins)
+        opcode, type_, motor, value = ins
+        self.code[address] = Instruction(int(opcode), int(type_), int(motor), int(value))
 
     def erase(self) -> None:
         self.code[:PROGRAM_MEMORY_SIZE] = [EMPTY] * PROGRAM_MEMORY_SIZE
