@@ -368,13 +368,16 @@ class Interpreter:
                 self._fire_timers(self.time_ns)
             if self.pending and self._dispatchable():
                 self._dispatch()
-            if self.wait is not None and not self._resume_wait(end_ns):
-                return False
             limit = end_ns
             if self._timers:
                 timer = self._next_timer_ns()
                 if timer is not None and timer < limit:
                     limit = timer
+            if self.wait is not None and not self._resume_wait(limit):
+                if limit >= end_ns:
+                    return False
+                self.time_ns = limit  # still waiting when the next timer fires
+                continue
             outcome = self._execute(limit)
             if outcome == _YIELD:
                 return True
