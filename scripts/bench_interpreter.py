@@ -24,12 +24,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from interpreter.assembler import assemble  # noqa: E402
-from tmcl_server.clock import VirtualClock  # noqa: E402
-from tmcl_server.embed import SimulatorThread  # noqa: E402
-from tmcl_server.module import TMCM6212  # noqa: E402
-from tmcl_server.protocol import Request, decode_reply  # noqa: E402
-from tmcl_server.simulation import Simulation  # noqa: E402
+from interpreter.assembler import assemble
+from tmcl_server.clock import VirtualClock
+from tmcl_server.embed import SimulatorThread
+from tmcl_server.module import TMCM6212
+from tmcl_server.protocol import Request, decode_reply
+from tmcl_server.simulation import Simulation
 
 TIGHT_LOOP = """
     CALC LOAD, 0
