@@ -167,10 +167,21 @@ class Interpreter:
         self.code: list[Instruction] = [EMPTY] * (PROGRAM_MEMORY_SIZE + 1)
         #: Instructions executed since creation (benchmarks, tests).
         self.executed = 0
+        #: If set, a running program never lags the module's clock by more than this: the
+        #: rest is skipped, as on a CPU too slow for its work.  Only for real clocks, where
+        #: the host cannot wait for the simulation (see docs/interpreter.md).
+        self.max_lag_ns: int | None = None
         self.triggers: dict[int, Trigger] = {}
         self._timers: dict[int, _Timer] = {}
+        self.power_up(0)
+
+    def power_up(self, now_ns: int) -> None:
+        """Forget what RAM holds: registers, interrupt set-up, timers; memory is kept."""
         self.reset()
         self.status = ApplicationStatus.STOP
+        self.time_ns = now_ns
+        self.triggers.clear()
+        self._timers.clear()
 
     # == state =================================================================================
 
@@ -357,6 +368,8 @@ class Interpreter:
             return False
         if self.time_ns < now_ns:
             self.time_ns = now_ns
+        if self.max_lag_ns is not None and self.wait is None and end_ns - self.time_ns > self.max_lag_ns:
+            self.time_ns = end_ns - self.max_lag_ns
         return self._advance(end_ns)
 
     # == execution =============================================================================

@@ -460,3 +460,14 @@ def test_program_memory_bounds() -> None:
     assert len(interp.program()) == PROGRAM_MEMORY_SIZE
     interp.erase()
     assert interp.program() == []
+
+
+def test_max_lag_skips_time_a_busy_program_cannot_keep_up_with() -> None:
+    interp, _ = machine("Loop: JA Loop")
+    interp.max_lag_ns = MS
+    start(interp, 100 * MS)
+    assert interp.executed == MS // INSTRUCTION_NS  # only the last millisecond ran
+    assert interp.time_ns == 100 * MS
+    interp.max_lag_ns = None
+    run(interp, 200 * MS, now_ns=100 * MS)
+    assert interp.executed == MS // INSTRUCTION_NS + 100 * MS // INSTRUCTION_NS

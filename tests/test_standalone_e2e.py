@@ -79,7 +79,7 @@ def test_program_runs_while_pytrinamic_talks_direct_mode(tmcl_sim: SimulatorThre
         assert positions[:5] == sorted(positions[:5]) and 25000 < max(positions) <= 25600
         assert positions[-1] < 10000
         ticks = iface.send(TMCLCommand.GGP, 7, 2, 0).value
-        # Timer 0 every 100 ms, counted by the handler; the SGP that starts it runs 30 us
+        # Timer 0 every 100 ms, counted by the handler; the SGP that starts it runs 20 us
         # into the program, so the 25th tick falls just after the 2.5 s simulated here.
         assert ticks == 24
         iface.send(TMCLCommand.STOP_APPLICATION, 0, 0, 0)
@@ -100,3 +100,13 @@ def test_upload_over_a_pty_with_the_serial_client(tmcl_sim_factory: object, tmp_
     assert tmcl_upload([str(source), "--serial", f"{link}:115200", "--verify"]) == 0
     stored = sim.call(lambda: sim.simulation.module(1).program.interpreter.program())
     assert stored == assemble_file(source).instructions
+
+
+def test_real_clock_servers_bound_program_lag() -> None:
+    from tmcl_server.program import REAL_CLOCK_MAX_LAG_NS
+    from tmcl_server.server import ServerConfig, build_simulation
+
+    real = build_simulation(ServerConfig(clock="real"))
+    virtual = build_simulation(ServerConfig(clock="virtual"))
+    assert real.modules[0].program.interpreter.max_lag_ns == REAL_CLOCK_MAX_LAG_NS
+    assert virtual.modules[0].program.interpreter.max_lag_ns is None

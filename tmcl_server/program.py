@@ -32,6 +32,8 @@ if TYPE_CHECKING:
     from tmcl_server.module import TMCM6212, Interface, ReplySink
 
 EEPROM_SECTION = "program"
+#: On a real clock a running program may fall this far behind before it skips time.
+REAL_CLOCK_MAX_LAG_NS = 50_000_000
 #: Command 135 "mode" while the module is in download mode (GP 128 only knows 0..3).
 DOWNLOAD_MODE = 4
 _LEGACY_READ = struct.Struct(">BBBBiB")
@@ -62,13 +64,12 @@ class ProgramSupport:
     def power_up(self) -> None:
         """Reload the program from the EEPROM, forget the run state, auto-start (GP 77)."""
         now = self.module.now_ns
-        old = self.interpreter
-        self.interpreter = Interpreter(self, old.instruction_ns, old.number_of_axes)
+        self.interpreter.power_up(now)
+        self.interpreter.erase()
         self.downloading = False
         self._dirty = False
         for key, fields in self.module.eeprom.items(EEPROM_SECTION):
             self.interpreter.store(int(key), Instruction(*fields))
-        self.interpreter.time_ns = now
         for number, value in self.module.globals[3].items():
             self.global_written(3, number, value)
         if self.module.globals[0][GP.AUTO_START] == 1 and self.interpreter.program():
