@@ -280,6 +280,7 @@ def test_download_mode_answers_101_and_executes_nothing() -> None:
     status = bench.cmd(Opcode.GET_APPLICATION_STATUS, 0)
     assert status.value >> 24 == 4 and status.value & 0xFFFF == 2  # mode 4, pointer after 2
     assert bench.cmd(Opcode.RUN_APPLICATION).status == Status.COMMAND_NOT_AVAILABLE
+    assert bench.cmd(Opcode.GET_FIRMWARE_VERSION, 1).status == Status.OK  # control: executed
     assert bench.cmd(Opcode.EXIT_DOWNLOAD_MODE).status == Status.OK
     assert bench.interpreter.code[0] == Instruction(Opcode.GGP, GP.DOWNLOAD_MODE, 0, 0)
     assert bench.interpreter.code[1] == Instruction(Opcode.MVP, 0, 0, 5000)

@@ -19,7 +19,7 @@ from typing import Any, Protocol
 from axes.interface import Axis, AxisEvent, AxisEventKind
 from axes.kinematic import KinematicAxis
 from axes.parameters import AXIS_PARAMETERS, STORABLE_AXIS_PARAMETERS, ParamSpec
-from interpreter.isa import CONTROL_OPCODES, MoveType, Opcode
+from interpreter.isa import MoveType, Opcode
 from tmcl_server.clock import NS_PER_MS
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.protocol import AnyReply, RawReply, Reply, Request, to_int32
@@ -207,7 +207,7 @@ class TMCM6212:
         """Run one direct-mode command and build its reply (None: no reply is sent)."""
         self._last_command_ns[interface] = self.now_ns
         self._heartbeat_tripped[interface] = False
-        if self.program.downloading and request.opcode not in CONTROL_OPCODES:
+        if self.program.downloading and request.opcode < Opcode.STOP_APPLICATION:
             status, value = self.program.store(request)
         else:
             status, result = self.perform(request, sink, interface)
