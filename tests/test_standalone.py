@@ -250,6 +250,66 @@ def test_pytrinamic_vector_interrupts_revector_each_other() -> None:
     assert bench.interpreter.pc == 4 and not bench.interpreter.in_interrupt
 
 
+def test_main_loop_example() -> None:
+    """§7.2: initialise, then run between two positions forever."""
+    bench = Bench()
+    bench.download("""
+        SAP 4, 0, 50000
+        SAP 5, 0, 10000
+    MainLoop:
+        MVP ABS, 0, 5000
+        WAIT POS, 0, 0
+        MVP ABS, 0, 0
+        WAIT POS, 0, 0
+        JA MainLoop
+    """)
+    arrivals: list[int] = []
+    bench.module.listeners.append(
+        lambda e: arrivals.append(bench.position()) if e.kind == "target_reached" else None)
+    bench.run()
+    bench.advance(10)
+    assert len(arrivals) >= 6
+    assert arrivals == [5000, 0] * (len(arrivals) // 2) + [5000] * (len(arrivals) % 2)
+
+
+def test_comp_jc_example() -> None:
+    """§3.6.15/16: jump when the position of motor 0 is at least 1000."""
+    source = """
+        GAP 1, 0
+        COMP 1000
+        JC GE, Label
+        STOP
+    Label: ROL 0, 1000
+        STOP
+    """
+    for position, rotating in ((1500, True), (1000, True), (999, False)):
+        bench = Bench()
+        bench.cmd(Opcode.SAP, 1, 0, position)
+        bench.download(source)
+        bench.run()
+        bench.advance(0.1)
+        assert (bench.module.axes[0].get_parameter(2) == -1000) is rotating
+
+
+@pytest.mark.parametrize(("store", "expected"), [("AGP", 2468), ("AAP", 1234)])
+def test_user_variable_example(store: str, expected: int) -> None:
+    """§7.4.  The manual stores the result with AAP, which addresses axis parameter 42 of
+    motor 2 (no such parameter: the program ignores the error); AGP is what it means."""
+    bench = Bench()
+    bench.download(f"""
+        MyVariable = 42
+        SGP MyVariable, 2, 1234
+        GGP MyVariable, 2
+        CALC MUL, 2
+        {store} MyVariable, 2
+        STOP
+    """)
+    bench.run()
+    bench.advance(0.01)
+    assert bench.gp(42, 2) == expected
+    assert bench.cmd(Opcode.GET_APPLICATION_STATUS, 2).value == 2468
+
+
 # -- control commands ---------------------------------------------------------------------------
 
 def test_download_mode_stores_from_the_given_address_and_134_reads_back() -> None:
