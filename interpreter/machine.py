@@ -55,11 +55,11 @@ AP_HOME_SWITCH = 9
 AP_RIGHT_SWITCH = 10
 AP_LEFT_SWITCH = 11
 
-_ERROR_BITS = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
+_ERROR_BITS: dict[int, int] = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
                ErrorFlag.ESD: 16}
 _ALL_ERRORS = sum(_ERROR_BITS.values())
 #: JC condition -> error flag bit it tests.
-_JC_ERROR_BIT = {Condition.ETO: 1, Condition.EAL: 2, Condition.EDV: 4, Condition.EPO: 8,
+_JC_ERROR_BIT: dict[int, int] = {Condition.ETO: 1, Condition.EAL: 2, Condition.EDV: 4, Condition.EPO: 8,
                  Condition.ESD: 16}
 
 
@@ -198,16 +198,11 @@ class Interpreter:
         self.errors = 0
         self.stack: list[int] = []
         self.wait: Wait | None = None
-        self.time_ns = 0
         self.vectors: dict[int, int] = {}
         self.enabled = 0  # bit n: interrupt n enabled by EI n
         self.globally_enabled = False
         self.pending = 0
         self.saved: Context | None = None
-
-    @property
-    def running(self) -> bool:
-        return self.status is ApplicationStatus.RUN
 
     @property
     def in_interrupt(self) -> bool:
@@ -219,10 +214,6 @@ class Interpreter:
     def set_error_flag(self, flag: ErrorFlag) -> None:
         """The module reports an error condition (deviation, shutdown, ...)."""
         self.errors |= _ERROR_BITS[flag]
-
-    def flag(self, condition: Condition) -> bool:
-        """Whether JC ``condition`` would jump now."""
-        return self._condition(condition)
 
     # == program memory ========================================================================
 
@@ -431,7 +422,8 @@ class Interpreter:
             return not port.reference_search_active(t, motor)
         return True
 
-    def _condition(self, condition: int) -> bool:
+    def flag(self, condition: int) -> bool:
+        """Whether JC ``condition`` would jump now (the dispatch loop inlines this)."""
         if condition == Condition.ZE:
             return self.zero_source == 0
         if condition == Condition.NZ:
@@ -449,8 +441,7 @@ class Interpreter:
             return c < 0
         if condition == Condition.LE:
             return c <= 0
-        bit = _JC_ERROR_BIT.get(condition)  # type: ignore[call-overload]
-        return bool(bit and self.errors & bit)
+        return bool(self.errors & _JC_ERROR_BIT.get(condition, 0))
 
     def _execute(self, limit_ns: int) -> int:
         """The dispatch loop: instructions starting before ``limit_ns`` (hot ones inlined)."""
@@ -497,8 +488,7 @@ class Interpreter:
                 elif ty == 7:
                     taken = cmp_ <= 0
                 else:
-                    bit = _JC_ERROR_BIT.get(ty, 0)  # type: ignore[call-overload]
-                    taken = bool(self.errors & bit)
+                    taken = bool(self.errors & _JC_ERROR_BIT.get(ty, 0))
                 pc = (va if 0 <= va < _END else _END) if taken else pc + 1
             elif op == _JA:
                 pc = va if 0 <= va < _END else _END
@@ -585,7 +575,7 @@ class Interpreter:
         return _INTERRUPTS
 
     def _cle(self, ty: int, motor: int, va: int) -> int:
-        self.errors &= ~(_ALL_ERRORS if ty == ErrorFlag.ALL else _ERROR_BITS.get(ty, 0))  # type: ignore[call-overload]
+        self.errors &= ~(_ALL_ERRORS if ty == ErrorFlag.ALL else _ERROR_BITS.get(ty, 0))
         self.pc += 1
         return _CONTINUE
 

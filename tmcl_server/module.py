@@ -256,7 +256,7 @@ class TMCM6212:
         while True:
             hardware = self._hardware_next_event_ns()
             due = hardware is not None and hardware <= t_ns
-            target = max(hardware, self.now_ns) if due else t_ns  # type: ignore[type-var]
+            target = max(hardware, self.now_ns) if hardware is not None and due else t_ns
             # Instructions timed exactly at a hardware event run after it is handled.
             if self.program.run(self.now_ns, target if due else t_ns + 1):
                 continue
