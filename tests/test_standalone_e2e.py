@@ -110,3 +110,11 @@ def test_real_clock_servers_bound_program_lag() -> None:
     virtual = build_simulation(ServerConfig(clock="virtual"))
     assert real.modules[0].program.interpreter.max_lag_ns == REAL_CLOCK_MAX_LAG_NS
     assert virtual.modules[0].program.interpreter.max_lag_ns is None
+
+
+def test_upload_through_pytrinamic_connection_manager(tmcl_sim: SimulatorThread, source: Path) -> None:
+    connection = f"--interface socket_serial_tmcl --port {tmcl_sim.tcp}"
+    assert tmcl_upload([str(source), "--connection", connection, "--verify", "--run"]) == 0
+    tmcl_sim.advance(0.5)
+    status = tmcl_sim.call(lambda: tmcl_sim.simulation.module(1).read_global(128, 0))
+    assert status == 1

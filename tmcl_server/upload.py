@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 from interpreter.assembler import AssemblyError, assemble_file
 from interpreter.isa import Instruction, Opcode, decode_program
-from tmcl_server.protocol import FRAME_LENGTH, Request, decode_reply
+from tmcl_server.protocol import FRAME_LENGTH, Request, decode_reply, to_int32
 from tmcl_server.tables import Status
 from tmcl_server.transports.serial_port import parse_serial_spec
 from tmcl_server.transports.tcp import parse_host_port
@@ -109,7 +109,7 @@ class PytrinamicClient:
             reply = self._interface.send(opcode, type_, motor, value, module_id=self.address)
         except TMCLReplyStatusError as exc:
             reply = exc.reply
-        return reply.module_address, reply.status, reply.command, reply.value
+        return reply.module_address, reply.status, reply.command, to_int32(reply.value)  # it is unsigned
 
     def close(self) -> None:
         self._interface.close()
