@@ -471,3 +471,27 @@ def test_max_lag_skips_time_a_busy_program_cannot_keep_up_with() -> None:
     interp.max_lag_ns = None
     run(interp, 200 * MS, now_ns=100 * MS)
     assert interp.executed == MS // INSTRUCTION_NS + 100 * MS // INSTRUCTION_NS
+
+
+@given(st.lists(st.tuples(st.sampled_from([op for op in CalcOp if op <= CalcOp.LOAD]), INT32),
+                min_size=1, max_size=30), INT32)
+def test_inlined_dispatch_agrees_with_the_reference_arithmetic(steps: list[tuple[int, int]],
+                                                              operand: int) -> None:
+    """The dispatch loop inlines ADD/SUB/LOAD and the JC tests; check it against calculate()."""
+    source = "\n".join(f"CALC {CalcOp(op).name}, {value}" for op, value in steps)
+    conditions = [c for c in Condition if c <= Condition.LE]
+    jumps = "\n".join(f"JC {c.name}, T{c.name}\nJA N{c.name}\nT{c.name}: SGP {int(c)}, 2, 1\n"
+                      f"N{c.name}:" for c in conditions)
+    interp, port = machine(f"{source}\nCOMP {operand}\n{jumps}\nSTOP")
+    start(interp, 100 * MS)
+    expected = 0
+    for op, value in steps:
+        expected = calculate(op, expected, value)
+    assert interp.accumulator == expected
+    taken = {c for c in conditions if (c, 1) in agp_log(port)}
+    difference = expected - operand
+    assert taken == {c for c, holds in (
+        (Condition.ZE, difference == 0), (Condition.NZ, difference != 0),
+        (Condition.EQ, difference == 0), (Condition.NE, difference != 0),
+        (Condition.GT, difference > 0), (Condition.GE, difference >= 0),
+        (Condition.LT, difference < 0), (Condition.LE, difference <= 0)) if holds}
