@@ -248,7 +248,7 @@ class Interpreter:
             self.saved = None
         self.time_ns = max(self.time_ns, now_ns)
         self.status = ApplicationStatus.RUN
-        self._rearm_timers(now_ns)
+        self._fire_timers(now_ns, fire=False)
 
     def stop(self) -> None:
         """Command 128 (the STOP instruction ends the same way)."""
@@ -258,7 +258,7 @@ class Interpreter:
     def step(self, now_ns: int) -> None:
         """Command 130: execute the next instruction, then stay in step mode."""
         if self.status is not ApplicationStatus.STEP:
-            self._rearm_timers(now_ns)
+            self._fire_timers(now_ns, fire=False)
         self.status = ApplicationStatus.STEP
         self.time_ns = max(self.time_ns, now_ns)
         self._fire_timers(self.time_ns)
@@ -289,17 +289,13 @@ class Interpreter:
         period = period_ms * 1_000_000
         self._timers[number] = _Timer(period, now_ns + period)
 
-    def _rearm_timers(self, now_ns: int) -> None:
-        """Skip timer periods that elapsed while nothing ran (no burst of stale interrupts)."""
-        for timer in self._timers.values():
-            if timer.next_ns <= now_ns:
-                missed = (now_ns - timer.next_ns) // timer.period_ns + 1
-                timer.next_ns += missed * timer.period_ns
-
-    def _fire_timers(self, now_ns: int) -> None:
+    def _fire_timers(self, now_ns: int, fire: bool = True) -> None:
+        """Move elapsed timers past ``now_ns``, raising each one's interrupt once if ``fire``
+        (when nothing ran meanwhile, the periods are skipped: no burst of stale interrupts)."""
         for number, timer in self._timers.items():
             if timer.next_ns <= now_ns:
-                self.raise_interrupt(interrupts.timer(number))
+                if fire:
+                    self.raise_interrupt(interrupts.timer(number))
                 missed = (now_ns - timer.next_ns) // timer.period_ns + 1
                 timer.next_ns += missed * timer.period_ns
 
