@@ -302,7 +302,7 @@ def test_serial_heartbeat_stops_motors(bench: Bench):
     bench.advance(0.1)
     assert bench.ok(Opcode.GAP, 3, 0) == 5000  # the GAP at 0.3 s restarted it
     bench.advance(0.21)
-    assert bench.module.axes[0].get_parameter(3) == 0
+    assert bench.module.axis(0).get_parameter(3) == 0
 
 
 def test_factory_reset(bench: Bench):

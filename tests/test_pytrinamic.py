@@ -105,7 +105,7 @@ def test_move_to_and_poll(iface, sim):
     assert motor.get_position_reached() == 0
     sim.advance(0.2)
     assert 0 < motor.actual_position < 20000
-    assert sim.advance_until(lambda: sim.module(1).axes[0].get_parameter(8) == 1, timeout=5)
+    assert sim.advance_until(lambda: sim.module(1).axis(0).get_parameter(8) == 1, timeout=5)
     assert motor.get_position_reached() == 1
     assert motor.actual_position == 20000
 

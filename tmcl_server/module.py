@@ -114,11 +114,17 @@ class TMCM6212:
         #: Called when the serial or CAN addresses may have changed (routers cache them).
         self.on_address_change: Callable[[], None] | None = None
         self.now_ns = start_ns
+        from tmcl_server.program import ProgramSupport  # it needs this module's CommandError
+
+        #: Standalone mode: program memory, the interpreter, control commands 128-135.
+        self.program = ProgramSupport(self)
         self._handlers: dict[int, Callable[[Request, ReplySink | None, Interface], Any]] = {}
         for opcode in Opcode:
-            handler = getattr(self, f"_cmd_{opcode.name.lower()}", None)
-            if handler is not None:
-                self._handlers[opcode] = handler
+            for owner in (self, self.program):
+                handler = getattr(owner, f"_cmd_{opcode.name.lower()}", None)
+                if handler is not None:
+                    self._handlers[opcode] = handler
+                    break
         self.power_up()
 
     # == power-up and factory reset ============================================================
@@ -156,11 +162,16 @@ class TMCM6212:
         self._reach_watch: dict[int, _ReachWatch] = {}
         self._last_command_ns = {Interface.SERIAL: self.now_ns, Interface.CAN: self.now_ns}
         self._heartbeat_tripped = {Interface.SERIAL: False, Interface.CAN: False}
-        self.accumulator = 0  # the interpreter's A register (ACO reads it)
         self._due_ns: int | None = None
         self._due_stale = True
         self._reply_delay_s = self.globals[0][GP.TELEGRAM_PAUSE] / 1000.0
         self._addresses_changed()
+        self.program.power_up()
+
+    @property
+    def accumulator(self) -> int:
+        """The program's A register (ACO, AAP and AGP read it in direct mode too)."""
+        return self.program.interpreter.accumulator
 
     def factory_reset(self) -> None:
         """Command 137: erase the EEPROM and restart with factory settings."""
@@ -221,28 +232,33 @@ class TMCM6212:
         opcode = request.opcode
         self._last_command_ns[interface] = self.now_ns
         self._heartbeat_tripped[interface] = False
-        if opcode not in READ_ONLY_OPCODES:
-            self._due_stale = True
-        handler = self._handlers.get(opcode)
-        status = _OK
-        value = request.value
-        if handler is None:
-            status = _INVALID_COMMAND
+        if self.program.downloading and opcode < Opcode.STOP_APPLICATION:
+            status, value = self.program.store(request)
         else:
-            try:
-                result = handler(request, sink, interface)
-            except CommandError as exc:
-                status = exc.status
-            else:
-                if result is not None:
-                    if result is NO_REPLY:
-                        return None
-                    if isinstance(result, RawReply):
-                        return result
-                    value = result
+            status, result = self.perform(request, sink, interface)
+            if result is NO_REPLY:
+                return None
+            if isinstance(result, RawReply):
+                return result
+            value = result
         if self.globals[0][GP.SUPPRESS_REPLY] and opcode not in ALWAYS_REPLIED:
             return None
         return self.make_reply(status, opcode, value, interface)
+
+    def perform(self, request: Request, sink: ReplySink | None = None,
+                interface: Interface = Interface.SERIAL) -> tuple[int, Any]:
+        """Run a command's handler: (status, reply value or a special result)."""
+        opcode = request.opcode
+        if opcode not in READ_ONLY_OPCODES:
+            self._due_stale = True  # the command may start, stop or move an event
+        handler = self._handlers.get(opcode)
+        if handler is None:
+            return _INVALID_COMMAND, request.value
+        try:
+            result = handler(request, sink, interface)
+        except CommandError as exc:
+            return exc.status, request.value
+        return _OK, request.value if result is None else result
 
     # == time ==================================================================================
     #
@@ -252,6 +268,14 @@ class TMCM6212:
 
     def next_event_ns(self) -> int | None:
         """Earliest simulated time at which the module changes state by itself."""
+        hardware = self._hardware_next_event_ns()
+        program = self.program.next_event_ns(self.now_ns)
+        if program is None or (hardware is not None and hardware < program):
+            return hardware
+        return program
+
+    def _hardware_next_event_ns(self) -> int | None:
+        """Next event of the axes and heartbeats (cached until something may move it)."""
         if self._due_stale:
             times = [t for t in (axis.next_event_ns() for axis in self.axes) if t is not None]
             times.extend(self._heartbeat_deadlines())
@@ -260,14 +284,23 @@ class TMCM6212:
         return self._due_ns
 
     def advance_to(self, t_ns: int) -> None:
-        """Run the module up to ``t_ns``, handling every internal event in time order."""
+        """Run the module up to ``t_ns``, handling every internal event in time order.
+
+        The program runs in batches between hardware events; a batch ends early after a
+        command that may have scheduled a new event, and the plan is made again.
+        """
         while True:
-            due = self.next_event_ns()
-            if due is None or due > t_ns:
+            hardware = self._hardware_next_event_ns()
+            due = hardware is not None and hardware <= t_ns
+            target = max(hardware, self.now_ns) if due else t_ns
+            # Instructions timed exactly at a hardware event run after it is handled.
+            if self.program.run(self.now_ns, target if due else t_ns + 1):
+                continue
+            if not due:
                 break
-            self._step_to(max(due, self.now_ns))
+            self._step_to(target)
         if t_ns > self.now_ns:
-            self.now_ns = t_ns
+            self.now_ns = t_ns  # the axes catch up lazily
 
     def invalidate_schedule(self) -> None:
         """Forget the cached next-event time (the world changed from outside)."""
@@ -332,6 +365,7 @@ class TMCM6212:
 
     def _on_axis_event(self, event: AxisEvent) -> None:
         self._emit(event.kind.value, event.axis, time_ns=event.time_ns, active=event.active)
+        self.program.on_axis_event(event)
         if event.kind is AxisEventKind.TARGET_REACHED:
             watch = self._reach_watch.pop(event.axis, None)
             if watch is not None:
@@ -355,6 +389,7 @@ class TMCM6212:
         self.analog_inputs[port] = value
         if self.digital_input(port) != before:
             self._emit("input_changed", None, port=port, level=int(not before))
+            self.program.on_input_changed(port, int(not before))
 
     def set_digital_input(self, port: int, active: bool) -> None:
         self.set_analog_input(port, ANALOG_MAX if active else 0)
@@ -470,6 +505,9 @@ class TMCM6212:
     def read_global(self, number: int, bank: int) -> int:
         """GGP semantics for callers that already validated the request (also the interpreter)."""
         if bank == 0:
+            mirrored = self.program.read_global(number)
+            if mirrored is not None:
+                return mirrored
             if number == GP.TICK_TIMER:
                 return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & 0x7FFF_FFFF
             if number == GP.RANDOM_NUMBER:
@@ -487,7 +525,9 @@ class TMCM6212:
             spec = BANK_PARAMETERS[0][number]
             if spec.auto_stored:
                 self.eeprom.put("globals", number, value)
+        old = self.globals[bank][number]
         self.globals[bank][number] = value
+        self.program.global_written(bank, number, value, old)
         if bank == 0:
             if number in ADDRESS_PARAMETERS:
                 self._addresses_changed()

@@ -20,6 +20,7 @@ from pathlib import Path
 from tmcl_server.clock import Clock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212
+from tmcl_server.program import REAL_CLOCK_MAX_LAG_NS
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import Transport
 from tmcl_server.transports.can_bridge import PythonCanTransport
@@ -81,7 +82,10 @@ def build_simulation(config: ServerConfig) -> Simulation:
     modules = []
     for slot in config.addresses:
         directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
-        modules.append(TMCM6212(slot, Eeprom(directory), start_ns=clock.now_ns()))
+        module = TMCM6212(slot, Eeprom(directory), start_ns=clock.now_ns())
+        if not clock.virtual:  # a program too busy for the host's clock must not starve it
+            module.program.interpreter.max_lag_ns = REAL_CLOCK_MAX_LAG_NS
+        modules.append(module)
     return Simulation(modules, clock)
 
 

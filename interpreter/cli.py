@@ -1,0 +1,73 @@
+"""``tmcl-asm``: assemble ``.tmc`` source, disassemble ``.bin`` programs, print listings.
+
+    tmcl-asm assemble prog.tmc -o prog.bin [--listing prog.lst] [-I DIR] [--append-stop]
+    tmcl-asm disassemble prog.bin [-o prog.tmc] [--listing]
+    tmcl-asm list prog.tmc
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from interpreter.assembler import AssemblyError, assemble_file
+from interpreter.disassembler import disassemble, listing
+from interpreter.isa import decode_program
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tmcl-asm", description="TMCL assembler and disassembler "
+                                     "for the TMCM-6212 (TMCL-IDE source and binary formats).")
+    sub = parser.add_subparsers(dest="command", required=True)
+    asm = sub.add_parser("assemble", help="source to an 8-byte-per-command binary")
+    asm.add_argument("source", type=Path)
+    asm.add_argument("-o", "--output", type=Path, help="binary file (default: SOURCE with .bin)")
+    asm.add_argument("--listing", type=Path, metavar="FILE", help="also write a listing")
+    asm.add_argument("-I", "--include", action="append", type=Path, default=[], metavar="DIR",
+                     help="search DIR for #include files (repeatable)")
+    asm.add_argument("--append-stop", action="store_true",
+                     help="end the program with STOP, as the TMCL-IDE does")
+    lst = sub.add_parser("list", help="print the listing of a source file")
+    lst.add_argument("source", type=Path)
+    lst.add_argument("-I", "--include", action="append", type=Path, default=[], metavar="DIR")
+    dis = sub.add_parser("disassemble", help="binary back to source with generated labels")
+    dis.add_argument("binary", type=Path)
+    dis.add_argument("-o", "--output", type=Path, help="write here instead of standard output")
+    dis.add_argument("--listing", action="store_true",
+                     help="'address: instruction' lines with numeric addresses")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "disassemble":
+            instructions = decode_program(args.binary.read_bytes())
+            text = listing(instructions) if args.listing else disassemble(instructions)
+            if args.output:
+                args.output.write_text(text)
+            else:
+                sys.stdout.write(text)
+            return 0
+        program = assemble_file(args.source, args.include,
+                                append_stop=getattr(args, "append_stop", False))
+    except AssemblyError as exc:
+        print(exc, file=sys.stderr)
+        return 1
+    except (OSError, ValueError) as exc:
+        print(f"tmcl-asm: {exc}", file=sys.stderr)
+        return 1
+    if args.command == "list":
+        sys.stdout.write(program.listing())
+        return 0
+    output = args.output or args.source.with_suffix(".bin")
+    output.write_bytes(program.binary())
+    if args.listing:
+        args.listing.write_text(program.listing())
+    print(f"{args.source}: {len(program.instructions)} commands -> {output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,96 @@
+"""The TMCM-6212's interrupt vectors (firmware manual §3.5.6, Table 12) as data.
+
+Vector numbers double as priorities: a lower number wins (§5.4).  The bank-3 global
+parameters that configure interrupts use the same numbers (timer periods 0..2, trigger
+transitions 27..42), which is why one table serves both.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+NUMBER_OF_AXES = 6
+NUMBER_OF_INPUTS = 4
+NUMBER_OF_TIMERS = 3
+
+TIMER_BASE = 0
+TARGET_REACHED_BASE = 3
+STALL_BASE = 15
+DEVIATION_BASE = 21
+STOP_SWITCH_BASE = 27  # left switch of axis n: 27 + 2n, right switch: 28 + 2n
+INPUT_CHANGE_BASE = 39
+GLOBAL = 255  # EI/DI 255 switch interrupt processing as a whole
+
+
+class Trigger(IntEnum):
+    """Bank 3 trigger transition of a switch or input interrupt."""
+
+    OFF = 0
+    LOW_HIGH = 1
+    HIGH_LOW = 2
+    BOTH = 3
+
+    def fires(self, level: bool) -> bool:
+        """Whether a change to ``level`` (True = high) raises the interrupt."""
+        return bool(self & (Trigger.LOW_HIGH if level else Trigger.HIGH_LOW))
+
+
+def timer(n: int) -> int:
+    return TIMER_BASE + n
+
+
+def target_reached(axis: int) -> int:
+    return TARGET_REACHED_BASE + axis
+
+
+def stall(axis: int) -> int:
+    return STALL_BASE + axis
+
+
+def deviation(axis: int) -> int:
+    return DEVIATION_BASE + axis
+
+
+def left_switch(axis: int) -> int:
+    return STOP_SWITCH_BASE + 2 * axis
+
+
+def right_switch(axis: int) -> int:
+    return STOP_SWITCH_BASE + 2 * axis + 1
+
+
+def input_change(port: int) -> int:
+    return INPUT_CHANGE_BASE + port
+
+
+def _table() -> dict[int, tuple[str, str]]:
+    """vector -> (include-file symbol, description)."""
+    table: dict[int, tuple[str, str]] = {}
+    for n in range(NUMBER_OF_TIMERS):
+        table[timer(n)] = (f"TI_TIMER{n}", f"Timer {n}")
+    for a in range(NUMBER_OF_AXES):
+        table[target_reached(a)] = (f"TI_TARGET{a}", f"Target position reached {a}")
+    for a in range(NUMBER_OF_AXES):
+        table[stall(a)] = (f"TI_STALL{a}", f"stallGuard axis {a}")
+    for a in range(NUMBER_OF_AXES):
+        table[deviation(a)] = (f"TI_DEVIATION{a}", f"Deviation axis {a}")
+    for a in range(NUMBER_OF_AXES):
+        table[left_switch(a)] = (f"TI_STOPL{a}", f"Left stop switch {a}")
+        table[right_switch(a)] = (f"TI_STOPR{a}", f"Right stop switch {a}")
+    for p in range(NUMBER_OF_INPUTS):
+        table[input_change(p)] = (f"TI_INPUT{p}", f"Input change {p}")
+    table[GLOBAL] = ("TI_GLOBAL", "Global interrupts")
+    return table
+
+
+#: Table 12: vector number -> (symbol in Interrupts.inc, the manual's description).
+INTERRUPT_VECTORS: dict[int, tuple[str, str]] = _table()
+
+#: Vectors an event can raise (everything but the global switch), in priority order.
+SOURCES: tuple[int, ...] = tuple(sorted(v for v in INTERRUPT_VECTORS if v != GLOBAL))
+
+#: Vectors whose bank-3 parameter of the same number is a trigger transition.
+TRIGGERED: frozenset[int] = frozenset(
+    [left_switch(a) for a in range(NUMBER_OF_AXES)]
+    + [right_switch(a) for a in range(NUMBER_OF_AXES)]
+    + [input_change(p) for p in range(NUMBER_OF_INPUTS)])

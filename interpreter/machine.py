@@ -1,0 +1,644 @@
+"""The TMCL bytecode interpreter: registers, flags, call stack, WAIT, interrupts, timers.
+
+The interpreter owns program memory and the program's state, never the module: commands
+that touch motors, parameters or I/O go through :class:`ModulePort`, which the module
+implements.  Time is simulated integer nanoseconds passed in by the caller.  Every
+instruction takes :data:`INSTRUCTION_NS`; the caller runs the program in batches with
+:meth:`Interpreter.run_until` and learns from :meth:`Interpreter.next_event_ns` when it next
+has to (docs/interpreter.md has the timing model and every choice the manual leaves open).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import NamedTuple, Protocol
+
+from interpreter import interrupts
+from interpreter.interrupts import Trigger
+from interpreter.isa import (
+    CALL_STACK_DEPTH,
+    EMPTY,
+    PROGRAM_MEMORY_SIZE,
+    WAIT_TICK_NS,
+    ApplicationStatus,
+    CalcOp,
+    Condition,
+    ErrorFlag,
+    Instruction,
+    Opcode,
+    RfsType,
+    WaitCondition,
+)
+
+#: Simulated time one TMCL instruction takes (a command of the main loop of the firmware).
+INSTRUCTION_NS = 10_000
+#: A running program asks to be run at least this often (how far it may lag a real clock).
+SLICE_NS = 10_000_000
+#: Reply status of a successful command (Table 4).
+STATUS_OK = 100
+
+_MASK = 0xFFFF_FFFF
+_SIGN = 0x8000_0000
+_END = PROGRAM_MEMORY_SIZE  # address of the sentinel after the last memory cell
+
+# Opcodes as plain ints for the dispatch loop.
+_CALC, _COMP, _JC, _JA = Opcode.CALC.value, Opcode.COMP.value, Opcode.JC.value, Opcode.JA.value
+_CALCX, _CSUB, _RSUB = Opcode.CALCX.value, Opcode.CSUB.value, Opcode.RSUB.value
+
+#: Commands that, in a program, load the value they read into the accumulator.
+_LOADS_ACCUMULATOR = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO, Opcode.GCO})
+_MOTOR_ALL = 255  # GCO/SCO motor 255: the EEPROM copy forms, which read nothing
+
+AP_POSITION_REACHED = 8
+AP_HOME_SWITCH = 9
+AP_RIGHT_SWITCH = 10
+AP_LEFT_SWITCH = 11
+
+_ERROR_BITS: dict[int, int] = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
+               ErrorFlag.ESD: 16}
+_ALL_ERRORS = sum(_ERROR_BITS.values())
+#: JC condition -> error flag bit it tests.
+_JC_ERROR_BIT: dict[int, int] = {Condition.ETO: 1, Condition.EAL: 2, Condition.EDV: 4, Condition.EPO: 8,
+                 Condition.ESD: 16}
+
+
+def wrap32(value: int) -> int:
+    """Two's-complement wrap to a signed 32-bit value, like the firmware's int arithmetic."""
+    return ((value + _SIGN) & _MASK) - _SIGN
+
+
+def _c_div(a: int, b: int) -> int:
+    """C division (truncates toward zero); x/0 gives 0 like an ARM SDIV without the trap."""
+    if b == 0:
+        return 0
+    q = abs(a) // abs(b)
+    return wrap32(q if (a < 0) == (b < 0) else -q)
+
+
+def _c_mod(a: int, b: int) -> int:
+    """C remainder (sign of the dividend); x%0 leaves x, as a - (a/0)*0 does on ARM."""
+    if b == 0:
+        return a
+    return wrap32(a - b * _c_div(a, b))
+
+
+def calculate(operation: int, a: int, b: int) -> int:
+    """CALC/CALCX arithmetic on signed 32-bit values; unknown operations leave ``a``."""
+    if operation == CalcOp.ADD:
+        return wrap32(a + b)
+    if operation == CalcOp.SUB:
+        return wrap32(a - b)
+    if operation == CalcOp.MUL:
+        return wrap32(a * b)
+    if operation == CalcOp.DIV:
+        return _c_div(a, b)
+    if operation == CalcOp.MOD:
+        return _c_mod(a, b)
+    if operation == CalcOp.AND:
+        return wrap32(a & b)
+    if operation == CalcOp.OR:
+        return wrap32(a | b)
+    if operation == CalcOp.XOR:
+        return wrap32(a ^ b)
+    if operation == CalcOp.NOT:
+        return wrap32(~a)
+    if operation == CalcOp.LOAD:
+        return wrap32(b)
+    return a
+
+
+class ModulePort(Protocol):
+    """What the interpreter needs from the module it runs on.
+
+    Every call carries the simulated time of the instruction; the module first brings its
+    motion state up to that time.  Nothing it does may call back into the interpreter
+    except :meth:`Interpreter.raise_interrupt` and the other event entry points.
+    """
+
+    def execute(self, time_ns: int, opcode: int, type_: int, motor: int, value: int) -> tuple[int, int]:
+        """Run one command as a program does; return (status, value) as a reply would."""
+        ...
+
+    def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
+        """The value of an axis parameter (WAIT uses 8, 9, 10 and 11)."""
+        ...
+
+    def reference_search_active(self, time_ns: int, motor: int) -> bool:
+        """RFS STATUS: True while a reference search runs on ``motor``."""
+        ...
+
+
+@dataclass(slots=True)
+class Wait:
+    """A WAIT in progress (the PC stays on the WAIT instruction meanwhile)."""
+
+    condition: int
+    motor: int
+    deadline_ns: int | None
+
+
+class Context(NamedTuple):
+    """What an interrupt saves and RETI restores."""
+
+    pc: int
+    accumulator: int
+    x: int
+    zero_source: int
+    compare_source: int
+    wait: Wait | None
+
+
+@dataclass(slots=True)
+class _Timer:
+    period_ns: int
+    next_ns: int
+
+
+class Interpreter:
+    """One TMCL program and the state of its execution (not thread-safe)."""
+
+    def __init__(self, port: ModulePort, instruction_ns: int = INSTRUCTION_NS,
+                 number_of_axes: int = interrupts.NUMBER_OF_AXES) -> None:
+        self.port = port
+        self.instruction_ns = instruction_ns
+        self.number_of_axes = number_of_axes
+        #: Program memory plus one empty sentinel cell, so running off the end reads "end".
+        self.code: list[Instruction] = [EMPTY] * (PROGRAM_MEMORY_SIZE + 1)
+        #: Instructions executed since creation (benchmarks, tests).
+        self.executed = 0
+        #: If set, a running program never lags the module's clock by more than this: the
+        #: rest is skipped, as on a CPU too slow for its work.  Only for real clocks, where
+        #: the host cannot wait for the simulation (see docs/interpreter.md).
+        self.max_lag_ns: int | None = None
+        self.triggers: dict[int, Trigger] = {}
+        self._timers: dict[int, _Timer] = {}
+        self.power_up(0)
+
+    def power_up(self, now_ns: int) -> None:
+        """Forget what RAM holds: registers, interrupt set-up, timers; memory is kept."""
+        self.reset()
+        self.status = ApplicationStatus.STOP
+        self.time_ns = now_ns
+        self.triggers.clear()
+        self._timers.clear()
+
+    # == state =================================================================================
+
+    def reset(self) -> None:
+        """Command 131: stop; PC, stack, registers, flags and interrupt state back to zero."""
+        self.status = ApplicationStatus.RESET
+        self.pc = 0
+        self.accumulator = 0
+        self.x = 0
+        # Flags are kept as the value they were computed from: ZE/NZ test the last result,
+        # EQ..LE the last difference accumulator - operand of COMP.
+        self.zero_source = 1
+        self.compare_source = 1
+        self.errors = 0
+        self.stack: list[int] = []
+        self.wait: Wait | None = None
+        self.vectors: dict[int, int] = {}
+        self.enabled = 0  # bit n: interrupt n enabled by EI n
+        self.globally_enabled = False
+        self.pending = 0
+        self.saved: Context | None = None
+
+    @property
+    def in_interrupt(self) -> bool:
+        return self.saved is not None
+
+    def error_flag(self, flag: ErrorFlag) -> bool:
+        return bool(self.errors & _ERROR_BITS[flag])
+
+    def set_error_flag(self, flag: ErrorFlag) -> None:
+        """The module reports an error condition (deviation, shutdown, ...)."""
+        self.errors |= _ERROR_BITS[flag]
+
+    # == program memory ========================================================================
+
+    def load(self, instructions: Iterable[Instruction], start: int = 0) -> None:
+        for address, ins in enumerate(instructions, start):
+            self.store(address, ins)
+
+    def store(self, address: int, ins: Instruction) -> None:
+        if not 0 <= address < PROGRAM_MEMORY_SIZE:
+            raise IndexError(f"program address {address} outside 0..{PROGRAM_MEMORY_SIZE - 1}")
+        opcode, type_, motor, value = ins
+        self.code[address] = Instruction(int(opcode), int(type_), int(motor), int(value))
+
+    def erase(self) -> None:
+        self.code[:PROGRAM_MEMORY_SIZE] = [EMPTY] * PROGRAM_MEMORY_SIZE
+
+    def program(self) -> list[Instruction]:
+        """Memory up to the last non-empty cell."""
+        end = PROGRAM_MEMORY_SIZE
+        while end and self.code[end - 1].opcode == 0:
+            end -= 1
+        return self.code[:end]
+
+    # == control commands ======================================================================
+
+    def start(self, now_ns: int, address: int | None = None) -> None:
+        """Command 129: run from the current PC, or from ``address``."""
+        if address is not None:
+            self.pc = address
+            self.wait = None
+            self.stack.clear()
+            self.saved = None
+        self.time_ns = max(self.time_ns, now_ns)
+        self.status = ApplicationStatus.RUN
+        self._fire_timers(now_ns, fire=False)
+
+    def stop(self) -> None:
+        """Command 128 (the STOP instruction ends the same way)."""
+        self.status = ApplicationStatus.STOP
+        self.wait = None
+
+    def step(self, now_ns: int) -> None:
+        """Command 130: execute the next instruction, then stay in step mode."""
+        if self.status is not ApplicationStatus.STEP:
+            self._fire_timers(now_ns, fire=False)
+        self.status = ApplicationStatus.STEP
+        self.time_ns = max(self.time_ns, now_ns)
+        self._fire_timers(self.time_ns)
+        if self.pending and self._dispatchable():
+            self._dispatch()
+        if self.wait is not None:
+            self._resume_wait(self.time_ns + 1)  # evaluating the WAIT again is the step
+        else:
+            self._execute(self.time_ns + 1)
+
+    # == interrupts ============================================================================
+
+    def raise_interrupt(self, vector: int) -> None:
+        """An interrupt source fired: latch it if the program enabled that interrupt."""
+        if self.enabled >> vector & 1:
+            self.pending |= 1 << vector
+
+    def trigger_transition(self, vector: int, level: bool) -> None:
+        """A switch or input changed to ``level``: raise its interrupt if bank 3 says so."""
+        if self.triggers.get(vector, Trigger.OFF).fires(level):
+            self.raise_interrupt(vector)
+
+    def set_timer(self, number: int, period_ms: int, now_ns: int) -> None:
+        """Bank 3 parameter 0..2 written: the timer restarts with the new period."""
+        if period_ms <= 0:
+            self._timers.pop(number, None)
+            return
+        period = period_ms * 1_000_000
+        self._timers[number] = _Timer(period, now_ns + period)
+
+    def _fire_timers(self, now_ns: int, fire: bool = True) -> None:
+        """Move elapsed timers past ``now_ns``, raising each one's interrupt once if ``fire``
+        (when nothing ran meanwhile, the periods are skipped: no burst of stale interrupts)."""
+        for number, timer in self._timers.items():
+            if timer.next_ns <= now_ns:
+                if fire:
+                    self.raise_interrupt(interrupts.timer(number))
+                missed = (now_ns - timer.next_ns) // timer.period_ns + 1
+                timer.next_ns += missed * timer.period_ns
+
+    def _next_timer_ns(self) -> int | None:
+        times = [t.next_ns for n, t in self._timers.items() if self.enabled >> interrupts.timer(n) & 1]
+        return min(times) if times else None
+
+    def _dispatchable(self) -> int:
+        """Pending interrupts that may be taken now (bit mask)."""
+        if not self.globally_enabled or self.saved is not None:
+            return 0
+        return self.pending & self.enabled
+
+    def _dispatch(self) -> None:
+        """Enter the handler of the highest-priority (lowest-numbered) pending interrupt."""
+        while True:
+            candidates = self._dispatchable()
+            if not candidates:
+                return
+            vector = (candidates & -candidates).bit_length() - 1
+            self.pending &= ~(1 << vector)
+            address = self.vectors.get(vector)
+            if address is None:
+                continue  # no handler defined: the interrupt is dropped
+            self.saved = Context(self.pc, self.accumulator, self.x, self.zero_source,
+                                 self.compare_source, self.wait)
+            self.wait = None
+            self.pc = address
+            return
+
+    # == time ==================================================================================
+
+    def next_event_ns(self, now_ns: int) -> int | None:
+        """The next time (> ``now_ns``) the program has to run, or None while it can sleep."""
+        if self.status is not ApplicationStatus.RUN:
+            return None
+        candidates: list[int] = []
+        if self.wait is None or self._dispatchable():
+            candidates.append((max(self.time_ns, now_ns) // SLICE_NS + 1) * SLICE_NS)
+        elif self.wait.deadline_ns is not None:
+            candidates.append(self.wait.deadline_ns)
+        if self.globally_enabled:
+            timer = self._next_timer_ns()
+            if timer is not None:
+                candidates.append(timer)
+        if not candidates:
+            return None
+        return max(min(candidates), now_ns + 1)
+
+    def run_until(self, now_ns: int, end_ns: int) -> bool:
+        """Run the instructions that start before ``end_ns``; the module is at ``now_ns``.
+
+        Returns True when it stopped early, right after a command that went to the module
+        (which may have scheduled an earlier event): the caller re-plans and calls again.
+        """
+        if self.status is not ApplicationStatus.RUN:
+            return False
+        if self.time_ns < now_ns:
+            self.time_ns = now_ns
+        if self.max_lag_ns is not None and self.wait is None and end_ns - self.time_ns > self.max_lag_ns:
+            self.time_ns = end_ns - self.max_lag_ns
+        return self._advance(end_ns)
+
+    # == execution =============================================================================
+
+    def _advance(self, end_ns: int) -> bool:
+        """Execute until ``end_ns``; True if a module command ended the batch early."""
+        while self.time_ns < end_ns:
+            if self._timers:
+                self._fire_timers(self.time_ns)
+            if self.pending and self._dispatchable():
+                self._dispatch()
+            limit = end_ns
+            if self._timers:
+                timer = self._next_timer_ns()
+                if timer is not None and timer < limit:
+                    limit = timer
+            if self.wait is not None and not self._resume_wait(limit):
+                if limit >= end_ns:
+                    return False
+                self.time_ns = limit  # still waiting when the next timer fires
+                continue
+            outcome = self._execute(limit)
+            if outcome == _YIELD:
+                return True
+            if outcome == _STOPPED:
+                return False
+        return False
+
+    def _resume_wait(self, end_ns: int) -> bool:
+        """Check the WAIT in progress at ``self.time_ns``; True once it is over.
+
+        Nothing observable changes between module events and ``end_ns`` never lies beyond
+        the next one, so a condition false now stays false until the deadline.
+        """
+        wait = self.wait
+        assert wait is not None
+        if wait.condition != WaitCondition.TICKS and self._wait_satisfied(wait, self.time_ns):
+            pass
+        elif wait.deadline_ns is not None and wait.deadline_ns < end_ns:
+            if wait.condition != WaitCondition.TICKS:
+                self.errors |= _ERROR_BITS[ErrorFlag.ETO]
+            self.time_ns = max(self.time_ns, wait.deadline_ns)
+        else:
+            return False
+        self.wait = None
+        self.pc += 1
+        return True
+
+    def _wait_satisfied(self, wait: Wait, t: int) -> bool:
+        port, motor = self.port, wait.motor
+        if wait.condition == WaitCondition.POS:
+            return port.axis_parameter(t, motor, AP_POSITION_REACHED) == 1
+        if wait.condition == WaitCondition.REFSW:
+            return port.axis_parameter(t, motor, AP_HOME_SWITCH) == 1
+        if wait.condition == WaitCondition.LIMSW:
+            return (port.axis_parameter(t, motor, AP_LEFT_SWITCH) == 1
+                    or port.axis_parameter(t, motor, AP_RIGHT_SWITCH) == 1)
+        if wait.condition == WaitCondition.RFS:
+            return not port.reference_search_active(t, motor)
+        return True
+
+    def flag(self, condition: int) -> bool:
+        """Whether JC ``condition`` would jump now (the dispatch loop inlines this)."""
+        if condition == Condition.ZE:
+            return self.zero_source == 0
+        if condition == Condition.NZ:
+            return self.zero_source != 0
+        c = self.compare_source
+        if condition == Condition.EQ:
+            return c == 0
+        if condition == Condition.NE:
+            return c != 0
+        if condition == Condition.GT:
+            return c > 0
+        if condition == Condition.GE:
+            return c >= 0
+        if condition == Condition.LT:
+            return c < 0
+        if condition == Condition.LE:
+            return c <= 0
+        return bool(self.errors & _JC_ERROR_BIT.get(condition, 0))
+
+    def _execute(self, limit_ns: int) -> int:
+        """The dispatch loop: instructions starting before ``limit_ns`` (hot ones inlined)."""
+        code = self.code
+        pc = self.pc
+        acc = self.accumulator
+        zero = self.zero_source
+        cmp_ = self.compare_source
+        cost = self.instruction_ns
+        count = (limit_ns - self.time_ns + cost - 1) // cost
+        n = 0
+        outcome = _CONTINUE
+        while n < count:
+            op, ty, _motor, va = code[pc]
+            if op == _CALC:
+                if ty == 0:
+                    acc = ((acc + va + _SIGN) & _MASK) - _SIGN
+                elif ty == 1:
+                    acc = ((acc - va + _SIGN) & _MASK) - _SIGN
+                elif ty == 9:
+                    acc = va
+                else:
+                    acc = calculate(ty, acc, va)
+                zero = acc
+                pc += 1
+            elif op == _COMP:
+                cmp_ = zero = acc - va
+                pc += 1
+            elif op == _JC:
+                if ty == 0:
+                    taken = zero == 0
+                elif ty == 1:
+                    taken = zero != 0
+                elif ty == 2:
+                    taken = cmp_ == 0
+                elif ty == 3:
+                    taken = cmp_ != 0
+                elif ty == 4:
+                    taken = cmp_ > 0
+                elif ty == 5:
+                    taken = cmp_ >= 0
+                elif ty == 6:
+                    taken = cmp_ < 0
+                elif ty == 7:
+                    taken = cmp_ <= 0
+                else:
+                    taken = bool(self.errors & _JC_ERROR_BIT.get(ty, 0))
+                pc = (va if 0 <= va < _END else _END) if taken else pc + 1
+            elif op == _JA:
+                pc = va if 0 <= va < _END else _END
+            else:
+                self.pc, self.accumulator = pc, acc
+                self.zero_source, self.compare_source = zero, cmp_
+                outcome = self._execute_other(code[pc], self.time_ns + n * cost)
+                pc, acc = self.pc, self.accumulator
+                zero, cmp_ = self.zero_source, self.compare_source
+                if outcome != _CONTINUE:
+                    n += 1
+                    break
+            n += 1
+        self.pc, self.accumulator = pc, acc
+        self.zero_source, self.compare_source = zero, cmp_
+        self.executed += n
+        self.time_ns += n * cost
+        return outcome
+
+    def _execute_other(self, ins: Instruction, t: int) -> int:
+        """Everything the dispatch loop does not inline; ``t`` is the instruction's time."""
+        op, ty, motor, va = ins
+        if op == 0 or op == Opcode.STOP:  # empty memory ends a program too
+            self.status = ApplicationStatus.STOP
+            return _STOPPED
+        if op == Opcode.WAIT:
+            return self._start_wait(ty, motor, va, t)
+        handler = _INTERNAL.get(op)
+        if handler is not None:
+            return handler(self, ty, motor, va)
+        return self._module_command(op, ty, motor, va, t)
+
+    # -- commands the interpreter handles itself ---------------------------------------------
+
+    def _calcx(self, ty: int, motor: int, va: int) -> int:
+        if ty == CalcOp.LOAD:
+            self.x = self.accumulator
+        elif ty == CalcOp.SWAP:
+            self.x, self.accumulator = self.accumulator, self.x
+            self.zero_source = self.accumulator
+        elif ty == CalcOp.NOT:
+            self.x = wrap32(~self.x)  # the manual: "NOT - logical invert X register"
+        else:
+            self.accumulator = calculate(ty, self.accumulator, self.x)
+            self.zero_source = self.accumulator
+        self.pc += 1
+        return _CONTINUE
+
+    def _csub(self, ty: int, motor: int, va: int) -> int:
+        if len(self.stack) < CALL_STACK_DEPTH:
+            self.stack.append(self.pc + 1)
+            self.pc = va if 0 <= va < _END else _END
+        else:
+            self.pc += 1  # stack full: the call is ignored (§3.6.18)
+        return _CONTINUE
+
+    def _rsub(self, ty: int, motor: int, va: int) -> int:
+        self.pc = self.stack.pop() if self.stack else self.pc + 1  # empty stack: ignored
+        return _CONTINUE
+
+    def _ei(self, ty: int, motor: int, va: int) -> int:
+        self.enable_interrupt(ty)
+        self.pc += 1
+        return _INTERRUPTS
+
+    def _di(self, ty: int, motor: int, va: int) -> int:
+        self.disable_interrupt(ty)
+        self.pc += 1
+        return _INTERRUPTS
+
+    def _vect(self, ty: int, motor: int, va: int) -> int:
+        self.vectors[ty] = va if 0 <= va < _END else _END
+        self.pc += 1
+        return _INTERRUPTS
+
+    def _reti(self, ty: int, motor: int, va: int) -> int:
+        saved = self.saved
+        if saved is None:
+            self.pc += 1  # RETI outside a handler does nothing
+            return _CONTINUE
+        self.saved = None
+        (self.pc, self.accumulator, self.x, self.zero_source, self.compare_source,
+         self.wait) = saved
+        return _INTERRUPTS
+
+    def _cle(self, ty: int, motor: int, va: int) -> int:
+        self.errors &= ~(_ALL_ERRORS if ty == ErrorFlag.ALL else _ERROR_BITS.get(ty, 0))
+        self.pc += 1
+        return _CONTINUE
+
+    def enable_interrupt(self, number: int) -> None:
+        if number == interrupts.GLOBAL:
+            self.globally_enabled = True
+        else:
+            self.enabled |= 1 << number
+
+    def disable_interrupt(self, number: int) -> None:
+        if number == interrupts.GLOBAL:
+            self.globally_enabled = False
+        else:
+            self.enabled &= ~(1 << number)
+            self.pending &= ~(1 << number)
+
+    def _start_wait(self, condition: int, motor: int, ticks: int, t: int) -> int:
+        if condition not in tuple(WaitCondition) or (
+                condition != WaitCondition.TICKS and not 0 <= motor < self.number_of_axes):
+            self.pc += 1  # a WAIT the firmware cannot evaluate is skipped
+            return _CONTINUE
+        deadline = t + ticks * WAIT_TICK_NS if ticks > 0 else None
+        wait = Wait(condition, motor, deadline)
+        if condition == WaitCondition.TICKS:
+            if deadline is None:
+                self.pc += 1
+                return _CONTINUE
+        elif self._wait_satisfied(wait, t):
+            self.pc += 1
+            return _CONTINUE
+        self.wait = wait
+        return _WAITING
+
+    # -- commands that go to the module --------------------------------------------------------
+
+    def _module_command(self, op: int, ty: int, motor: int, va: int, t: int) -> int:
+        port = self.port
+        if op == Opcode.AAP:
+            port.execute(t, Opcode.SAP, ty, motor, self.accumulator)
+        elif op == Opcode.AGP:
+            port.execute(t, Opcode.SGP, ty, motor, self.accumulator)
+        elif op == Opcode.ACO:
+            if motor != _MOTOR_ALL:
+                port.execute(t, Opcode.SCO, ty, motor, self.accumulator)
+        else:
+            status, value = port.execute(t, op, ty, motor, va)
+            loads = op in _LOADS_ACCUMULATOR and not (op == Opcode.GCO and motor == _MOTOR_ALL)
+            if status == STATUS_OK and (loads or (op == Opcode.RFS and ty == RfsType.STATUS)):
+                self.accumulator = self.zero_source = wrap32(value)
+        self.pc += 1
+        return _YIELD
+
+
+# Outcomes of _execute / _execute_other.
+_CONTINUE = 0  # keep going
+_YIELD = 1  # a module command ran: let the caller re-plan events
+_STOPPED = 2  # STOP or end of program
+_WAITING = 3  # a WAIT is in progress
+_INTERRUPTS = 4  # interrupt state changed: check for a dispatch before the next instruction
+
+_INTERNAL = {
+    Opcode.CALCX: Interpreter._calcx,
+    Opcode.CSUB: Interpreter._csub,
+    Opcode.RSUB: Interpreter._rsub,
+    Opcode.EI: Interpreter._ei,
+    Opcode.DI: Interpreter._di,
+    Opcode.VECT: Interpreter._vect,
+    Opcode.RETI: Interpreter._reti,
+    Opcode.CLE: Interpreter._cle,
+}

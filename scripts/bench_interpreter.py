@@ -1,0 +1,115 @@
+#!/usr/bin/env python3
+"""Benchmark the TMCL interpreter.
+
+1. Throughput: a tight CALC/COMP/JC loop on the virtual clock, run through the whole
+   simulation (module, event planning), in TMCL instructions per wall-clock second.
+   Goal: at least 1,000,000 per second.
+2. Direct-mode latency while a program runs: a busy program on a real clock, and a host
+   sending GAP over TCP; round-trip times of the replies.
+
+    .venv/bin/python scripts/bench_interpreter.py [--seconds S] [--requests N]
+
+Numbers vary with the machine and its load: the script repeats each measurement and
+prints the best and the median.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from interpreter.assembler import assemble
+from tmcl_server.clock import VirtualClock
+from tmcl_server.embed import SimulatorThread
+from tmcl_server.module import TMCM6212
+from tmcl_server.protocol import Request, decode_reply
+from tmcl_server.simulation import Simulation
+
+TIGHT_LOOP = """
+    CALC LOAD, 0
+Loop:
+    CALC ADD, 1
+    COMP 2000000000
+    JC LT, Loop
+    STOP
+"""
+
+BUSY_PROGRAM = """
+Loop:
+    GAP 1, 0
+    CALC ADD, 1
+    AGP 0, 2
+    COMP 0
+    JC NE, Loop
+    JA Loop
+"""
+
+
+def throughput(simulated_s: float) -> float:
+    module = TMCM6212()
+    simulation = Simulation([module], VirtualClock())
+    module.program.interpreter.load(assemble(TIGHT_LOOP).instructions)
+    module.program.interpreter.start(0)
+    before = module.program.interpreter.executed
+    t0 = time.perf_counter()
+    simulation.advance(simulated_s)
+    elapsed = time.perf_counter() - t0
+    return (module.program.interpreter.executed - before) / elapsed
+
+
+def latency(requests: int) -> list[float]:
+    with SimulatorThread(clock="real", tcp=["127.0.0.1:0"]) as sim:
+        program = assemble(BUSY_PROGRAM).instructions
+
+        def start() -> None:
+            module = sim.simulation.module(1)
+            module.program.interpreter.load(program)
+            module.program.interpreter.start(module.now_ns)
+
+        sim.call(start)
+        host, port = sim.tcp.rsplit(":", 1)
+        with socket.create_connection((host, int(port))) as sock:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            frame = Request(1, 6, 1, 0, 0).encode()
+            times = []
+            for _ in range(requests):
+                t0 = time.perf_counter()
+                sock.sendall(frame)
+                data = b""
+                while len(data) < 9:
+                    data += sock.recv(9 - len(data))
+                times.append(time.perf_counter() - t0)
+                assert decode_reply(data).status == 100
+        running = sim.call(lambda: sim.simulation.module(1).program.interpreter.executed)
+        print(f"  (the program executed {running} instructions meanwhile)")
+        return times
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=20.0,
+                        help="simulated seconds per throughput run (default 20)")
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--requests", type=int, default=2000)
+    args = parser.parse_args()
+
+    rates = [throughput(args.seconds) for _ in range(args.repeat)]
+    print(f"tight CALC/COMP/JC loop, virtual clock: best {max(rates):,.0f} instr/s, "
+          f"median {statistics.median(rates):,.0f} instr/s (goal >= 1,000,000)")
+
+    times = sorted(latency(args.requests))
+    ms = [t * 1000 for t in times]
+    print(f"direct-mode GAP over TCP while a program runs ({args.requests} requests): "
+          f"median {statistics.median(ms):.3f} ms, p99 {ms[int(len(ms) * 0.99) - 1]:.3f} ms, "
+          f"max {ms[-1]:.3f} ms")
+    return 0 if max(rates) >= 1_000_000 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,256 @@
+"""Assembler, disassembler, include files and tmcl-asm."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from axes.parameters import AXIS_PARAMETERS
+from interpreter.assembler import INCLUDE_DIR, AssemblyError, assemble, assemble_file
+from interpreter.cli import main as tmcl_asm
+from interpreter.disassembler import disassemble, listing
+from interpreter.interrupts import INTERRUPT_VECTORS
+from interpreter.isa import (
+    OPERANDS,
+    PROGRAM_MEMORY_SIZE,
+    Instruction,
+    Opcode,
+    decode_program,
+    encode_program,
+)
+from tmcl_server.tables import BANK0_PARAMETERS, BANK3_PARAMETERS
+
+ROOT = Path(__file__).resolve().parent.parent
+VECTOR = ROOT.parent / "shared" / "vectors" / "pytrinamic_test.bin"
+
+
+def vector_bytes() -> bytes:
+    if not VECTOR.exists():
+        pytest.skip("shared/vectors not next to the checkout")
+    return VECTOR.read_bytes()
+
+
+# -- the real IDE binary ----------------------------------------------------------------------
+
+def test_pytrinamic_vector_disassembles_to_its_listing() -> None:
+    # The vector README prints "MVP REL, 0, 200" for addresses 3 and 9, but the records hold
+    # 00 00 C8 00 = 51200 (and FF FF 38 00 = -51200 at address 6): the bytes are the truth.
+    assert listing(decode_program(vector_bytes())) == (
+        "    0: VECT 3, 5\n"
+        "    1: EI 3\n"
+        "    2: EI 255\n"
+        "    3: MVP REL, 0, 51200\n"
+        "    4: JA 4\n"
+        "    5: VECT 3, 8\n"
+        "    6: MVP REL, 0, -51200\n"
+        "    7: RETI\n"
+        "    8: VECT 3, 5\n"
+        "    9: MVP REL, 0, 51200\n"
+        "    10: RETI\n")
+
+
+def test_pytrinamic_vector_source_round_trip() -> None:
+    data = vector_bytes()
+    source = disassemble(decode_program(data))
+    assert "L1:\n    JA L1\n" in source
+    assert assemble(source).binary() == data
+
+
+# -- assembler features -------------------------------------------------------------------------
+
+def test_manual_example_binaries() -> None:
+    """Binary forms printed in the manual (§3.6): the 7 command bytes match."""
+    cases = {
+        "ROR 0, 51200": "01 00 00 00 00 c8 00",
+        "MVP ABS, 0, 9000": "04 00 00 00 00 23 28",
+        "CALC MUL, -5000": "13 02 00 ff ff ec 78",
+        "COMP 1000": "14 00 00 00 00 03 e8",
+        "Label: JC GE, Label + 10": "15 05 00 00 00 00 0a",
+        "CSUB 100": "17 00 00 00 00 00 64",
+        "WAIT POS, 0, 0": "1b 01 00 00 00 00 00",
+        "CALCX MUL": "21 02 00 00 00 00 00",
+        "AGP 42, 2": "23 2a 02 00 00 00 00",
+        "CLE ETO": "24 01 00 00 00 00 00",
+        "EI 255": "19 ff 00 00 00 00 00",
+        "SIO 3, 2, 1": "0e 03 02 00 00 00 01",
+    }
+    for source, expected in cases.items():
+        assert assemble(source).binary()[:7].hex(" ") == expected, source
+
+
+def test_labels_constants_comments_and_case() -> None:
+    program = assemble("""
+        // the TMCL-IDE's style
+        MaxSpeed = 50000
+        Twice = MaxSpeed * 2 + $10 - 0x10   // expressions, $hex and 0x hex
+    loop :
+        sap 4, 0, maxspeed
+        MVP abs , 0 , Twice
+        wait pos, 0, 0
+        jc Ge, LOOP
+        Func: JA loop
+    """)
+    assert program.instructions == [
+        Instruction(Opcode.SAP, 4, 0, 50000),
+        Instruction(Opcode.MVP, 0, 0, 100000),
+        Instruction(Opcode.WAIT, 1, 0, 0),
+        Instruction(Opcode.JC, 5, 0, 0),
+        Instruction(Opcode.JA, 0, 0, 0),
+    ]
+    assert program.labels == {"loop": 0, "Func": 4}
+    assert program.constants == {"MaxSpeed": 50000, "Twice": 100000}
+
+
+def test_unsigned_values_wrap_to_signed() -> None:
+    assert assemble("CALC AND, 0xFFFFFFFF").instructions[0].value == -1
+
+
+def test_include_files_from_the_source_directory(tmp_path: Path) -> None:
+    (tmp_path / "Consts.INC").write_text("Target = 1234\n")
+    (tmp_path / "main.tmc").write_text("#include consts.inc\n#include Interrupts.inc\n"
+                                       "MVP ABS, 0, Target\nEI TI_GLOBAL\n")
+    program = assemble_file(tmp_path / "main.tmc")
+    assert program.instructions == [Instruction(Opcode.MVP, 0, 0, 1234), Instruction(Opcode.EI, 255)]
+
+
+def test_manual_symbolic_constants_example() -> None:
+    """§7.3, with the shipped TMCLParam.tmc."""
+    program = assemble("""
+        #include TMCLParam.tmc
+        MaxSpeed = 50000
+        MaxAcc = 10000
+        Position0 = 0
+        Position1 = 500000
+        SAP APMaxPositioningSpeed, Motor0, MaxSpeed
+        SAP APMaxAcceleration, Motor0, MaxAcc
+    MainLoop:
+        MVP ABS, Motor0, Position1
+        WAIT POS, Motor0, 0
+        MVP ABS, Motor0, Position0
+        WAIT POS, Motor0, 0
+        JA MainLoop
+    """)
+    assert program.instructions[:2] == [Instruction(Opcode.SAP, 4, 0, 50000),
+                                        Instruction(Opcode.SAP, 5, 0, 10000)]
+
+
+@pytest.mark.parametrize(("source", "where", "message"), [
+    ("  FOO 1, 2", "1:3", "unknown mnemonic 'FOO'"),
+    ("JA Nowhere", "1:4", "undefined symbol 'Nowhere'"),
+    ("X: STOP\n  x: STOP", "2:3", "duplicate label 'x'"),
+    ("SAP 300, 0, 1", "1:5", "out of range 0..255"),
+    ("MVP ABS, 0", "1:1", "MVP takes 3 operand(s), got 2"),
+    ("RSUB 1", "1:1", "RSUB takes 0 operand(s), got 1"),
+    ("CALC SWAP, 1", "1:6", "SWAP is not allowed in CALC"),
+    ("JA 7000", "1:4", "outside program memory"),
+    ("COMP 0x100000000", "1:6", "does not fit 32 bits"),
+    ("WAIT 9, 0, 0", "1:6", "out of range for WAIT"),
+    ("A = B\nB = A\nCOMP A", "1:1", "depends on itself"),
+    ("#include missing.inc", "1:10", "not found"),
+    ("COMP 1 +", "1:6", "bad expression"),
+])
+def test_errors_point_at_file_line_and_column(source: str, where: str, message: str) -> None:
+    with pytest.raises(AssemblyError) as info:
+        assemble(source, "prog.tmc")
+    assert str(info.value).startswith(f"prog.tmc:{where}: ")
+    assert message in str(info.value)
+
+
+# -- disassembler ---------------------------------------------------------------------------
+
+def _instruction() -> st.SearchStrategy[Instruction]:
+    """Any canonical instruction: operands only in the fields the mnemonic has."""
+    def build(opcode: Opcode, data: st.DataObject) -> Instruction:
+        fields = {"type": 0, "motor": 0, "value": 0}
+        for spec in OPERANDS[opcode]:
+            if spec.symbols is not None:
+                members = list(spec.symbols)
+                if opcode == Opcode.CALC:
+                    members = members[:-1]
+                fields[spec.slot] = int(data.draw(st.sampled_from(members)))
+            elif spec.address:
+                fields[spec.slot] = data.draw(st.integers(0, PROGRAM_MEMORY_SIZE - 1))
+            elif spec.slot == "value":
+                fields[spec.slot] = data.draw(st.integers(-(2**31), 2**31 - 1))
+            else:
+                fields[spec.slot] = data.draw(st.integers(0, 255))
+        return Instruction(int(opcode), fields["type"], fields["motor"], fields["value"])
+
+    return st.builds(lambda op, data: build(op, data), st.sampled_from(list(OPERANDS)), st.data())
+
+
+@given(st.lists(_instruction(), max_size=40))
+def test_disassembly_assembles_to_the_same_program(program: list[Instruction]) -> None:
+    assert assemble(disassemble(program)).instructions == program
+
+
+def test_disassembly_keeps_non_canonical_fields_visible() -> None:
+    text = disassemble([Instruction(Opcode.RETI, 255), Instruction(99, 1, 2, 3)])
+    assert "RETI  // also type 255" in text
+    assert "// opcode 99, type 1, motor 2, value 3" in text
+
+
+def test_binary_records_and_checksums() -> None:
+    data = encode_program([Instruction(Opcode.STOP)])
+    assert data.hex(" ") == "1c 00 00 00 00 00 00 1c"
+    with pytest.raises(ValueError, match="checksum"):
+        decode_program(data[:-1] + b"\x00")
+    with pytest.raises(ValueError, match="multiple of 8"):
+        decode_program(data[:-1])
+
+
+# -- include files against the tables ------------------------------------------------------
+
+def test_include_files_are_generated_from_the_tables() -> None:
+    result = subprocess.run([sys.executable, str(ROOT / "scripts" / "gen_includes.py"), "--check"],
+                            capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr
+
+
+def _constants(name: str) -> dict[str, int]:
+    pairs = re.findall(r"^(\w+) = (\d+)", (INCLUDE_DIR / name).read_text(), re.MULTILINE)
+    return {key: int(value) for key, value in pairs}
+
+
+def test_include_files_cover_every_parameter_and_vector() -> None:
+    params = _constants("TMCLParam.tmc")
+    ap = {v for k, v in params.items() if k.startswith("AP")}
+    assert ap == set(AXIS_PARAMETERS)
+    gp = [v for k, v in params.items() if k.startswith("GP")]
+    assert sorted(gp) == sorted([*BANK0_PARAMETERS, *BANK3_PARAMETERS])
+    assert params["APMaxPositioningSpeed"] == 4 and params["APMaxAcceleration"] == 5  # §7.3 names
+    assert _constants("Interrupts.inc") == {name: n for n, (name, _) in INTERRUPT_VECTORS.items()}
+    assert _constants("Interrupts.inc")["TI_TIMER0"] == 0  # the manual's §3.5.6.4 names
+    assert _constants("Interrupts.inc")["TI_GLOBAL"] == 255
+
+
+# -- tmcl-asm -----------------------------------------------------------------------------------
+
+def test_tmcl_asm_assemble_list_disassemble(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    source = tmp_path / "prog.tmc"
+    source.write_text("Loop: CALC ADD, 1\n  JA Loop\n")
+    assert tmcl_asm(["assemble", str(source), "--listing", str(tmp_path / "prog.lst"),
+                     "--append-stop"]) == 0
+    binary = tmp_path / "prog.bin"
+    assert decode_program(binary.read_bytes())[-1] == Instruction(Opcode.STOP)
+    assert "    1  16 00 00 00 00 00 00 16  " in (tmp_path / "prog.lst").read_text()
+    capsys.readouterr()
+    assert tmcl_asm(["disassemble", str(binary)]) == 0
+    assert capsys.readouterr().out == "L1:\n    CALC ADD, 1\n    JA L1\n    STOP\n"
+    assert tmcl_asm(["disassemble", "--listing", str(binary)]) == 0
+    assert "    1: JA 0\n" in capsys.readouterr().out
+    assert tmcl_asm(["list", str(source)]) == 0
+    assert "JA Loop" in capsys.readouterr().out
+
+
+def test_tmcl_asm_reports_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    source = tmp_path / "bad.tmc"
+    source.write_text("STOP\n  JA Missing\n")
+    assert tmcl_asm(["assemble", str(source)]) == 1
+    assert f"{source}:2:6: undefined symbol 'Missing'" in capsys.readouterr().err

@@ -1,0 +1,265 @@
+"""Standalone mode of the TMCM-6212: the module side of the TMCL interpreter.
+
+:class:`ProgramSupport` sits between the module model and :mod:`interpreter.machine`: it
+implements the interpreter's :class:`~interpreter.machine.ModulePort`, serves the control
+commands 128-135 (the module finds the ``_cmd_<name>`` handlers here as well as on itself),
+keeps program memory in the EEPROM, and turns module events into interrupts.  Choices the
+manual leaves open are in docs/interpreter.md.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import TYPE_CHECKING
+
+from axes.interface import AxisEvent, AxisEventKind
+from interpreter import interrupts
+from interpreter.interrupts import Trigger
+from interpreter.isa import (
+    PROGRAM_MEMORY_SIZE,
+    CodeProtection,
+    ErrorFlag,
+    Instruction,
+    Opcode,
+    RfsType,
+)
+from interpreter.machine import Interpreter
+from tmcl_server.module import CommandError
+from tmcl_server.protocol import RawReply, Request, checksum
+from tmcl_server.tables import GP, Status
+
+if TYPE_CHECKING:
+    from tmcl_server.module import TMCM6212, Interface, ReplySink
+
+EEPROM_SECTION = "program"
+#: On a real clock a running program may fall this far behind before it skips time.
+REAL_CLOCK_MAX_LAG_NS = 50_000_000
+#: Command 135 "mode" while the module is in download mode (GP 128 only knows 0..3).
+DOWNLOAD_MODE = 4
+_LEGACY_READ = struct.Struct(">BBBBiB")
+
+_EVENT_VECTORS = {
+    AxisEventKind.TARGET_REACHED: interrupts.target_reached,
+    AxisEventKind.STALL: interrupts.stall,
+    AxisEventKind.DEVIATION: interrupts.deviation,
+}
+_SWITCH_VECTORS = {
+    AxisEventKind.LEFT_SWITCH: interrupts.left_switch,
+    AxisEventKind.RIGHT_SWITCH: interrupts.right_switch,
+}
+
+
+class ProgramSupport:
+    """Program memory, download mode, the interpreter and its control commands for one module."""
+
+    def __init__(self, module: TMCM6212) -> None:
+        self.module = module
+        self.interpreter = Interpreter(self)
+        self.downloading = False
+        self.download_address = 0
+        self._dirty = False
+
+    # == power-up ==============================================================================
+
+    def power_up(self) -> None:
+        """Reload the program from the EEPROM, forget the run state, auto-start (GP 77)."""
+        now = self.module.now_ns
+        self.interpreter.power_up(now)
+        self.interpreter.erase()
+        self.downloading = False
+        self._dirty = False
+        for key, fields in self.module.eeprom.items(EEPROM_SECTION):
+            self.interpreter.store(int(key), Instruction(*fields))
+        for number, value in self.module.globals[3].items():
+            self.global_written(3, number, value)
+        if self.module.globals[0][GP.AUTO_START] == 1 and self.interpreter.program():
+            self.interpreter.start(now, 0)
+
+    # == the interpreter's port ================================================================
+
+    def _sync(self, time_ns: int) -> None:
+        if time_ns > self.module.now_ns:
+            self.module._step_to(time_ns)
+
+    def execute(self, time_ns: int, opcode: int, type_: int, motor: int, value: int) -> tuple[int, int]:
+        self._sync(time_ns)
+        return self.module.perform(Request(self.module.address, opcode, type_, motor, value))
+
+    def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
+        self._sync(time_ns)
+        return self.module.axis(motor).get_parameter(number)
+
+    def reference_search_active(self, time_ns: int, motor: int) -> bool:
+        self._sync(time_ns)
+        return self.module.axis(motor).reference_search(RfsType.STATUS) != 0
+
+    # == time ==================================================================================
+
+    def next_event_ns(self, now_ns: int) -> int | None:
+        return self.interpreter.next_event_ns(now_ns)
+
+    def run(self, now_ns: int, end_ns: int) -> bool:
+        """Run the program's instructions that start before ``end_ns`` (see Interpreter)."""
+        return self.interpreter.run_until(now_ns, end_ns)
+
+    # == module events =========================================================================
+
+    def on_axis_event(self, event: AxisEvent) -> None:
+        vector = _EVENT_VECTORS.get(event.kind)
+        if vector is not None:
+            self.interpreter.raise_interrupt(vector(event.axis))
+            if event.kind is AxisEventKind.DEVIATION:
+                self.interpreter.set_error_flag(ErrorFlag.EDV)
+            return
+        switch = _SWITCH_VECTORS.get(event.kind)
+        if switch is not None and event.active is not None:
+            self.interpreter.trigger_transition(switch(event.axis), event.active)
+
+    def on_input_changed(self, port: int, level: int) -> None:
+        self.interpreter.trigger_transition(interrupts.input_change(port), bool(level))
+
+    def global_written(self, bank: int, number: int, value: int, old: int | None = None) -> None:
+        """A global parameter changed: timers and triggers (bank 3), code protection (GP 81)."""
+        if bank == 3:
+            if number < interrupts.NUMBER_OF_TIMERS:
+                self.interpreter.set_timer(number, value, self.module.now_ns)
+            elif number in interrupts.TRIGGERED:
+                self.interpreter.triggers[number] = Trigger(value)
+        elif (bank == 0 and number == GP.CODE_PROTECTION and old is not None
+              and old & CodeProtection.READ and not value & CodeProtection.READ):
+            # Lifting the read protection erases the program first (GP 81, Table 16).
+                self.interpreter.stop()
+                self.interpreter.erase()
+                self.module.eeprom.replace_section(EEPROM_SECTION, {})
+
+    def read_global(self, number: int) -> int | None:
+        """GP 128/129/130 mirror the interpreter; None for every other parameter."""
+        if number == GP.APPLICATION_STATUS:
+            return int(self.interpreter.status)
+        if number == GP.DOWNLOAD_MODE:
+            return int(self.downloading)
+        if number == GP.PROGRAM_COUNTER:
+            return self.interpreter.pc
+        return None
+
+    # == download mode =========================================================================
+
+    def store(self, request: Request) -> tuple[int, int]:
+        """Download mode: keep the command in program memory instead of executing it."""
+        if self.download_address >= PROGRAM_MEMORY_SIZE:
+            return Status.MAX_EXCEEDED, request.value
+        self.interpreter.store(self.download_address,
+                               Instruction(request.opcode, request.type, request.motor, request.value))
+        self.download_address += 1
+        self._dirty = True
+        return Status.LOADED, request.value
+
+    def persist(self) -> None:
+        """Write program memory to the EEPROM (at the end of a download)."""
+        if not self._dirty:
+            return
+        stored = {address: list(ins) for address, ins in enumerate(self.interpreter.program())
+                  if ins.opcode != 0}
+        self.module.eeprom.replace_section(EEPROM_SECTION, stored)
+        self._dirty = False
+
+    @property
+    def _protection(self) -> int:
+        return self.module.globals[0][GP.CODE_PROTECTION]
+
+    # == control commands (Table 13) ===========================================================
+
+    def _cmd_stop_application(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self.interpreter.stop()
+
+    def _cmd_run_application(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if self.downloading:
+            raise CommandError(Status.COMMAND_NOT_AVAILABLE)
+        if req.type == 0:
+            self.interpreter.start(self.module.now_ns)
+        elif req.type == 1:
+            if not 0 <= req.value < PROGRAM_MEMORY_SIZE:
+                raise CommandError(Status.INVALID_VALUE)
+            self.interpreter.start(self.module.now_ns, req.value)
+        else:
+            raise CommandError(Status.WRONG_TYPE)
+
+    def _cmd_step_application(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if self.downloading:
+            raise CommandError(Status.COMMAND_NOT_AVAILABLE)
+        self.interpreter.step(self.module.now_ns)
+
+    def _cmd_reset_application(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self.interpreter.reset()
+
+    def _cmd_enter_download_mode(self, req: Request, sink: ReplySink | None,
+                                 interface: Interface) -> None:
+        if self._protection & CodeProtection.WRITE:
+            raise CommandError(Status.WRITE_PROTECTED)
+        if not 0 <= req.value < PROGRAM_MEMORY_SIZE:
+            raise CommandError(Status.INVALID_VALUE)
+        self.interpreter.stop()
+        self.downloading = True
+        self.download_address = req.value
+
+    def _cmd_exit_download_mode(self, req: Request, sink: ReplySink | None,
+                                interface: Interface) -> None:
+        self.downloading = False
+        self.persist()
+
+    def _cmd_read_program_memory(self, req: Request, sink: ReplySink | None,
+                                 interface: Interface) -> RawReply:
+        """The legacy layout: ``[host][opcode][type][motor][value x4][checksum]``."""
+        if not 0 <= req.value < PROGRAM_MEMORY_SIZE:
+            raise CommandError(Status.INVALID_VALUE)
+        ins = self.interpreter.code[req.value]
+        if self._protection & CodeProtection.READ:
+            ins = Instruction(0)  # protected memory reads as empty: nothing to disassemble
+        body = _LEGACY_READ.pack(self.module.host_address, ins.opcode, ins.type, ins.motor,
+                                 ins.value, 0)[:8]
+        return RawReply(body + bytes((checksum(body),)), body[1:8])
+
+    def _cmd_get_application_status(self, req: Request, sink: ReplySink | None,
+                                    interface: Interface) -> int:
+        interp = self.interpreter
+        if req.type in (0, 1):
+            mode = DOWNLOAD_MODE if self.downloading else int(interp.status)
+            pointer = self.download_address if req.type == 0 else interp.pc
+            return mode << 24 | int(interp.wait is not None) << 16 | pointer & 0xFFFF
+        if req.type == 2:
+            return interp.accumulator
+        if req.type == 3:
+            return interp.x
+        raise CommandError(Status.WRONG_TYPE)
+
+    # == program commands sent in direct mode ==================================================
+
+    def _acknowledge(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        """Flow and calculation commands in direct mode: OK, and the program is untouched."""
+
+    _cmd_calc = _cmd_comp = _cmd_jc = _cmd_ja = _cmd_csub = _cmd_rsub = _acknowledge
+    _cmd_wait = _cmd_stop = _cmd_calcx = _cmd_cle = _cmd_reti = _acknowledge
+
+    def _cmd_ei(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self.interpreter.enable_interrupt(req.type)
+
+    def _cmd_di(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self.interpreter.disable_interrupt(req.type)
+
+    def _cmd_vect(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if not 0 <= req.value < PROGRAM_MEMORY_SIZE:
+            raise CommandError(Status.INVALID_VALUE)
+        self.interpreter.vectors[req.type] = req.value
+
+    def _accumulator_to(self, opcode: Opcode, req: Request) -> None:
+        status, _ = self.module.perform(Request(req.address, opcode, req.type, req.motor,
+                                                self.interpreter.accumulator))
+        if status != Status.OK:
+            raise CommandError(Status(status))
+
+    def _cmd_aap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self._accumulator_to(Opcode.SAP, req)
+
+    def _cmd_agp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        self._accumulator_to(Opcode.SGP, req)
+

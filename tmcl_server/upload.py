@@ -1,0 +1,199 @@
+"""``tmcl-upload``: download a TMCL program into a module (simulated or real) and run it.
+
+    tmcl-upload prog.tmc --tcp 127.0.0.1:2323 --verify --run
+    tmcl-upload prog.bin --serial /tmp/ttyTMCL0:115200
+    tmcl-upload prog.tmc --connection "--interface serial_tmcl --port COM4 --data-rate 9600"
+
+``--tcp`` and ``--serial`` speak raw 9-byte TMCL themselves (the simulator's TCP port, a pty
+or any serial line); ``--connection`` hands its argument to pytrinamic's ConnectionManager,
+which reaches real modules over USB, RS-485 or CAN.  The sequence is the TMCL-IDE's: 132
+(download from an address), every command (each answered with status 101), 133; then
+optionally 134 read-back and 131/129.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+from interpreter.assembler import AssemblyError, assemble_file
+from interpreter.isa import Instruction, Opcode, decode_program
+from tmcl_server.protocol import FRAME_LENGTH, Request, decode_reply, to_int32
+from tmcl_server.tables import Status
+from tmcl_server.transports.serial_port import parse_serial_spec
+from tmcl_server.transports.tcp import parse_host_port
+
+#: (byte 1, byte 2, byte 3, value) of a reply: module, status, opcode, value normally;
+#: opcode, type, motor, value for command 134.
+ReplyFields = tuple[int, int, int, int]
+
+
+class UploadError(RuntimeError):
+    pass
+
+
+class Client(Protocol):
+    def send(self, opcode: int, type_: int, motor: int, value: int) -> ReplyFields: ...
+
+    def close(self) -> None: ...
+
+
+class StreamClient:
+    """Raw TMCL over a byte stream: write 9 bytes, read 9 bytes."""
+
+    def __init__(self, write: Callable[[bytes], Any], read: Callable[[int], bytes],
+                 close: Callable[[], None], address: int) -> None:
+        self._write, self._read, self._close = write, read, close
+        self.address = address
+
+    @classmethod
+    def tcp(cls, endpoint: str, address: int, timeout: float) -> StreamClient:
+        sock = socket.create_connection(parse_host_port(endpoint), timeout=timeout)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+        def read(n: int) -> bytes:
+            data = b""
+            while len(data) < n:
+                chunk = sock.recv(n - len(data))
+                if not chunk:
+                    raise UploadError("connection closed by the module")
+                data += chunk
+            return data
+
+        return cls(sock.sendall, read, sock.close, address)
+
+    @classmethod
+    def serial(cls, argument: str, address: int, timeout: float) -> StreamClient:
+        import serial  # pyserial
+
+        device, baud = parse_serial_spec(argument)
+        port = serial.Serial(device, baud or 9600, timeout=timeout)
+
+        def read(n: int) -> bytes:
+            data = port.read(n)
+            if len(data) != n:
+                raise UploadError(f"no reply from module {address} on {device}")
+            return bytes(data)
+
+        return cls(port.write, read, port.close, address)
+
+    def send(self, opcode: int, type_: int, motor: int, value: int) -> ReplyFields:
+        self._write(Request(self.address, opcode, type_, motor, value).encode())
+        frame = self._read(FRAME_LENGTH)
+        reply = decode_reply(frame)  # checks the checksum (also right for the 134 layout)
+        return reply.module, reply.status, reply.opcode, reply.value
+
+    def close(self) -> None:
+        self._close()
+
+
+class PytrinamicClient:
+    """Any interface pytrinamic's ConnectionManager can open (USB, serial, CAN, TCP)."""
+
+    def __init__(self, arguments: str, address: int) -> None:
+        try:
+            from pytrinamic.connections import ConnectionManager
+        except ImportError as exc:
+            raise UploadError("--connection needs pytrinamic (pip install pytrinamic)") from exc
+        self._interface = ConnectionManager(arguments).connect()
+        self.address = address
+
+    def send(self, opcode: int, type_: int, motor: int, value: int) -> ReplyFields:
+        from pytrinamic.tmcl import TMCLReplyStatusError
+
+        try:
+            reply = self._interface.send(opcode, type_, motor, value, module_id=self.address)
+        except TMCLReplyStatusError as exc:
+            reply = exc.reply
+        return reply.module_address, reply.status, reply.command, to_int32(reply.value)  # it is unsigned
+
+    def close(self) -> None:
+        self._interface.close()
+
+
+def _expect(fields: ReplyFields, status: int, what: str) -> None:
+    if fields[1] != status:
+        try:
+            name = Status(fields[1]).name
+        except ValueError:
+            name = "unknown"
+        raise UploadError(f"{what}: module answered status {fields[1]} ({name})")
+
+
+def upload(client: Client, instructions: Sequence[Instruction], start: int = 0,
+           verify: bool = False, run: bool = False) -> None:
+    """Download ``instructions`` from address ``start``; optionally read back and start."""
+    _expect(client.send(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, start), Status.OK, "enter download mode")
+    try:
+        for address, ins in enumerate(instructions, start):
+            fields = client.send(ins.opcode, ins.type, ins.motor, ins.value)
+            _expect(fields, Status.LOADED, f"command at address {address}")
+    finally:
+        _expect(client.send(Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), Status.OK, "exit download mode")
+    if verify:
+        for address, ins in enumerate(instructions, start):
+            opcode, type_, motor, value = client.send(Opcode.READ_PROGRAM_MEMORY, 0, 0, address)
+            if (opcode, type_, motor, value) != tuple(ins):
+                raise UploadError(f"verify: address {address} holds "
+                                  f"{(opcode, type_, motor, value)}, expected {tuple(ins)}")
+    if run:
+        _expect(client.send(Opcode.RESET_APPLICATION, 0, 0, 0), Status.OK, "reset application")
+        _expect(client.send(Opcode.RUN_APPLICATION, 1, 0, start), Status.OK, "run application")
+
+
+def load_program(path: Path, include: Sequence[Path] = ()) -> list[Instruction]:
+    """A ``.bin`` file as is, anything else assembled as TMCL source."""
+    if path.suffix.lower() == ".bin":
+        return decode_program(path.read_bytes())
+    return assemble_file(path, include).instructions
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tmcl-upload", description=__doc__.splitlines()[0])
+    parser.add_argument("program", type=Path, help=".tmc source or .bin binary")
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--tcp", metavar="HOST:PORT", help="raw TMCL over TCP (the simulator)")
+    where.add_argument("--serial", metavar="DEVICE[:BAUD]", help="raw TMCL over a serial port or pty")
+    where.add_argument("--connection", metavar="ARGS",
+                       help='pytrinamic ConnectionManager arguments, e.g. "--interface kvaser_tmcl"')
+    parser.add_argument("--address", type=int, default=1, help="module address / CAN id (default 1)")
+    parser.add_argument("--start", type=int, default=0, help="program address to download to")
+    parser.add_argument("-I", "--include", action="append", type=Path, default=[], metavar="DIR")
+    parser.add_argument("--verify", action="store_true", help="read the program back (command 134)")
+    parser.add_argument("--run", action="store_true", help="reset and start the program afterwards")
+    parser.add_argument("--timeout", type=float, default=2.0, help="reply timeout in seconds")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        instructions = load_program(args.program, args.include)
+        if args.tcp:
+            client: Client = StreamClient.tcp(args.tcp, args.address, args.timeout)
+        elif args.serial:
+            client = StreamClient.serial(args.serial, args.address, args.timeout)
+        else:
+            client = PytrinamicClient(args.connection, args.address)
+        try:
+            upload(client, instructions, args.start, args.verify, args.run)
+        finally:
+            client.close()
+    except AssemblyError as exc:
+        print(exc, file=sys.stderr)
+        return 1
+    except (OSError, ValueError, UploadError) as exc:
+        print(f"tmcl-upload: {exc}", file=sys.stderr)
+        return 1
+    done = ", verified" if args.verify else ""
+    print(f"{args.program}: {len(instructions)} commands at {args.start}{done}"
+          f"{', running' if args.run else ''}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
