@@ -128,6 +128,11 @@ class ModulePort(Protocol):
         """RFS STATUS: True while a reference search runs on ``motor``."""
         ...
 
+    def program_event(self, time_ns: int, kind: str, **data: int) -> None:
+        """Something observers may want to know: ``program_started``, ``program_stopped``
+        (with ``pc``) or ``interrupt_taken`` (with ``vector`` and ``address``)."""
+        ...
+
 
 @dataclass(slots=True)
 class Wait:
@@ -249,11 +254,15 @@ class Interpreter:
         self.time_ns = max(self.time_ns, now_ns)
         self.status = ApplicationStatus.RUN
         self._fire_timers(now_ns, fire=False)
+        self.port.program_event(self.time_ns, "program_started", pc=self.pc)
 
     def stop(self) -> None:
         """Command 128 (the STOP instruction ends the same way)."""
+        running = self.status is ApplicationStatus.RUN
         self.status = ApplicationStatus.STOP
         self.wait = None
+        if running:
+            self.port.program_event(self.time_ns, "program_stopped", pc=self.pc)
 
     def step(self, now_ns: int) -> None:
         """Command 130: execute the next instruction, then stay in step mode."""
@@ -324,6 +333,8 @@ class Interpreter:
                                  self.compare_source, self.wait)
             self.wait = None
             self.pc = address
+            self.port.program_event(self.time_ns, "interrupt_taken", vector=vector,
+                                    address=address)
             return
 
     # == time ==================================================================================
@@ -509,6 +520,7 @@ class Interpreter:
         op, ty, motor, va = ins
         if op == 0 or op == Opcode.STOP:  # empty memory ends a program too
             self.status = ApplicationStatus.STOP
+            self.port.program_event(t, "program_stopped", pc=self.pc)
             return _STOPPED
         if op == Opcode.WAIT:
             return self._start_wait(ty, motor, va, t)

@@ -34,6 +34,7 @@ class FakePort:
         self.axis: dict[tuple[int, int], int] = {}
         self.searching: set[int] = set()
         self.replies: dict[int, int] = {}
+        self.events: list[tuple[int, str, dict[str, int]]] = []
 
     def execute(self, time_ns: int, opcode: int, type_: int, motor: int, value: int) -> tuple[int, int]:
         self.commands.append((time_ns, opcode, type_, motor, value))
@@ -44,6 +45,9 @@ class FakePort:
 
     def reference_search_active(self, time_ns: int, motor: int) -> bool:
         return motor in self.searching
+
+    def program_event(self, time_ns: int, kind: str, **data: int) -> None:
+        self.events.append((time_ns, kind, data))
 
 
 def machine(source: str) -> tuple[Interpreter, FakePort]:
@@ -495,3 +499,26 @@ def test_inlined_dispatch_agrees_with_the_reference_arithmetic(steps: list[tuple
         (Condition.EQ, difference == 0), (Condition.NE, difference != 0),
         (Condition.GT, difference > 0), (Condition.GE, difference >= 0),
         (Condition.LT, difference < 0), (Condition.LE, difference <= 0)) if holds}
+
+
+def test_program_events_start_interrupt_and_stop():
+    vm, port = machine("""
+        VECT 0, Tick
+        SGP 0, 3, 5
+        EI 0
+        EI 255
+        WAIT TICKS, 0, 1
+        STOP
+    Tick:
+        RETI
+    """)
+    vm.set_timer(0, 5, 0)
+    vm.start(0, 0)
+    while vm.run_until(vm.time_ns, 50 * MS):  # True: it yielded after a module command
+        pass
+    kinds = [(kind, data) for _, kind, data in port.events]
+    assert kinds[0] == ("program_started", {"pc": 0})
+    assert ("interrupt_taken", {"vector": 0, "address": 6}) in kinds
+    assert kinds[-1] == ("program_stopped", {"pc": 5})
+    times = [t for t, _, _ in port.events]
+    assert times == sorted(times)

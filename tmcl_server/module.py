@@ -361,10 +361,10 @@ class TMCM6212:
                 self._heartbeat_tripped[interface] = True
                 for index in range(NUMBER_OF_AXES):
                     self.axis(index).emergency_stop()
-                self._emit("heartbeat_timeout", None, interface=interface.value)
+                self.emit("heartbeat_timeout", None, interface=interface.value)
 
     def _on_axis_event(self, event: AxisEvent) -> None:
-        self._emit(event.kind.value, event.axis, time_ns=event.time_ns, active=event.active)
+        self.emit(event.kind.value, event.axis, time_ns=event.time_ns, active=event.active)
         self.program.on_axis_event(event)
         if event.kind is AxisEventKind.TARGET_REACHED:
             watch = self._reach_watch.pop(event.axis, None)
@@ -373,7 +373,7 @@ class TMCM6212:
                                         1 << event.axis, watch.interface)
                 watch.sink.send_unsolicited(reply)
 
-    def _emit(self, kind: str, axis: int | None, time_ns: int | None = None, **data: Any) -> None:
+    def emit(self, kind: str, axis: int | None, time_ns: int | None = None, **data: Any) -> None:
         if not self.listeners:
             return
         event = ModuleEvent(self.now_ns if time_ns is None else time_ns, kind, axis, data)
@@ -388,7 +388,7 @@ class TMCM6212:
         before = self.digital_input(port)
         self.analog_inputs[port] = value
         if self.digital_input(port) != before:
-            self._emit("input_changed", None, port=port, level=int(not before))
+            self.emit("input_changed", None, port=port, level=int(not before))
             self.program.on_input_changed(port, int(not before))
 
     def set_digital_input(self, port: int, active: bool) -> None:
@@ -578,7 +578,7 @@ class TMCM6212:
             raise CommandError(Status.INVALID_VALUE)
         if self.outputs[req.type] != req.value:
             self.outputs[req.type] = req.value
-            self._emit("output_changed", None, port=req.type, level=req.value)
+            self.emit("output_changed", None, port=req.type, level=req.value)
 
     def read_input(self, port: int, bank: int) -> int:
         if bank == IOBank.DIGITAL_INPUTS:
@@ -672,7 +672,7 @@ class TMCM6212:
         if req.value != FACTORY_RESET_KEY:
             raise CommandError(Status.INVALID_VALUE)
         self.factory_reset()
-        self._emit("factory_reset", None)
+        self.emit("factory_reset", None)
         return NO_REPLY
 
     def _cmd_target_reached_event(self, req: Request, sink: ReplySink | None,

@@ -93,6 +93,9 @@ class ProgramSupport:
         self._sync(time_ns)
         return self.module.axis(motor).reference_search(RfsType.STATUS) != 0
 
+    def program_event(self, time_ns: int, kind: str, **data: int) -> None:
+        self.module.emit(kind, None, time_ns=time_ns, **data)
+
     # == time ==================================================================================
 
     def next_event_ns(self, now_ns: int) -> int | None:
