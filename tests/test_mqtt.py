@@ -10,7 +10,7 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 
 import aiomqtt
 import pytest
@@ -35,6 +35,20 @@ def broker(tmp_path):
     b = Broker(tmp_path)
     yield b
     b.stop()
+
+
+@pytest.fixture
+def sim(broker):
+    simulator = start_sim(broker)
+    yield simulator
+    simulator.stop()
+
+
+@contextlib.asynccontextmanager
+async def probing(broker: Broker, **kwargs) -> AsyncIterator[Probe]:
+    """A connected test-side client with its recorder."""
+    async with probe_client(broker, **kwargs) as client:
+        yield Probe(client)
 
 
 def start_sim(broker: Broker, **config) -> SimulatorThread:
@@ -107,12 +121,10 @@ def test_settings_from_url():
         MqttSettings.from_url("mqtt://x/a/#")
 
 
-def test_state_follows_a_move_and_requests_in_json_and_binary(broker):
-    sim = start_sim(broker)
-
+def test_state_follows_a_move_and_requests_in_json_and_binary(broker, sim):
     async def scenario():
-        async with probe_client(broker) as client:
-            probe = Probe(client)
+        async with probing(broker) as probe:
+            client = probe.client
             await client.subscribe("rig/tmcl/#", qos=1)
             assert (await probe.wait(lambda m: m.topic.value == "rig/tmcl/status")).payload == b"online"
             first = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/state")
@@ -140,18 +152,13 @@ def test_state_follows_a_move_and_requests_in_json_and_binary(broker):
                                       and len(m.payload) == 9)
             assert decode_reply(binary.payload).value == 51200
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        sim.stop()
+    asyncio.run(scenario())
 
 
-def test_events_arrive_in_order_with_simulated_time(broker):
-    sim = start_sim(broker)
-
+def test_events_arrive_in_order_with_simulated_time(broker, sim):
     async def scenario():
-        async with probe_client(broker) as client:
-            probe = Probe(client)
+        async with probing(broker) as probe:
+            client = probe.client
             await client.subscribe("rig/tmcl/1/event", qos=1)
             await client.subscribe("rig/tmcl/status", qos=1)
             await probe.wait(lambda m: m.topic.value == "rig/tmcl/status")
@@ -170,18 +177,13 @@ def test_events_arrive_in_order_with_simulated_time(broker):
             assert times == sorted(times) and 0 < times[0] < times[-1] <= 5
             assert events[0] == {"t": 0.0, "kind": "input_changed", "port": 2, "level": 1}
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        sim.stop()
+    asyncio.run(scenario())
 
 
-def test_response_topic_and_correlation_data(broker):
-    sim = start_sim(broker)
-
+def test_response_topic_and_correlation_data(broker, sim):
     async def scenario():
-        async with probe_client(broker) as client:
-            probe = Probe(client)
+        async with probing(broker) as probe:
+            client = probe.client
             await client.subscribe("answers/me", qos=1)
             properties = Properties(PacketTypes.PUBLISH)
             properties.ResponseTopic = "answers/me"
@@ -196,10 +198,7 @@ def test_response_topic_and_correlation_data(broker):
             version = await probe.wait(lambda m: "text" in json_of(m))
             assert json_of(version)["text"] == "6212V105"
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        sim.stop()
+    asyncio.run(scenario())
 
 
 @pytest.mark.parametrize(("payload", "message"), [
@@ -212,29 +211,22 @@ def test_response_topic_and_correlation_data(broker):
     (b"[1, 2]", "must be a JSON object"),
     (b"\x01\x02\x03", "not valid JSON"),
 ])
-def test_bad_requests_get_clear_errors(broker, payload, message):
-    sim = start_sim(broker)
-
+def test_bad_requests_get_clear_errors(broker, sim, payload, message):
     async def scenario():
-        async with probe_client(broker) as client:
-            probe = Probe(client)
+        async with probing(broker) as probe:
+            client = probe.client
             await client.subscribe("rig/tmcl/1/reply", qos=1)
             await client.publish("rig/tmcl/1/request", payload, qos=1)
             reply = json_of(await probe.wait(lambda m: True))
             assert message in reply["error"]
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        sim.stop()
+    asyncio.run(scenario())
 
 
-def test_bad_checksum_and_bad_values_get_tmcl_statuses(broker):
-    sim = start_sim(broker)
-
+def test_bad_checksum_and_bad_values_get_tmcl_statuses(broker, sim):
     async def scenario():
-        async with probe_client(broker) as client:
-            probe = Probe(client)
+        async with probing(broker) as probe:
+            client = probe.client
             await client.subscribe("rig/tmcl/1/reply", qos=1)
             frame = bytearray(Request(1, Opcode.SAP, 4, 0, 5).encode())
             frame[8] ^= 1
@@ -245,14 +237,10 @@ def test_bad_checksum_and_bad_values_get_tmcl_statuses(broker):
             reply = await probe.wait(lambda m: m.payload[:1] == b"{")
             assert json_of(reply)["status_name"] == "INVALID_VALUE"
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        sim.stop()
+    asyncio.run(scenario())
 
 
-def test_broker_restart_is_survived_and_nothing_is_lost(broker):
-    sim = start_sim(broker)
+def test_broker_restart_is_survived_and_nothing_is_lost(broker, sim):
     tcp = RawClient(sim.tcp)
     session = f"probe-{uuid.uuid4().hex[:8]}"
 
@@ -262,9 +250,8 @@ def test_broker_restart_is_survived_and_nothing_is_lost(broker):
             await client.subscribe("rig/tmcl/#", qos=1)
 
     async def after_restart():
-        async with probe_client(broker, identifier=session, clean_start=False,
-                                properties=_session_expiry()) as client:
-            probe = Probe(client)
+        async with probing(broker, identifier=session, clean_start=False,
+                           properties=_session_expiry()) as probe:
             event = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/event"
                                      and json_of(m)["kind"] == "target_reached", timeout=15)
             assert json_of(event)["axis"] == 3
@@ -273,8 +260,8 @@ def test_broker_restart_is_survived_and_nothing_is_lost(broker):
             state = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/state"
                                      and json_of(m)["axes"][3]["position"] == 4000)
             assert json_of(state)["axes"][3]["reached"]
-            await client.publish("rig/tmcl/1/request", json.dumps({"cmd": "GAP", "type": 1,
-                                                                   "motor": 3}), qos=1)
+            await probe.client.publish("rig/tmcl/1/request", json.dumps(
+                {"cmd": "GAP", "type": 1, "motor": 3}), qos=1)
             reply = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/reply")
             assert json_of(reply)["value"] == 4000
 
@@ -289,7 +276,6 @@ def test_broker_restart_is_survived_and_nothing_is_lost(broker):
         asyncio.run(after_restart())
     finally:
         tcp.close()
-        sim.stop()
 
 
 def _session_expiry() -> Properties:
@@ -305,9 +291,8 @@ def test_last_will_says_offline_when_the_process_dies(broker, tmp_path):
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
     async def scenario():
-        async with probe_client(broker) as client:
-            probe = Probe(client)
-            await client.subscribe("dies/status", qos=1)
+        async with probing(broker) as probe:
+            await probe.client.subscribe("dies/status", qos=1)
             await probe.wait(lambda m: m.payload == b"online", timeout=20)
             proc.send_signal(signal.SIGKILL)
             await probe.wait(lambda m: m.payload == b"offline", timeout=10)
@@ -319,13 +304,10 @@ def test_last_will_says_offline_when_the_process_dies(broker, tmp_path):
         proc.wait(10)
 
 
-def test_clean_shutdown_says_offline(broker):
-    sim = start_sim(broker)
-
+def test_clean_shutdown_says_offline(broker, sim):
     async def scenario():
-        async with probe_client(broker) as client:
-            probe = Probe(client)
-            await client.subscribe("rig/tmcl/status", qos=1)
+        async with probing(broker) as probe:
+            await probe.client.subscribe("rig/tmcl/status", qos=1)
             await probe.wait(lambda m: m.payload == b"online")
             await asyncio.to_thread(sim.stop)
             await probe.wait(lambda m: m.payload == b"offline")
