@@ -43,6 +43,7 @@ from axes.units import (
     V_REGISTER_MAX,
     choose_pulse_div,
     choose_ramp_div,
+    last_step_speed,
     max_step_rate,
     pmul_pdiv,
     step_rate,
@@ -514,8 +515,10 @@ class TMC4210Axis:
         if pair is None:
             pair = (255, 0) if a_max > 1 else (128, 13)
         self._spi_write(Reg.PMUL_PDIV, pair[0] << 8 | pair[1])
-        v_min = max(1, self._to_register(self._params[AP_VSTOP]))
-        self._spi_write(Reg.V_MIN, v_min)
+        # The braking curve reaches the last microstep at curve(1); the abrupt stop must be
+        # allowed from there, or the motor steps past the target and comes back.
+        v_min = max(1, self._to_register(self._params[AP_VSTOP]), last_step_speed(*pair))
+        self._spi_write(Reg.V_MIN, min(v_min, V_REGISTER_MAX))
 
     def _write_ref_conf(self, mode: RampMode) -> None:
         conf = mode
@@ -682,8 +685,7 @@ class TMC4210Axis:
             speed = self._params[AP_RFS_SPEED if fast else AP_RFS_SWITCH_SPEED]
             search.direction = phase.direction
             if phase.reverse_on and self._search_level(phase.reverse_on):
-                search.direction = -search.direction
-                search.reversed_once = True
+                self._rfs_reverse()
             self._start_velocity(search.direction * speed)
             return
 
@@ -704,8 +706,7 @@ class TMC4210Axis:
                 self._rfs_complete()
             return
         if phase.reverse_on and not search.reversed_once and self._search_level(phase.reverse_on):
-            search.reversed_once = True
-            search.direction = -search.direction
+            self._rfs_reverse()
             self._hard_stop()
             self._start_velocity(search.direction * self._params[AP_RFS_SPEED])
             self._update_marks()
@@ -714,6 +715,14 @@ class TMC4210Axis:
         if self._search_level(phase.switch) == want_active:
             self._rfs_phase_done()
             self._rfs_enter()
+
+    def _rfs_reverse(self) -> None:
+        """Modes 5/6 hit the limit switch: search the other way, and calibrate that way too."""
+        search = self._rfs
+        search.reversed_once = True
+        search.direction = -search.direction
+        for phase in search.phases[search.index + 1:]:
+            phase.direction = -phase.direction
 
     def _rfs_finish_move(self) -> None:
         zero, distance = reference_point(self._rfs.points)

@@ -7,9 +7,14 @@ Deceleration law p  = PMUL / 2**(3 + PDIV) ~= A_MAX / (128 * 2**(RAMP_DIV - PULS
 
 from __future__ import annotations
 
+from math import isqrt
+
 V_REGISTER_MAX = 2047
 A_REGISTER_MAX = 2047
 DIVIDER_MAX = 13
+#: RAMP_DIV never exceeds PULSE_DIV by more than this: with one ramp tick spanning more pulse
+#: ticks, the modelled braking curve can step past V_MIN and hunt around the target.
+RAMP_SPAN_MAX = 4
 #: p is reduced by this much below the ideal value to avoid a one-step overshoot (datasheet).
 P_REDUCTION = 0.01
 
@@ -52,17 +57,28 @@ def choose_ramp_div(pps2: float, pulse_div: int, clock_hz: int) -> tuple[int, in
     """(RAMP_DIV, A_MAX) for an acceleration: the finest A_MAX that fits 11 bits.
 
     When even RAMP_DIV 0 would need A_MAX > 2047, or the PULSE_DIV - RAMP_DIV >= 2 upper
-    limit applies, A_MAX is clamped (the acceleration is then lower than asked).  A positive
-    acceleration never rounds to 0.
+    limit applies, A_MAX is clamped (the acceleration is then lower than asked); below the
+    lower limit it is raised to it (higher than asked).  Both limits scale with RAMP_DIV like
+    A_MAX itself, so no other RAMP_DIV would do better.
     """
     if pps2 <= 0:
         return pulse_div, 0
-    for ramp_div in range(DIVIDER_MAX, -1, -1):
+    for ramp_div in range(min(DIVIDER_MAX, pulse_div + RAMP_SPAN_MAX), -1, -1):
         a = acceleration_register(pps2, pulse_div, ramp_div, clock_hz)
         if a <= A_REGISTER_MAX:
             break
-    a = max(1, min(a, A_REGISTER_MAX, a_max_upper_limit(pulse_div, ramp_div)))
+    a = max(1, a_max_lower_limit(pulse_div, ramp_div),
+            min(a, A_REGISTER_MAX, a_max_upper_limit(pulse_div, ramp_div)))
     return ramp_div, a
+
+
+def a_max_lower_limit(pulse_div: int, ramp_div: int) -> int:
+    """Smallest A_MAX that positions without oscillating: 2**(RD - PD - 1) (datasheet §5.3).
+
+    Below it the braking curve cannot bring the speed down to V_MIN before the target within
+    one ramp tick, and the motor hunts around the target (the chip model reproduces that).
+    """
+    return 1 << (ramp_div - pulse_div - 1) if ramp_div - pulse_div >= 2 else 1
 
 
 def a_max_upper_limit(pulse_div: int, ramp_div: int) -> int:
@@ -82,3 +98,8 @@ def pmul_pdiv(a_max: int, ramp_div: int, pulse_div: int,
         if 128 <= pmul <= 255:
             found = (pmul, pdiv)
     return found
+
+
+def last_step_speed(pmul: int, pdiv: int) -> int:
+    """The ramp-mode target speed one microstep before the target: isqrt(2048 * p)."""
+    return isqrt(((pmul | 0x80) << 8) >> pdiv)

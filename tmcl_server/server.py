@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from axes.world import World, load_world
 from tmcl_server.clock import Clock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212
@@ -49,6 +50,8 @@ class ServerConfig:
     clock: str = "real"
     speed: float = 1.0
     ready_file: str | None = None
+    #: TOML world file (switches, load, encoder slip, inputs) applied to every module.
+    world: str | None = None
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -67,7 +70,8 @@ def build_simulation(config: ServerConfig) -> Simulation:
     modules = []
     for slot in config.addresses:
         directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
-        modules.append(TMCM6212(slot, Eeprom(directory), start_ns=clock.now_ns()))
+        world = load_world(config.world) if config.world else World()
+        modules.append(TMCM6212(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world))
     return Simulation(modules, clock)
 
 
