@@ -584,14 +584,14 @@ class TMC4210Axis:
     def rotate(self, velocity: int) -> None:
         self._command()
         self._abort_search()
-        self._velocity_command = velocity
+        self._velocity_command = self._params[AP_TARGET_SPEED] = velocity
         self._start_velocity(velocity)
         self._after_command()
 
     def stop(self) -> None:
         self._command()
         self._abort_search()
-        self._velocity_command = 0
+        self._velocity_command = self._params[AP_TARGET_SPEED] = 0
         self._spi_write(Reg.V_TARGET, 0)
         self._write_ref_conf(RampMode.VELOCITY)
         self._positioning = False

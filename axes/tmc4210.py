@@ -421,13 +421,13 @@ class TMC4210:
         if right != before[1]:
             self._raise(Irq.STOP_RIGHT_HIGH if right else Irq.STOP_RIGHT_LOW)
             reference_edge |= ref_is_right
-        if not reference_edge:
-            return
-        if self.latch_pending and self.v_actual != 0:
-            self.x_latched = self.x_actual
-            self.latch_pending = False
-        if (right if ref_is_right else left) and abs(signed(self.x_actual, 24)) >= self.dx_ref_tolerance:
-            self._raise(Irq.REF_WRONG)
+        if reference_edge:
+            if self.latch_pending and self.v_actual != 0:
+                self.x_latched = self.x_actual
+                self.latch_pending = False
+            active = right if ref_is_right else left
+            if active and abs(signed(self.x_actual, 24)) >= self.dx_ref_tolerance:
+                self._raise(Irq.REF_WRONG)
         # A hard switch stop acts on the pulse generator at once.
         direction = (self.v > 0) - (self.v < 0)
         if direction and self._switch_blocks(direction) and not self.ref_conf & SOFT_STOP:

@@ -1,6 +1,7 @@
 """A literal, one-clk32-tick-at-a-time transcription of the digest's reference model (§4.8).
 
-Slow on purpose: it is the yardstick the fast engine in axes/tmc4210.py is checked against.
+Slow on purpose: it is the yardstick the fast engine in axes/tmc4210.py is tested against
+(tests/test_tmc4210.py), not part of the simulator.
 No switches, latch or interrupts: those are checked separately.
 """
 
