@@ -423,6 +423,8 @@ class TMC4210Axis:
             self._feed_target()
         if stop in (Stop.ARRIVED, Stop.STOPPED) and not moving:
             self._standstill_since = self._now_ns
+            if not self._positioning and self._rfs is None:
+                self._target = self._position  # MVP REL after a rotation starts from here
             if self._positioning and self._awaiting_arrival and self._position == self._target:
                 self._awaiting_arrival = False
                 if self._rfs is None:
