@@ -20,6 +20,8 @@ class AxisEventKind(Enum):
     STALL = "stall"
     DEVIATION = "deviation"
     REFERENCE_SEARCH_DONE = "reference_search_done"
+    #: The motor current switched between run (active=True) and standby (active=False).
+    CURRENT_CHANGED = "current_changed"
 
 
 @dataclass(frozen=True, slots=True)

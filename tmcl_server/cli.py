@@ -57,6 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "(default: nothing persists)")
     parser.add_argument("--speed", type=float, default=1.0, metavar="X",
                         help="run simulated time X times faster than real time")
+    parser.add_argument("--world", metavar="FILE",
+                        help="TOML file placing switches, load zones, encoder slip and inputs "
+                             "(docs/world.md); default: free axes, open switches")
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
     parser.add_argument("--log-level", default="WARNING",
@@ -96,7 +99,7 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         raise SystemExit("tmcl-server: --mqtt-rate must be positive")
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock="real", speed=args.speed, ready_file=args.ready_file,
-                        mqtt_rate=args.mqtt_rate)
+                        mqtt_rate=args.mqtt_rate, world=args.world)
 
 
 async def run(config: ServerConfig) -> None:
@@ -127,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     config = config_from_args(args)
     try:
         asyncio.run(run(config))
-    except OSError as exc:
+    except (OSError, ValueError) as exc:
         print(f"tmcl-server: {exc}", file=sys.stderr)
         return 1
     return 0

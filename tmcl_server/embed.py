@@ -29,7 +29,7 @@ class SimulatorThread:
     def __init__(self, config: ServerConfig | None = None, *, modules: int | None = None,
                  addresses: list[int] | None = None, clock: str | None = None,
                  speed: float | None = None, state_dir: str | None = None,
-                 **endpoints: list[str]) -> None:
+                 world: str | None = None, **endpoints: list[str]) -> None:
         config = config or ServerConfig(endpoints={})
         if modules is not None:
             config.addresses = list(range(1, modules + 1))
@@ -41,6 +41,8 @@ class SimulatorThread:
             config.speed = speed
         if state_dir is not None:
             config.state_dir = state_dir
+        if world is not None:
+            config.world = str(world)
         for kind, arguments in endpoints.items():
             config.endpoints[kind] = list(arguments)
         self.config = config

@@ -16,9 +16,10 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
+from axes.firmware import TMC4210Axis
 from axes.interface import Axis, AxisEvent, AxisEventKind
-from axes.kinematic import KinematicAxis
 from axes.parameters import AXIS_PARAMETERS, STORABLE_AXIS_PARAMETERS, ParamSpec
+from axes.world import AxisWorld, LoadZone, Switch, World
 from interpreter.isa import MoveType, Opcode
 from tmcl_server.clock import NS_PER_MS
 from tmcl_server.eeprom import Eeprom
@@ -105,10 +106,17 @@ class TMCM6212:
     """One simulated module.  Not thread-safe: the server calls it from one event loop."""
 
     def __init__(self, slot: int = 1, eeprom: Eeprom | None = None,
-                 axis_factory: AxisFactory = KinematicAxis, start_ns: int = 0) -> None:
+                 axis_factory: AxisFactory | None = None, start_ns: int = 0,
+                 world: World | None = None) -> None:
         #: The address the module was created with; names its state directory.
         self.slot = slot
         self.eeprom = eeprom if eeprom is not None else Eeprom()
+        #: The physical surroundings (switches, load, encoder slip); kept across restarts.
+        self.world = world or World()
+        if axis_factory is None:
+            clock_hz = self.world.clock_hz
+            axis_factory = (TMC4210Axis if clock_hz is None
+                            else lambda index: TMC4210Axis(index, clock_hz=clock_hz))
         self._axis_factory = axis_factory
         self.listeners: list[Callable[[ModuleEvent], None]] = []
         #: Called when the serial or CAN addresses may have changed (routers cache them).
@@ -156,6 +164,7 @@ class TMCM6212:
             self._copy_coordinates_from_eeprom(range(1, NUMBER_OF_COORDINATES))
         self.outputs = [0] * NUMBER_OF_OUTPUTS
         self.analog_inputs = [0] * NUMBER_OF_INPUTS
+        self.apply_world(self.world)
         self._tick_origin_ms = self.now_ns // NS_PER_MS
         self._random = random.Random(0)
         self._reach_request: tuple[int, bool, ReplySink, Interface] | None = None
@@ -396,6 +405,53 @@ class TMCM6212:
 
     def digital_input(self, port: int) -> int:
         return int(self.analog_inputs[port] >= DIGITAL_THRESHOLD)
+
+    # == the world around the axes (world file, tests, MQTT) ===================================
+
+    def apply_world(self, world: World) -> None:
+        """Place switches, load zones and encoder slip, and set the inputs, as ``world`` says."""
+        self.world = world
+        for index, axis_world in world.axes.items():
+            self._world_axis(index).set_world(axis_world)
+        for port, value in world.analog_inputs.items():
+            self.set_analog_input(port, value)
+        for port, active in world.digital_inputs.items():
+            self.set_digital_input(port, active)
+
+    def _world_axis(self, index: int) -> TMC4210Axis:
+        """The axis at the current time, about to have its world changed."""
+        axis = self.axis(index)
+        if not isinstance(axis, TMC4210Axis):
+            raise TypeError(f"axis {index} ({type(axis).__name__}) has no world")
+        self._due_stale = True  # switches and load zones decide when the next event is
+        return axis
+
+    def set_switch(self, axis: int, name: str, position: int | None, width: int | None = None,
+                   side: str | None = None, normally_closed: bool = False) -> None:
+        """Place (or with ``position=None`` remove) the "left", "right" or "home" switch."""
+        if name not in ("left", "right", "home"):
+            raise ValueError(f"unknown switch {name!r}")
+        default_side = {"left": "below", "right": "above", "home": "centre"}[name]
+        switch = None if position is None else Switch.place(position, width, side or default_side,
+                                                             normally_closed)
+        target = self._world_axis(axis)
+        target.set_switch(name, switch)
+        self.world.axes.setdefault(axis, target.world)
+
+    def set_load(self, axis: int, zones: list[tuple[int, int, int]],
+                 free_load: int | None = None) -> None:
+        """Load zones as (from, to, load value); load 0 stalls a motor faster than AP 181."""
+        target = self._world_axis(axis)
+        target.set_load([LoadZone(lo, hi, load) for lo, hi, load in zones], free_load)
+        self.world.axes.setdefault(axis, target.world)
+
+    def set_encoder_slip(self, axis: int, slip: float) -> None:
+        target = self._world_axis(axis)
+        target.set_encoder_slip(slip)
+        self.world.axes.setdefault(axis, target.world)
+
+    def axis_world(self, axis: int) -> AxisWorld:
+        return self._world_axis(axis).world
 
     # == checks shared by handlers =============================================================
 
@@ -655,6 +711,26 @@ class TMCM6212:
         if motor is None:
             raise CommandError(Status.INVALID_VALUE)
         self._set_coordinate(number, motor, self.accumulator)
+
+    # == motion-controller registers (146/147, and 148 as pytrinamic's read_mc sends it) ======
+
+    def _register_request(self, req: Request) -> tuple[TMC4210Axis, int]:
+        if not 0 <= req.type <= 0x7F:
+            raise CommandError(Status.WRONG_TYPE)
+        axis = self._axis(req.motor)
+        if not isinstance(axis, TMC4210Axis):
+            raise CommandError(Status.INVALID_COMMAND)
+        return axis, req.type
+
+    def _cmd_write_mc(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        axis, address = self._register_request(req)
+        axis.register_access(address, req.value)
+
+    def _cmd_read_mc(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
+        axis, address = self._register_request(req)
+        return axis.register_access(address)
+
+    _cmd_read_mc_pytrinamic = _cmd_read_mc
 
     # == control commands ======================================================================
 

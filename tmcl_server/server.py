@@ -17,6 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from axes.world import World, load_world
 from tmcl_server.clock import Clock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212
@@ -64,6 +65,8 @@ class ServerConfig:
     ready_file: str | None = None
     #: Highest rate of MQTT state messages per module (Hz).
     mqtt_rate: float = DEFAULT_RATE_HZ
+    #: TOML world file (switches, load, encoder slip, inputs) applied to every module.
+    world: str | None = None
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -82,7 +85,9 @@ def build_simulation(config: ServerConfig) -> Simulation:
     modules = []
     for slot in config.addresses:
         directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
-        module = TMCM6212(slot, Eeprom(directory), start_ns=clock.now_ns())
+        # each module gets its own copy: the simulator API changes worlds per module
+        world = load_world(config.world) if config.world else World()
+        module = TMCM6212(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world)
         if not clock.virtual:  # a program too busy for the host's clock must not starve it
             module.program.interpreter.max_lag_ns = REAL_CLOCK_MAX_LAG_NS
         modules.append(module)

@@ -45,7 +45,8 @@ class Simulation:
         """Bring every module up to the clock's current time."""
         t = self.clock.now_ns()
         for module in self.modules:
-            if module.now_ns < t:
+            # Also when the module is up to date but a command left an event due now.
+            if module.now_ns < t or (module.next_event_ns() or t + 1) <= t:
                 module.advance_to(t)
 
     def next_event_ns(self) -> int | None:

@@ -1,0 +1,69 @@
+"""A literal, one-clk32-tick-at-a-time transcription of the digest's reference model (§4.8).
+
+Slow on purpose: it is the yardstick the fast engine in axes/tmc4210.py is tested against
+(tests/test_tmc4210.py), not part of the simulator.
+No switches, latch or interrupts: those are checked separately.
+"""
+
+from __future__ import annotations
+
+from math import isqrt
+
+from axes.tmc4210 import DISTANCE_LIMIT, RampMode, sdiff24
+
+
+class ReferenceChip:
+    def __init__(self, *, v_min: int, v_max: int, a_max: int, pmul: int, pdiv: int,
+                 pulse_div: int, ramp_div: int, mode: RampMode = RampMode.RAMP) -> None:
+        self.v_min, self.v_max, self.a_max = v_min, v_max, a_max
+        self.pmul, self.pdiv = pmul | 0x80, pdiv
+        self.pulse_div, self.ramp_div, self.mode = pulse_div, ramp_div, mode
+        self.x_target = self.x_actual = 0
+        self.v_target = 0
+        self.v = 0
+        self.acc = 0
+        self.t = 0
+        self.arrivals: list[int] = []
+
+    def tick(self) -> None:
+        self.t += 1
+        if self.t % (1 << self.ramp_div) == 0:
+            self.ramp_tick()
+        if self.t % (1 << self.pulse_div) == 0:
+            self.pulse_tick()
+
+    def ramp_tick(self) -> None:
+        if self.mode in (RampMode.RAMP, RampMode.SOFT):
+            dx = sdiff24(self.x_target, self.x_actual)
+            if dx == 0:
+                vt = 0
+            else:
+                d = min(abs(dx), DISTANCE_LIMIT)
+                if self.mode == RampMode.RAMP:
+                    mag = isqrt((256 * self.pmul * d) >> self.pdiv)
+                else:
+                    mag = (self.pmul * d) >> (3 + self.pdiv)
+                mag = min(max(mag, self.v_min), self.v_max)
+                vt = mag if dx > 0 else -mag
+            self.v_target = vt
+        elif self.mode == RampMode.VELOCITY:
+            vt = max(-self.v_max, min(self.v_max, self.v_target))
+        else:
+            return
+        target = vt * 256
+        if self.v < target:
+            self.v = min(self.v + self.a_max, target)
+        elif self.v > target:
+            self.v = max(self.v - self.a_max, target)
+
+    def pulse_tick(self) -> None:
+        if (self.mode in (RampMode.RAMP, RampMode.SOFT) and self.x_actual == self.x_target
+                and abs(self.v) >> 8 <= self.v_min):
+            if self.v != 0:
+                self.v = 0
+                self.arrivals.append(self.t)
+            return
+        self.acc += abs(self.v) >> 8
+        if self.acc >= 2048:
+            self.acc -= 2048
+            self.x_actual = (self.x_actual + (1 if self.v > 0 else -1)) & 0xFFFFFF

@@ -1,0 +1,277 @@
+"""The emulated TMC4210: register file, status byte, side effects, switches, and motion.
+
+Motion is checked against ``axes.reference_model.ReferenceChip``, a literal one-clk32-tick-at-a-time
+transcription of the digest's model: the event-driven engine must land on the same position
+and velocity at every instant, and stop at the same tick.
+"""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from axes.reference_model import ReferenceChip
+from axes.tmc4210 import (
+    EN_SD,
+    MASK24,
+    MOT1R,
+    TMC4210,
+    TYPE_VERSION,
+    Irq,
+    RampMode,
+    Reg,
+    Stop,
+    datagram,
+    sdiff24,
+)
+from axes.units import last_step_speed, pmul_pdiv
+
+IDLE_STATUS = 0x15
+
+
+def status(chip: TMC4210) -> int:
+    return chip.spi(datagram(Reg.TYPE_VERSION, read=True)) >> 24
+
+
+# == register file =============================================================================
+
+
+def test_power_on_values_and_idle_status() -> None:
+    chip = TMC4210()
+    assert chip.spi(0x73000000) == IDLE_STATUS << 24 | TYPE_VERSION  # datasheet + real part
+    assert chip.read(Reg.SMGP) == 0x000F00  # STPDIV = 15, everything else 0
+    for reg in (Reg.X_TARGET, Reg.X_ACTUAL, Reg.V_MIN, Reg.V_MAX, Reg.V_TARGET, Reg.V_ACTUAL,
+                Reg.A_MAX, Reg.A_ACTUAL, Reg.INTERRUPT, Reg.DIVIDERS, Reg.IF_CONFIGURATION):
+        assert chip.read(reg) == 0, reg.name
+    assert chip.read(Reg.PMUL_PDIV) == 0x8000  # PMUL bit 15 is hard-wired to 1
+
+
+def test_digest_worked_datagrams() -> None:
+    chip = TMC4210()
+    assert chip.spi(0x1A000123) == IDLE_STATUS << 24  # a write answers status + 24 zero bits
+    assert chip.spi(0x1B000000) == IDLE_STATUS << 24 | 0x000123
+    assert chip.spi(0xFE002321) == IDLE_STATUS << 24  # RAM pair 63
+    assert chip.spi(0xFF000000) & MASK24 == 0x2321
+
+
+@pytest.mark.parametrize(("reg", "written", "read_back"), [
+    (Reg.V_MAX, 0xFFF, 0x7FF),  # 11 bits
+    (Reg.V_MIN, 0xFFFFFF, 0x7FF),
+    (Reg.A_MAX, 0x1800, 0x000),
+    (Reg.V_TARGET, 0xFFFF9C, 0xF9C),  # -100, zero-extended 12 bits
+    (Reg.DX_REF_TOLERANCE, 0xFFFFFF, 0xFFF),
+    (Reg.X_TARGET, 0xFFFFFF, 0xFFFFFF),
+    (Reg.PMUL_PDIV, 0x007A0F, 0xFA0F),  # bit 15 forced
+    (Reg.DIVIDERS, 0xFFFFFF, 0xFF07),
+    (Reg.USTEP_COUNT, 0x1FF, 0xFF),
+    (Reg.IF_CONFIGURATION, 0xFFFFFD, 0x1FD),  # sdo_int (bit 1) would turn reads off
+    (Reg.SMGP, 0xFFFFFF, 0x31FFFF),
+    (Reg.A_THRESHOLD, 0xFFFFFF, 0x777FFF),
+])
+def test_field_widths(reg: Reg, written: int, read_back: int) -> None:
+    chip = TMC4210()
+    chip.write(reg, written)
+    assert chip.read(reg) == read_back
+
+
+def test_read_only_registers_and_hidden_axes() -> None:
+    chip = TMC4210()
+    chip.write(Reg.TYPE_VERSION, 0)
+    chip.write(Reg.A_ACTUAL, 0x123)
+    assert chip.read(Reg.TYPE_VERSION) == TYPE_VERSION
+    assert chip.read(Reg.A_ACTUAL) == 0
+    chip.write(0x10, 0x1234)  # hidden axis 2 X_TARGET
+    assert chip.read(0x10) == 0
+    chip.write(Reg.V_ACTUAL, 5)  # ignored outside hold mode
+    assert chip.read(Reg.V_ACTUAL) == 0
+    chip.write(Reg.REF_CONF_RAMP_MODE, RampMode.HOLD)
+    chip.write(Reg.V_ACTUAL, 0xFFF)
+    assert chip.read(Reg.V_ACTUAL) == 0xFFF  # -1, zero-extended
+
+
+def test_interrupt_register_sets_mask_and_clears_flags_in_one_write() -> None:
+    chip = TMC4210()
+    chip.write(Reg.INTERRUPT, 0xFF00)
+    chip.int_flags = 0x05
+    assert chip.spi(0) >> 31 == 1  # INT in every status byte
+    chip.write(Reg.INTERRUPT, 0xFF01)  # clear pos_end only
+    assert chip.read(Reg.INTERRUPT) == 0xFF04
+    chip.write(Reg.INTERRUPT, 0x0000)  # clearing a mask bit forces its flag to 0
+    assert chip.read(Reg.INTERRUPT) == 0
+    assert status(chip) == IDLE_STATUS
+
+
+def test_latch_arming_and_firing_on_a_reference_edge() -> None:
+    chip = TMC4210()
+    chip.write(Reg.X_LATCHED, 0x42)
+    assert chip.read(Reg.REF_CONF_RAMP_MODE) >> 16 & 1  # lp set, value unchanged
+    assert chip.read(Reg.X_LATCHED) == 0
+    chip.write(Reg.X_ACTUAL, 1234)
+    chip.set_pins(True, False, False)  # at rest: edges do not latch
+    assert chip.read(Reg.X_LATCHED) == 0
+    chip.write(Reg.REF_CONF_RAMP_MODE, RampMode.HOLD | 1 << 8)  # no stop on the left switch
+    chip.write(Reg.V_ACTUAL, -10)
+    chip.set_pins(False, False, False)
+    assert chip.read(Reg.X_LATCHED) == 1234
+    assert not chip.read(Reg.REF_CONF_RAMP_MODE) >> 16 & 1
+
+
+def test_status_bits_follow_pins_inversion_and_mot1r() -> None:
+    chip = TMC4210()
+    chip.set_pins(True, True, True)
+    assert status(chip) == IDLE_STATUS | 0x02 | 0x08 | 0x20  # R_L, GP_IN, R_R (mot1r = 0)
+    chip.write(Reg.SMGP, MOT1R)
+    assert status(chip) == IDLE_STATUS | 0x02 | 0x08  # REF_R now belongs to the axis
+    assert chip.read(Reg.REFERENCE_SWITCHES) == 0b001011
+    chip.write(Reg.IF_CONFIGURATION, 1)  # inv_ref
+    assert status(chip) == IDLE_STATUS
+    chip.write(Reg.X_TARGET, 5)
+    assert status(chip) == IDLE_STATUS & ~1  # xEQt1 follows X_ACTUAL == X_TARGET
+
+
+def test_switch_edge_interrupts_and_sdo_int() -> None:
+    chip = TMC4210()
+    chip.write(Reg.SMGP, MOT1R)
+    chip.write(Reg.INTERRUPT, 0xF000)  # the four edge masks
+    chip.set_pins(True, True, False)
+    assert chip.read(Reg.INTERRUPT) & 0xFF == 1 << Irq.STOP_LEFT_HIGH | 1 << Irq.STOP_RIGHT_HIGH
+    chip.set_pins(False, True, False)
+    assert chip.read(Reg.INTERRUPT) & 1 << Irq.STOP_LEFT_LOW
+    chip.write(Reg.IF_CONFIGURATION, 2)  # sdo_int: SDO carries nINT, reads are lost
+    assert chip.spi(datagram(Reg.X_ACTUAL, read=True)) == 0
+    chip.write(Reg.INTERRUPT, 0xF0FF)
+    assert chip.spi(datagram(Reg.X_ACTUAL, read=True)) == 0xFFFF_FFFF
+
+
+def test_power_down_freezes_motion_until_the_next_frame() -> None:
+    chip = _configured(v_max=1000, a_max=1000, pulse_div=0, ramp_div=0)
+    chip.write(Reg.X_TARGET, 100000)
+    chip.run(1000)
+    chip.write(Reg.POWER_DOWN, 0)
+    frozen = chip.x_actual
+    chip.run(50000)
+    assert chip.x_actual == frozen
+    chip.spi(datagram(Reg.X_ACTUAL, read=True))  # wakes it
+    chip.run(60000)
+    assert chip.x_actual > frozen
+
+
+# == motion against the tick-by-tick reference =================================================
+
+
+def _configured(*, v_max: int, a_max: int, pulse_div: int, ramp_div: int, v_min: int | None = None,
+                mode: RampMode = RampMode.RAMP) -> TMC4210:
+    chip = TMC4210()
+    pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
+    chip.write(Reg.IF_CONFIGURATION, EN_SD)
+    chip.write(Reg.V_MIN, last_step_speed(pmul, pdiv) if v_min is None else v_min)
+    chip.write(Reg.V_MAX, v_max)
+    chip.write(Reg.A_MAX, a_max)
+    chip.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
+    chip.write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
+    chip.write(Reg.REF_CONF_RAMP_MODE, mode)
+    return chip
+
+
+def _reference_for(chip: TMC4210) -> ReferenceChip:
+    return ReferenceChip(v_min=chip.v_min, v_max=chip.v_max, a_max=chip.a_max, pmul=chip.pmul,
+                         pdiv=chip.pdiv, pulse_div=chip.pulse_div, ramp_div=chip.ramp_div,
+                         mode=chip.mode)
+
+
+def _run_both(chip: TMC4210, ref: ReferenceChip, until: int, arrivals: list[int]) -> None:
+    while ref.t < until:
+        ref.tick()
+    while chip.t < until:
+        if chip.run(until) is Stop.ARRIVED:
+            arrivals.append(chip.t)
+    assert (chip.x_actual, chip.v) == (ref.x_actual, ref.v), f"at clk32 tick {until}"
+
+
+change = st.one_of(
+    st.tuples(st.just("x_target"), st.integers(-20000, 20000)),
+    st.tuples(st.just("v_max"), st.integers(0, 2047)),
+    st.tuples(st.just("a_max"), st.integers(1, 2047)),
+    st.tuples(st.just("v_target"), st.integers(-2047, 2047)),
+    st.tuples(st.just("mode"), st.sampled_from([RampMode.RAMP, RampMode.SOFT, RampMode.VELOCITY])),
+)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(pulse_div=st.integers(0, 3), span=st.integers(-1, 4), a_max=st.integers(1, 2047),
+       v_max=st.integers(1, 2047), first_target=st.integers(-20000, 20000),
+       changes=st.lists(st.tuples(st.integers(1, 60000), change), max_size=4))
+def test_engine_matches_the_tick_by_tick_reference(pulse_div: int, span: int, a_max: int,
+                                                   v_max: int, first_target: int,
+                                                   changes: list[tuple[int, tuple[str, int]]]) -> None:
+    ramp_div = max(0, pulse_div + span)
+    chip = _configured(v_max=v_max, a_max=a_max, pulse_div=pulse_div, ramp_div=ramp_div)
+    ref = _reference_for(chip)
+    chip.write(Reg.X_TARGET, first_target & MASK24)
+    ref.x_target = first_target & MASK24
+    arrivals: list[int] = []
+    t = 0
+    for gap, (what, value) in changes:
+        t += gap
+        _run_both(chip, ref, t, arrivals)
+        if what == "x_target":
+            chip.write(Reg.X_TARGET, value & MASK24)
+            ref.x_target = value & MASK24
+        elif what == "v_target":
+            chip.write(Reg.V_TARGET, value & 0xFFF)
+            ref.v_target = value
+        elif what == "mode":
+            chip.write(Reg.REF_CONF_RAMP_MODE, value)
+            ref.mode = RampMode(value)
+        else:
+            chip.write(getattr(Reg, what.upper()), value)
+            setattr(ref, what, value)
+    _run_both(chip, ref, t + 150_000, arrivals)
+    assert arrivals == ref.arrivals
+
+
+def test_24_bit_wrap_goes_the_short_way() -> None:
+    chip = _configured(v_max=2047, a_max=2047, pulse_div=0, ramp_div=0)
+    chip.write(Reg.REF_CONF_RAMP_MODE, RampMode.VELOCITY)
+    chip.write(Reg.X_ACTUAL, 8_388_000)
+    chip.write(Reg.X_TARGET, 8_388_000)
+    chip.write(Reg.REF_CONF_RAMP_MODE, RampMode.RAMP)
+    chip.write(Reg.X_TARGET, -8_388_000 & MASK24)  # +1216 steps through the wrap
+    while chip.run(chip.t + 1_000_000) is not Stop.ARRIVED:
+        pass
+    assert chip.x_actual == -8_388_000 & MASK24
+    assert chip.motor_position == 1216
+
+
+def test_hard_and_soft_switch_stops_and_the_tolerance_window() -> None:
+    chip = _configured(v_max=1000, a_max=100, pulse_div=0, ramp_div=0, mode=RampMode.VELOCITY)
+    chip.write(Reg.INTERRUPT, 1 << (8 + Irq.STOP))
+    chip.write(Reg.V_TARGET, -500 & 0xFFF)
+    chip.run(50_000)
+    chip.set_pins(True, False, False)  # hard stop: at once
+    assert chip.v == 0 and chip.read(Reg.INTERRUPT) & 1 << Irq.STOP
+    chip.run(100_000)
+    assert chip.v == 0  # the level keeps it stopped ...
+    chip.write(Reg.V_TARGET, 500)
+    chip.run(101_000)
+    assert chip.v > 0  # ... in that direction only
+
+    soft = _configured(v_max=1000, a_max=100, pulse_div=0, ramp_div=0, mode=RampMode.VELOCITY)
+    soft.write(Reg.REF_CONF_RAMP_MODE, RampMode.VELOCITY | 1 << 10)
+    soft.write(Reg.V_TARGET, -500 & 0xFFF)
+    soft.run(50_000)
+    v_before = soft.v
+    soft.set_pins(True, False, False)
+    soft.run(50_001)
+    assert 0 > soft.v > v_before  # ramps down with A_MAX
+    soft.run(60_000)
+    assert soft.v == 0
+
+    window = _configured(v_max=1000, a_max=100, pulse_div=0, ramp_div=0, mode=RampMode.VELOCITY)
+    window.write(Reg.DX_REF_TOLERANCE, 4000)
+    window.write(Reg.V_TARGET, -500 & 0xFFF)
+    window.run(10_000)
+    window.set_pins(True, False, False)
+    assert window.v < 0  # |X_ACTUAL| < tolerance: no stop
+    assert abs(sdiff24(window.x_actual, 0)) < 4000

@@ -1,0 +1,90 @@
+"""World files, the run-time world API of the module, and --world plumbing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from axes.world import INFINITY, AxisWorld, LoadZone, Switch, World, load_world
+from tmcl_server.cli import build_parser, config_from_args
+from tmcl_server.module import TMCM6212
+from tmcl_server.protocol import Request
+from tmcl_server.server import ServerConfig, build_simulation
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "docs" / "world-example.toml"
+
+
+def test_example_world_file_loads() -> None:
+    world = load_world(EXAMPLE)
+    stage = world.axes[0]
+    assert stage.switches["left"] == Switch(-204_000, -200_000)
+    assert stage.switches["right"] == Switch(200_000, INFINITY)
+    assert stage.switches["home"] == Switch(-1000, 1000)
+    assert stage.load_zones == [LoadZone(150_000, 152_000, 0)]
+    assert stage.load_at(151_000) == 0 and stage.load_at(0) == 600
+    assert world.axes[1].encoder_slip == 0.02
+    assert world.axes[1].switches["home"].normally_closed
+    assert world.analog_inputs == {0: 0, 1: 12000, 2: 0, 3: 65535}
+    assert world.digital_inputs == {0: False, 1: True}
+    assert world.clock_hz == 16_000_000
+
+
+def test_switch_placement_sides() -> None:
+    assert Switch.place(100, 10, "above") == Switch(100, 110)
+    assert Switch.place(100, 10, "below") == Switch(90, 100)
+    assert Switch.place(100, None, "below") == Switch(-INFINITY, 100)
+    assert Switch.place(100, 10, "centre") == Switch(95, 105)
+    with pytest.raises(ValueError):
+        Switch.place(0, 5, "sideways")
+
+
+@pytest.mark.parametrize("text", [
+    "[[axis]]\nindex = 9\n",
+    "[[axis]]\nindex = 0\nencoder_slip = 2\n",
+    "[[axis]]\nindex = 0\n[[axis.load_zone]]\nfrom = 0\nto = 5\nload = 5000\n",
+    "not toml at all [",
+])
+def test_bad_world_files_are_reported_with_their_name(tmp_path: Path, text: str) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=r"bad\.toml"):
+        load_world(path)
+
+
+def test_world_reaches_the_module_through_config_and_cli(tmp_path: Path) -> None:
+    args = build_parser().parse_args(["--world", str(EXAMPLE), "--no-tcp", "--pty", "/tmp/x"])
+    config = config_from_args(args)
+    assert config.world == str(EXAMPLE)
+    simulation = build_simulation(ServerConfig(world=str(EXAMPLE), clock="virtual", endpoints={}))
+    module = simulation.modules[0]
+    assert module.analog_inputs[3] == 65535 and module.analog_inputs[2] == 0
+    assert module.analog_inputs[1] == 65535 and module.digital_input(1) == 1  # digital wins
+    assert module.axis_world(0).switches["home"] == Switch(-1000, 1000)
+    home = module.execute(Request(1, 6, 9, 0, 0))  # GAP 9: the axis starts on its home cam
+    assert home is not None and home.value == 1
+
+
+def test_module_world_api_changes_things_at_run_time() -> None:
+    module = TMCM6212()
+    events = []
+    module.listeners.append(events.append)
+    module.set_switch(2, "left", 0)  # placed on top of the motor: active at once
+    module.advance_to(module.now_ns)
+    assert [(e.kind, e.axis, e.data["active"]) for e in events] == [("left_switch", 2, True)]
+    assert module.execute(Request(1, 6, 11, 2, 0)).value == 1
+    module.set_switch(2, "left", None)
+    assert module.execute(Request(1, 6, 11, 2, 0)).value == 0
+    module.set_load(3, [(0, 10, 123)], free_load=700)
+    assert module.execute(Request(1, 6, 206, 3, 0)).value == 123
+    module.set_encoder_slip(4, 0.5)
+    module.execute(Request(1, 4, 0, 4, 10000))
+    module.advance_to(module.now_ns + 2_000_000_000)
+    assert module.execute(Request(1, 6, 209, 4, 0)).value == 5000
+    assert module.world.axes[4].encoder_slip == 0.5
+
+
+def test_world_survives_a_factory_reset() -> None:
+    module = TMCM6212(world=World(axes={0: AxisWorld(switches={"home": Switch(-5, 5)})}))
+    module.execute(Request(1, 137, 0, 0, 1234))
+    assert module.execute(Request(1, 6, 9, 0, 0)).value == 1
