@@ -43,10 +43,10 @@ from axes.units import (
     V_REGISTER_MAX,
     choose_pulse_div,
     choose_ramp_div,
-    last_step_speed,
     max_step_rate,
     pmul_pdiv,
     step_rate,
+    stop_speed,
     velocity_register,
 )
 from axes.world import AxisWorld, LoadZone, Switch
@@ -517,9 +517,8 @@ class TMC4210Axis:
         if pair is None:
             pair = (255, 0) if a_max > 1 else (128, 13)
         self._spi_write(Reg.PMUL_PDIV, pair[0] << 8 | pair[1])
-        # The braking curve reaches the last microstep at curve(1); the abrupt stop must be
-        # allowed from there, or the motor steps past the target and comes back.
-        v_min = max(1, self._to_register(self._params[AP_VSTOP]), last_step_speed(*pair))
+        # V_MIN must allow the abrupt stop at the speed the chip arrives with (units.stop_speed).
+        v_min = max(self._to_register(self._params[AP_VSTOP]), stop_speed(a_max, *pair))
         self._spi_write(Reg.V_MIN, min(v_min, V_REGISTER_MAX))
 
     def _write_ref_conf(self, mode: RampMode) -> None:

@@ -129,6 +129,22 @@ def signed(value: int, bits: int) -> int:
     return value - (sign << 1) if value & sign else value
 
 
+def floor_sum(n: int, m: int, a: int, b: int) -> int:
+    """Sum of (a*i + b) // m for i in 0..n-1 (a, b >= 0), in O(log) steps."""
+    total = 0
+    while True:
+        if a >= m:
+            total += (n - 1) * n // 2 * (a // m)
+            a %= m
+        if b >= m:
+            total += n * (b // m)
+            b %= m
+        y_max = a * n + b
+        if y_max < m:
+            return total
+        n, b, m, a = y_max // m, y_max % m, a, m
+
+
 def datagram(address: int, data: int = 0, read: bool = False) -> int:
     """Build a 32-bit host datagram for a 7-bit register (or RAM) address."""
     return (address & 0x7F) << 25 | int(read) << 24 | (data & MASK24)
@@ -598,6 +614,9 @@ class TMC4210:
         used = 0
         positioning = self.mode in (RampMode.RAMP, RampMode.SOFT)
         while True:
+            if used >= ticks:
+                self.t = t_end
+                return None
             vi = abs(self.v) >> 8
             if positioning and vi <= self.v_min and self.x_actual == self.x_target:
                 if self.v:
@@ -650,8 +669,14 @@ class TMC4210:
             steady = self._steady_steps()
             if steady is not None:
                 moving = self.v != 0
+                # What each skipped ramp tick would have written (constant while steady).
+                vt_steady = self._ramp_target()[0]
                 stop = self._pulses(until) if steady < 0 else self._pulses(until, steady)
                 ramp = 1 << self.ramp_div
+                if self.ramp_next <= self.t:
+                    self.a_actual = 0
+                    if self.mode in (RampMode.RAMP, RampMode.SOFT):
+                        self.v_target = vt_steady
                 self.ramp_next = (self.t // ramp + 1) * ramp
                 if stop is not None:
                     return stop
@@ -704,6 +729,7 @@ class TMC4210:
         pdiv = self.pdiv
         soft_shift = 3 + pdiv
         pmul = self.pmul
+        vt_fixed = 0
         if positioning:
             dx = sdiff24(x_target, x)
             if dx == 0:
@@ -728,6 +754,18 @@ class TMC4210:
         vt_reg = self.v_target
         last = until - period + 1
         is_ramp = mode == RampMode.RAMP
+        batch = self._linear_batch(w, acc, d, room, (last - nr) // period + 1, per_ramp,
+                                   positioning, vt_fixed * direction if not positioning else 0)
+        if batch is not None:
+            ticks, w, acc, steps, vt_reg_mag = batch
+            room -= steps
+            d -= steps
+            walked += steps
+            applied += ticks
+            nr += ticks * period
+            a_step = a_max if positioning or vt_fixed * direction << 8 > w else -a_max
+            if positioning:
+                vt_reg = vt_reg_mag * direction
         while nr <= last:
             if positioning:
                 dd = d if d < DISTANCE_LIMIT else DISTANCE_LIMIT
@@ -741,8 +779,10 @@ class TMC4210:
                     break  # steady: the closed-form path takes over
             else:
                 target = vt_fixed * direction << 8
-                if target < 0 or w == target:
-                    break  # reversing or steady: the general path takes over
+                if target < 0:
+                    target = 0  # reversing: down to zero here, the general path crosses it
+                if w == target:
+                    break  # steady: the closed-form path takes over
             if w < target:
                 nw = w + a_max
                 if nw > target:
@@ -775,7 +815,7 @@ class TMC4210:
             self.v_target = vt_reg
             self._apply_steps(walked, direction)
             self.ramp_next = nr
-            if w == 0:
+            if w == 0 and self._ramp_target()[0] == 0:
                 self.t = nr - period
                 return Stop.STOPPED
             self.t = nr - 1
@@ -784,12 +824,76 @@ class TMC4210:
             return None
         return self._slow_tick(nr)
 
+    def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int, per_ramp: int,
+                      positioning: bool, fixed_target: int
+                      ) -> tuple[int, int, int, int, int | None] | None:
+        """Many ramp ticks of full-A_MAX slew at once (floor sums instead of a loop).
+
+        ``w`` is the speed along the direction of travel (1/256 units).  In velocity mode the
+        target is fixed; in ramp/soft mode it is the curve, and the batch ends before the tick
+        at which the curve would limit the acceleration.  Returns (ticks, speed, accumulator,
+        steps, last target magnitude or None) or None if fewer than 16 ticks qualify.
+        """
+        a_max = self.a_max
+        if a_max == 0:
+            return None
+        if positioning:
+            cap = self.v_max << 8
+            if w + a_max > cap:
+                return None
+            ticks = min(max_ticks, (cap - w) // a_max)
+            rising = True
+        else:
+            target = max(0, fixed_target << 8)  # a reversal decelerates to zero first
+            rising = target > w
+            ticks = min(max_ticks, (target - w) // a_max if rising else (w - target) // a_max)
+        if ticks < 16:
+            return None
+
+        def after(k: int) -> tuple[int, int]:
+            """(steps, accumulator) after k full-slew ticks."""
+            if rising:
+                speeds = floor_sum(k, 256, a_max, w + a_max)
+            else:
+                speeds = floor_sum(k, 256, a_max, w - k * a_max)
+            total = acc + per_ramp * speeds
+            return total >> 11, total & 2047
+
+        def fits(k: int) -> bool:
+            steps, _ = after(k)
+            if steps >= room:
+                return False
+            if positioning:
+                before, _ = after(k - 1)  # distance at the start of tick k
+                mag = min(max(self._curve(d - before), self.v_min), self.v_max)
+                return mag << 8 >= w + k * a_max
+            return True
+
+        if not fits(ticks):
+            low, high = 0, ticks  # fits(low) holds (vacuously for 0), fits(high) does not
+            while high - low > 1:
+                mid = (low + high) // 2
+                if fits(mid):
+                    low = mid
+                else:
+                    high = mid
+            ticks = low
+        if ticks < 16:
+            return None
+        steps, new_acc = after(ticks)
+        speed = w + ticks * a_max if rising else w - ticks * a_max
+        last_mag = None
+        if positioning:
+            before, _ = after(ticks - 1)
+            last_mag = min(max(self._curve(d - before), self.v_min), self.v_max)
+        return ticks, speed, new_acc, steps, last_mag
+
     def _slow_tick(self, nr: int) -> Stop | None:
         """One ramp tick the plain way (its pulses follow in the caller's next round)."""
         moving = self.v != 0
         self._ramp_tick()
         self.ramp_next = nr + (1 << self.ramp_div)
-        if moving and self.v == 0:
+        if moving and self.v == 0 and self._ramp_target()[0] == 0:
             self.t = nr
             return Stop.STOPPED
         return None

@@ -25,7 +25,7 @@ from axes.tmc4210 import (
     datagram,
     sdiff24,
 )
-from axes.units import last_step_speed, pmul_pdiv
+from axes.units import pmul_pdiv, stop_speed
 
 IDLE_STATUS = 0x15
 
@@ -165,7 +165,7 @@ def _configured(*, v_max: int, a_max: int, pulse_div: int, ramp_div: int, v_min:
     chip = TMC4210()
     pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
     chip.write(Reg.IF_CONFIGURATION, EN_SD)
-    chip.write(Reg.V_MIN, last_step_speed(pmul, pdiv) if v_min is None else v_min)
+    chip.write(Reg.V_MIN, stop_speed(a_max, pmul, pdiv) if v_min is None else v_min)
     chip.write(Reg.V_MAX, v_max)
     chip.write(Reg.A_MAX, a_max)
     chip.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
@@ -275,3 +275,18 @@ def test_hard_and_soft_switch_stops_and_the_tolerance_window() -> None:
     window.set_pins(True, False, False)
     assert window.v < 0  # |X_ACTUAL| < tolerance: no stop
     assert abs(sdiff24(window.x_actual, 0)) < 4000
+
+
+@pytest.mark.parametrize("target", [1, 77, 5000, 123_457])
+def test_run_never_passes_its_end_tick(target: int) -> None:
+    """Stopping one clk32 tick short of the arrival leaves the motor still moving."""
+    chip = _configured(v_max=1678, a_max=220, pulse_div=3, ramp_div=8)
+    chip.write(Reg.X_TARGET, target)
+    while chip.run(chip.t + 10**9) is not Stop.ARRIVED:
+        pass
+    arrival = chip.t
+    for end in range(arrival - 40, arrival):
+        twin = _configured(v_max=1678, a_max=220, pulse_div=3, ramp_div=8)
+        twin.write(Reg.X_TARGET, target)
+        assert twin.run(end) is None or twin.t <= end
+        assert twin.t == end and twin.v != 0
