@@ -72,6 +72,20 @@ class Reg(IntEnum):
     SMGP = 0x3F
 
 
+#: Registers that are plain storage: attribute and the bits that exist (spec §3.2/§3.3).
+PLAIN_REGISTERS: dict[int, tuple[str, int]] = {
+    Reg.X_TARGET: ("x_target", MASK24),
+    Reg.X_ACTUAL: ("x_actual", MASK24),
+    Reg.V_MIN: ("v_min", 0x7FF),
+    Reg.V_MAX: ("v_max", 0x7FF),
+    Reg.A_MAX: ("a_max", 0x7FF),
+    Reg.A_THRESHOLD: ("a_threshold", 0x777FFF),
+    Reg.DX_REF_TOLERANCE: ("dx_ref_tolerance", 0xFFF),
+    Reg.USTEP_COUNT: ("ustep_count", 0xFF),
+    Reg.POS_COMP: ("pos_comp", MASK24),
+}
+
+
 class Irq(IntEnum):
     """Interrupt flag bits (INTERRUPT register bits 7..0; the mask is the same, shifted by 8)."""
 
@@ -293,25 +307,16 @@ class TMC4210:
     def _read(self, address: int) -> int:
         if address >> 4 in (1, 2):
             return 0  # the TMC429's hidden axes: not part of the TMC4210 contract
+        plain = PLAIN_REGISTERS.get(address)
+        if plain is not None:
+            return getattr(self, plain[0])
         match address:
-            case Reg.X_TARGET:
-                return self.x_target
-            case Reg.X_ACTUAL:
-                return self.x_actual
-            case Reg.V_MIN:
-                return self.v_min
-            case Reg.V_MAX:
-                return self.v_max
             case Reg.V_TARGET:
                 return self.v_target & 0xFFF
             case Reg.V_ACTUAL:
                 return self.v_actual & 0xFFF
-            case Reg.A_MAX:
-                return self.a_max
             case Reg.A_ACTUAL:
                 return self.a_actual & 0xFFF
-            case Reg.A_THRESHOLD:
-                return self.a_threshold
             case Reg.PMUL_PDIV:
                 return self.pmul << 8 | self.pdiv
             case Reg.REF_CONF_RAMP_MODE:
@@ -320,18 +325,12 @@ class TMC4210:
                 return self.int_mask << 8 | self.int_flags
             case Reg.DIVIDERS:
                 return self.pulse_div << 12 | self.ramp_div << 8 | self.usrs
-            case Reg.DX_REF_TOLERANCE:
-                return self.dx_ref_tolerance
             case Reg.X_LATCHED:
                 return self.x_latched
-            case Reg.USTEP_COUNT:
-                return self.ustep_count
             case Reg.DATAGRAM_LOW | Reg.DATAGRAM_HIGH | Reg.COVER_POS_LEN | Reg.COVER_DATAGRAM:
                 return self.legacy[address - Reg.DATAGRAM_LOW]
             case Reg.IF_CONFIGURATION:
                 return self.if_config
-            case Reg.POS_COMP:
-                return self.pos_comp
             case Reg.POS_COMP_INT:
                 return self.pos_comp_mask << 8 | self.pos_comp_flag
             case Reg.TYPE_VERSION:
@@ -347,24 +346,16 @@ class TMC4210:
     def _write(self, address: int, data: int) -> None:
         if address >> 4 in (1, 2):
             return
+        plain = PLAIN_REGISTERS.get(address)
+        if plain is not None:
+            setattr(self, plain[0], data & plain[1])
+            return
         match address:
-            case Reg.X_TARGET:
-                self.x_target = data
-            case Reg.X_ACTUAL:
-                self.x_actual = data
-            case Reg.V_MIN:
-                self.v_min = data & 0x7FF
-            case Reg.V_MAX:
-                self.v_max = data & 0x7FF
             case Reg.V_TARGET:
                 self.v_target = signed(data, 12)
             case Reg.V_ACTUAL:
                 if self.mode == RampMode.HOLD:
                     self.v = signed(data, 12) << 8
-            case Reg.A_MAX:
-                self.a_max = data & 0x7FF
-            case Reg.A_THRESHOLD:
-                self.a_threshold = data & 0x777FFF
             case Reg.PMUL_PDIV:
                 self.pmul = (data >> 8 & 0xFF) | 0x80
                 self.pdiv = data & 0xF
@@ -381,12 +372,8 @@ class TMC4210:
                 self.usrs = data & 7
                 ramp = 1 << self.ramp_div
                 self.ramp_next = (self.t // ramp + 1) * ramp
-            case Reg.DX_REF_TOLERANCE:
-                self.dx_ref_tolerance = data & 0xFFF
             case Reg.X_LATCHED:
                 self.latch_pending = True
-            case Reg.USTEP_COUNT:
-                self.ustep_count = data & 0xFF
             case Reg.DATAGRAM_LOW | Reg.DATAGRAM_HIGH | Reg.COVER_POS_LEN | Reg.COVER_DATAGRAM:
                 self.legacy[address - Reg.DATAGRAM_LOW] = data
                 if address != Reg.COVER_POS_LEN:
@@ -395,8 +382,6 @@ class TMC4210:
                 before = self._levels()
                 self.if_config = data & IF_CONFIG_MASK
                 self._level_changes(before)
-            case Reg.POS_COMP:
-                self.pos_comp = data
             case Reg.POS_COMP_INT:
                 self.pos_comp_mask = bool(data >> 8 & 1)
                 if data & 1 or not self.pos_comp_mask:
