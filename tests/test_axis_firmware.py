@@ -247,6 +247,9 @@ def test_limit_switch_events_and_hard_stop() -> None:
     assert event.active is True
     h.advance(1)
     assert h.gap(1) == -1000 and h.gap(11) == 1 and h.gap(3) == 0  # stopped on the edge
+    standby = h.until(AxisEventKind.CURRENT_CHANGED)  # the switch stop is a standstill
+    assert standby.active is False and standby.time_ns == event.time_ns + 2 * NS
+    assert h.gap(0) == -1000 and h.gap(8) == 1
     h.axis.rotate(20000)
     event = h.until(AxisEventKind.LEFT_SWITCH)
     assert event.active is False and h.gap(11) == 0
