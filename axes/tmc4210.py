@@ -765,7 +765,9 @@ class TMC4210:
             else:
                 target = vt_fixed * direction << 8
                 if target < 0:
-                    target = 0  # reversing: down to zero here, the general path crosses it
+                    if w < a_max:
+                        break  # this tick crosses zero: the general path does it
+                    target = 0  # reversing: down towards zero here
                 if w == target:
                     break  # steady: the closed-form path takes over
             if w < target:

@@ -8,7 +8,7 @@ and velocity at every instant, and stop at the same tick.
 from __future__ import annotations
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from axes.reference_model import ReferenceChip
@@ -199,6 +199,10 @@ change = st.one_of(
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(pulse_div=0, span=3, a_max=165, v_max=18, first_target=18,  # a reversal's zero crossing
+         changes=[(8, ("mode", RampMode.VELOCITY)), (2242, ("v_target", -18))])
+@example(pulse_div=0, span=1, a_max=2, v_max=3, first_target=1,  # V_TARGET after an arrival
+         changes=[(1196, ("mode", RampMode.VELOCITY))])
 @given(pulse_div=st.integers(0, 3), span=st.integers(-1, 4), a_max=st.integers(1, 2047),
        v_max=st.integers(1, 2047), first_target=st.integers(-20000, 20000),
        changes=st.lists(st.tuples(st.integers(1, 60000), change), max_size=4))
