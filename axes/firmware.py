@@ -32,6 +32,7 @@ from axes.tmc4210 import (
     SMGP_POWER_ON,
     SOFT_STOP,
     TMC4210,
+    Irq,
     RampMode,
     Reg,
     Stop,
@@ -43,10 +44,10 @@ from axes.units import (
     V_REGISTER_MAX,
     choose_pulse_div,
     choose_ramp_div,
-    last_step_speed,
     max_step_rate,
     pmul_pdiv,
     step_rate,
+    stop_speed,
     velocity_register,
 )
 from axes.world import AxisWorld, LoadZone, Switch
@@ -102,6 +103,9 @@ AP_ENCODER_RESOLUTION = 210
 AP_MAX_DEVIATION = 212
 AP_POWER_DOWN_DELAY = 214
 AP_UNIT_MODE = 255
+
+STOP_FLAG = 1 << Irq.STOP
+STOP_MASK = STOP_FLAG << 8
 
 ERROR_STALL = 1
 ERROR_DEVIATION = 2
@@ -323,9 +327,13 @@ class TMC4210Axis:
         return self.chip.spi(datagram(reg, read=True)) & MASK24
 
     def _init_chip(self) -> None:
-        """What the firmware does at power-up (spec §8.2): outputs on, right switch wired."""
+        """What the firmware does at power-up (spec §8.2): outputs on, right switch wired.
+
+        The int_stop interrupt is enabled so that the firmware learns of hard switch stops.
+        """
         self._spi_write(Reg.IF_CONFIGURATION, EN_SD)
         self._spi_write(Reg.SMGP, SMGP_FIRMWARE)
+        self._spi_write(Reg.INTERRUPT, STOP_MASK)
         self._write_ref_conf(RampMode.VELOCITY)
         self._apply_limits(self._params[AP_MAX_SPEED])
         self._levels = self._read_levels()
@@ -419,9 +427,12 @@ class TMC4210Axis:
         self._read_position()
         self._check_levels()
         moving = self._v_actual() != 0
+        switch_stopped = bool(self._spi_read(Reg.INTERRUPT) & STOP_FLAG)
+        if switch_stopped:
+            self._spi_write(Reg.INTERRUPT, STOP_MASK | STOP_FLAG)  # clear it, keep the mask
         if self._positioning and self._awaiting_arrival and self._rolling_needed():
             self._feed_target()
-        if stop in (Stop.ARRIVED, Stop.STOPPED) and not moving:
+        if (stop in (Stop.ARRIVED, Stop.STOPPED) or switch_stopped) and not moving:
             self._standstill_since = self._now_ns
             if not self._positioning and self._rfs is None:
                 self._target = self._position  # MVP REL after a rotation starts from here
@@ -517,9 +528,8 @@ class TMC4210Axis:
         if pair is None:
             pair = (255, 0) if a_max > 1 else (128, 13)
         self._spi_write(Reg.PMUL_PDIV, pair[0] << 8 | pair[1])
-        # The braking curve reaches the last microstep at curve(1); the abrupt stop must be
-        # allowed from there, or the motor steps past the target and comes back.
-        v_min = max(1, self._to_register(self._params[AP_VSTOP]), last_step_speed(*pair))
+        # V_MIN must allow the abrupt stop at the speed the chip arrives with (units.stop_speed).
+        v_min = max(self._to_register(self._params[AP_VSTOP]), stop_speed(a_max, *pair))
         self._spi_write(Reg.V_MIN, min(v_min, V_REGISTER_MAX))
 
     def _write_ref_conf(self, mode: RampMode) -> None:
@@ -640,7 +650,7 @@ class TMC4210Axis:
 
     def reference_search(self, action: int) -> int:
         if action == 2:
-            self._command()
+            self._sync()
             return self._rfs_state
         self._command()
         if action == 1:

@@ -72,6 +72,20 @@ class Reg(IntEnum):
     SMGP = 0x3F
 
 
+#: Registers that are plain storage: attribute and the bits that exist (spec §3.2/§3.3).
+PLAIN_REGISTERS: dict[int, tuple[str, int]] = {
+    Reg.X_TARGET: ("x_target", MASK24),
+    Reg.X_ACTUAL: ("x_actual", MASK24),
+    Reg.V_MIN: ("v_min", 0x7FF),
+    Reg.V_MAX: ("v_max", 0x7FF),
+    Reg.A_MAX: ("a_max", 0x7FF),
+    Reg.A_THRESHOLD: ("a_threshold", 0x777FFF),
+    Reg.DX_REF_TOLERANCE: ("dx_ref_tolerance", 0xFFF),
+    Reg.USTEP_COUNT: ("ustep_count", 0xFF),
+    Reg.POS_COMP: ("pos_comp", MASK24),
+}
+
+
 class Irq(IntEnum):
     """Interrupt flag bits (INTERRUPT register bits 7..0; the mask is the same, shifted by 8)."""
 
@@ -127,6 +141,22 @@ def signed(value: int, bits: int) -> int:
     sign = 1 << (bits - 1)
     value &= (1 << bits) - 1
     return value - (sign << 1) if value & sign else value
+
+
+def floor_sum(n: int, m: int, a: int, b: int) -> int:
+    """Sum of (a*i + b) // m for i in 0..n-1 (a, b >= 0), in O(log) steps."""
+    total = 0
+    while True:
+        if a >= m:
+            total += (n - 1) * n // 2 * (a // m)
+            a %= m
+        if b >= m:
+            total += n * (b // m)
+            b %= m
+        y_max = a * n + b
+        if y_max < m:
+            return total
+        n, b, m, a = y_max // m, y_max % m, a, m
 
 
 def datagram(address: int, data: int = 0, read: bool = False) -> int:
@@ -277,25 +307,16 @@ class TMC4210:
     def _read(self, address: int) -> int:
         if address >> 4 in (1, 2):
             return 0  # the TMC429's hidden axes: not part of the TMC4210 contract
+        plain = PLAIN_REGISTERS.get(address)
+        if plain is not None:
+            return getattr(self, plain[0])
         match address:
-            case Reg.X_TARGET:
-                return self.x_target
-            case Reg.X_ACTUAL:
-                return self.x_actual
-            case Reg.V_MIN:
-                return self.v_min
-            case Reg.V_MAX:
-                return self.v_max
             case Reg.V_TARGET:
                 return self.v_target & 0xFFF
             case Reg.V_ACTUAL:
                 return self.v_actual & 0xFFF
-            case Reg.A_MAX:
-                return self.a_max
             case Reg.A_ACTUAL:
                 return self.a_actual & 0xFFF
-            case Reg.A_THRESHOLD:
-                return self.a_threshold
             case Reg.PMUL_PDIV:
                 return self.pmul << 8 | self.pdiv
             case Reg.REF_CONF_RAMP_MODE:
@@ -304,18 +325,12 @@ class TMC4210:
                 return self.int_mask << 8 | self.int_flags
             case Reg.DIVIDERS:
                 return self.pulse_div << 12 | self.ramp_div << 8 | self.usrs
-            case Reg.DX_REF_TOLERANCE:
-                return self.dx_ref_tolerance
             case Reg.X_LATCHED:
                 return self.x_latched
-            case Reg.USTEP_COUNT:
-                return self.ustep_count
             case Reg.DATAGRAM_LOW | Reg.DATAGRAM_HIGH | Reg.COVER_POS_LEN | Reg.COVER_DATAGRAM:
                 return self.legacy[address - Reg.DATAGRAM_LOW]
             case Reg.IF_CONFIGURATION:
                 return self.if_config
-            case Reg.POS_COMP:
-                return self.pos_comp
             case Reg.POS_COMP_INT:
                 return self.pos_comp_mask << 8 | self.pos_comp_flag
             case Reg.TYPE_VERSION:
@@ -331,24 +346,16 @@ class TMC4210:
     def _write(self, address: int, data: int) -> None:
         if address >> 4 in (1, 2):
             return
+        plain = PLAIN_REGISTERS.get(address)
+        if plain is not None:
+            setattr(self, plain[0], data & plain[1])
+            return
         match address:
-            case Reg.X_TARGET:
-                self.x_target = data
-            case Reg.X_ACTUAL:
-                self.x_actual = data
-            case Reg.V_MIN:
-                self.v_min = data & 0x7FF
-            case Reg.V_MAX:
-                self.v_max = data & 0x7FF
             case Reg.V_TARGET:
                 self.v_target = signed(data, 12)
             case Reg.V_ACTUAL:
                 if self.mode == RampMode.HOLD:
                     self.v = signed(data, 12) << 8
-            case Reg.A_MAX:
-                self.a_max = data & 0x7FF
-            case Reg.A_THRESHOLD:
-                self.a_threshold = data & 0x777FFF
             case Reg.PMUL_PDIV:
                 self.pmul = (data >> 8 & 0xFF) | 0x80
                 self.pdiv = data & 0xF
@@ -365,12 +372,8 @@ class TMC4210:
                 self.usrs = data & 7
                 ramp = 1 << self.ramp_div
                 self.ramp_next = (self.t // ramp + 1) * ramp
-            case Reg.DX_REF_TOLERANCE:
-                self.dx_ref_tolerance = data & 0xFFF
             case Reg.X_LATCHED:
                 self.latch_pending = True
-            case Reg.USTEP_COUNT:
-                self.ustep_count = data & 0xFF
             case Reg.DATAGRAM_LOW | Reg.DATAGRAM_HIGH | Reg.COVER_POS_LEN | Reg.COVER_DATAGRAM:
                 self.legacy[address - Reg.DATAGRAM_LOW] = data
                 if address != Reg.COVER_POS_LEN:
@@ -379,8 +382,6 @@ class TMC4210:
                 before = self._levels()
                 self.if_config = data & IF_CONFIG_MASK
                 self._level_changes(before)
-            case Reg.POS_COMP:
-                self.pos_comp = data
             case Reg.POS_COMP_INT:
                 self.pos_comp_mask = bool(data >> 8 & 1)
                 if data & 1 or not self.pos_comp_mask:
@@ -598,6 +599,9 @@ class TMC4210:
         used = 0
         positioning = self.mode in (RampMode.RAMP, RampMode.SOFT)
         while True:
+            if used >= ticks:
+                self.t = t_end
+                return None
             vi = abs(self.v) >> 8
             if positioning and vi <= self.v_min and self.x_actual == self.x_target:
                 if self.v:
@@ -650,8 +654,14 @@ class TMC4210:
             steady = self._steady_steps()
             if steady is not None:
                 moving = self.v != 0
+                # What each skipped ramp tick would have written (constant while steady).
+                vt_steady = self._ramp_target()[0]
                 stop = self._pulses(until) if steady < 0 else self._pulses(until, steady)
                 ramp = 1 << self.ramp_div
+                if self.ramp_next <= self.t:
+                    self.a_actual = 0
+                    if self.mode in (RampMode.RAMP, RampMode.SOFT):
+                        self.v_target = vt_steady
                 self.ramp_next = (self.t // ramp + 1) * ramp
                 if stop is not None:
                     return stop
@@ -704,6 +714,7 @@ class TMC4210:
         pdiv = self.pdiv
         soft_shift = 3 + pdiv
         pmul = self.pmul
+        vt_fixed = 0
         if positioning:
             dx = sdiff24(x_target, x)
             if dx == 0:
@@ -728,6 +739,18 @@ class TMC4210:
         vt_reg = self.v_target
         last = until - period + 1
         is_ramp = mode == RampMode.RAMP
+        batch = self._linear_batch(w, acc, d, room, (last - nr) // period + 1, per_ramp,
+                                   positioning, vt_fixed * direction if not positioning else 0)
+        if batch is not None:
+            ticks, w, acc, steps, vt_reg_mag = batch
+            room -= steps
+            d -= steps
+            walked += steps
+            applied += ticks
+            nr += ticks * period
+            a_step = a_max if positioning or vt_fixed * direction << 8 > w else -a_max
+            if positioning:
+                vt_reg = vt_reg_mag * direction
         while nr <= last:
             if positioning:
                 dd = d if d < DISTANCE_LIMIT else DISTANCE_LIMIT
@@ -741,8 +764,12 @@ class TMC4210:
                     break  # steady: the closed-form path takes over
             else:
                 target = vt_fixed * direction << 8
-                if target < 0 or w == target:
-                    break  # reversing or steady: the general path takes over
+                if target < 0:
+                    if w < a_max:
+                        break  # this tick crosses zero: the general path does it
+                    target = 0  # reversing: down towards zero here
+                if w == target:
+                    break  # steady: the closed-form path takes over
             if w < target:
                 nw = w + a_max
                 if nw > target:
@@ -775,7 +802,7 @@ class TMC4210:
             self.v_target = vt_reg
             self._apply_steps(walked, direction)
             self.ramp_next = nr
-            if w == 0:
+            if w == 0 and self._ramp_target()[0] == 0:
                 self.t = nr - period
                 return Stop.STOPPED
             self.t = nr - 1
@@ -784,12 +811,76 @@ class TMC4210:
             return None
         return self._slow_tick(nr)
 
+    def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int, per_ramp: int,
+                      positioning: bool, fixed_target: int
+                      ) -> tuple[int, int, int, int, int | None] | None:
+        """Many ramp ticks of full-A_MAX slew at once (floor sums instead of a loop).
+
+        ``w`` is the speed along the direction of travel (1/256 units).  In velocity mode the
+        target is fixed; in ramp/soft mode it is the curve, and the batch ends before the tick
+        at which the curve would limit the acceleration.  Returns (ticks, speed, accumulator,
+        steps, last target magnitude or None) or None if fewer than 16 ticks qualify.
+        """
+        a_max = self.a_max
+        if a_max == 0:
+            return None
+        if positioning:
+            cap = self.v_max << 8
+            if w + a_max > cap:
+                return None
+            ticks = min(max_ticks, (cap - w) // a_max)
+            rising = True
+        else:
+            target = max(0, fixed_target << 8)  # a reversal decelerates to zero first
+            rising = target > w
+            ticks = min(max_ticks, (target - w) // a_max if rising else (w - target) // a_max)
+        if ticks < 16:
+            return None
+
+        def after(k: int) -> tuple[int, int]:
+            """(steps, accumulator) after k full-slew ticks."""
+            if rising:
+                speeds = floor_sum(k, 256, a_max, w + a_max)
+            else:
+                speeds = floor_sum(k, 256, a_max, w - k * a_max)
+            total = acc + per_ramp * speeds
+            return total >> 11, total & 2047
+
+        def fits(k: int) -> bool:
+            steps, _ = after(k)
+            if steps >= room:
+                return False
+            if positioning:
+                before, _ = after(k - 1)  # distance at the start of tick k
+                mag = min(max(self._curve(d - before), self.v_min), self.v_max)
+                return mag << 8 >= w + k * a_max
+            return True
+
+        if not fits(ticks):
+            low, high = 0, ticks  # fits(low) holds (vacuously for 0), fits(high) does not
+            while high - low > 1:
+                mid = (low + high) // 2
+                if fits(mid):
+                    low = mid
+                else:
+                    high = mid
+            ticks = low
+        if ticks < 16:
+            return None
+        steps, new_acc = after(ticks)
+        speed = w + ticks * a_max if rising else w - ticks * a_max
+        last_mag = None
+        if positioning:
+            before, _ = after(ticks - 1)
+            last_mag = min(max(self._curve(d - before), self.v_min), self.v_max)
+        return ticks, speed, new_acc, steps, last_mag
+
     def _slow_tick(self, nr: int) -> Stop | None:
         """One ramp tick the plain way (its pulses follow in the caller's next round)."""
         moving = self.v != 0
         self._ramp_tick()
         self.ramp_next = nr + (1 << self.ramp_div)
-        if moving and self.v == 0:
+        if moving and self.v == 0 and self._ramp_target()[0] == 0:
             self.t = nr
             return Stop.STOPPED
         return None

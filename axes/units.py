@@ -14,7 +14,7 @@ A_REGISTER_MAX = 2047
 DIVIDER_MAX = 13
 #: RAMP_DIV never exceeds PULSE_DIV by more than this: with one ramp tick spanning more pulse
 #: ticks, the modelled braking curve can step past V_MIN and hunt around the target.
-RAMP_SPAN_MAX = 4
+RAMP_SPAN_MAX = 5
 #: p is reduced by this much below the ideal value to avoid a one-step overshoot (datasheet).
 P_REDUCTION = 0.01
 
@@ -103,3 +103,13 @@ def pmul_pdiv(a_max: int, ramp_div: int, pulse_div: int,
 def last_step_speed(pmul: int, pdiv: int) -> int:
     """The ramp-mode target speed one microstep before the target: isqrt(2048 * p)."""
     return isqrt(((pmul | 0x80) << 8) >> pdiv)
+
+
+def stop_speed(a_max: int, pmul: int, pdiv: int) -> int:
+    """The smallest V_MIN from which ramp mode always stops on the target.
+
+    The braking curve reaches the last microstep at ``last_step_speed``; and when a ramp tick
+    spans many pulse ticks the motor can arrive up to p * 2**(RD - PD) ~ A_MAX / 128 faster
+    than the curve.  Below either the motor steps past the target and comes back.
+    """
+    return max(1, last_step_speed(pmul, pdiv), a_max // 128 + 2)

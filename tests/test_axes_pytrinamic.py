@@ -29,8 +29,9 @@ def module(sim: SimulatorThread) -> Iterator[TMCM6212]:
 
 def test_move_to_poll_position_reached_read_position(sim: SimulatorThread, module: TMCM6212) -> None:
     motor = module.motors[0]
-    motor.max_velocity = 51200
-    motor.max_acceleration = 51200
+    motor.linear_ramp.max_velocity = 102_400  # (pytrinamic's own demo sets motor.max_velocity,
+    motor.linear_ramp.max_acceleration = 204_800  # which is a plain attribute: nothing is sent)
+    assert motor.linear_ramp.max_velocity == 102_400
     module.move_to(0, 100_000)
     polls = 0
     while not motor.get_position_reached():
@@ -38,7 +39,7 @@ def test_move_to_poll_position_reached_read_position(sim: SimulatorThread, modul
         polls += 1
         assert polls < 100
     assert motor.actual_position == 100_000
-    assert 25 <= polls <= 35  # 100 000 steps at 51 200 pps with 1 s ramps: about 3 s
+    assert 14 <= polls <= 16  # 100 000 steps at 102 400 pps with 0.5 s ramps: about 1.5 s
     assert motor.actual_velocity == 0
 
 
@@ -48,8 +49,8 @@ def test_rotate_stop_sequence_like_rotate_demo(sim: SimulatorThread, module: TMC
             motors, ((51200, 51200), (25600, 25600), (102400, 51200)), strict=True):
         motor.drive_settings.max_current = 128
         motor.drive_settings.standby_current = 0
-        motor.max_acceleration = acceleration
-        motor.max_velocity = velocity
+        motor.linear_ramp.max_acceleration = acceleration
+        motor.linear_ramp.max_velocity = velocity
         motor.actual_position = 0
     motors[0].rotate(51200)
     motors[1].rotate(-25600)

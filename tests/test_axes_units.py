@@ -69,7 +69,7 @@ def test_firmware_choices_for_the_manual_example() -> None:
     assert pulse_div == 3
     assert velocity_register(51200, pulse_div, F) == 1678
     ramp_div, a_max = choose_ramp_div(51200, pulse_div, F)
-    assert (ramp_div, a_max) == (7, 110)  # RAMP_DIV stays within PULSE_DIV + 4
+    assert (ramp_div, a_max) == (8, 220)  # RAMP_DIV stays within PULSE_DIV + 5
     assert acceleration_rate(a_max, pulse_div, ramp_div, F) == pytest.approx(51200, rel=0.001)
     assert choose_pulse_div(10_000_000, F) == 0  # beyond the chip: the fastest range
     assert last_step_speed(247, 2) == isqrt_2048p(247 / 32)

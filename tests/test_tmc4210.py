@@ -8,7 +8,7 @@ and velocity at every instant, and stop at the same tick.
 from __future__ import annotations
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from axes.reference_model import ReferenceChip
@@ -25,7 +25,7 @@ from axes.tmc4210 import (
     datagram,
     sdiff24,
 )
-from axes.units import last_step_speed, pmul_pdiv
+from axes.units import pmul_pdiv, stop_speed
 
 IDLE_STATUS = 0x15
 
@@ -165,7 +165,7 @@ def _configured(*, v_max: int, a_max: int, pulse_div: int, ramp_div: int, v_min:
     chip = TMC4210()
     pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
     chip.write(Reg.IF_CONFIGURATION, EN_SD)
-    chip.write(Reg.V_MIN, last_step_speed(pmul, pdiv) if v_min is None else v_min)
+    chip.write(Reg.V_MIN, stop_speed(a_max, pmul, pdiv) if v_min is None else v_min)
     chip.write(Reg.V_MAX, v_max)
     chip.write(Reg.A_MAX, a_max)
     chip.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
@@ -199,6 +199,10 @@ change = st.one_of(
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(pulse_div=0, span=3, a_max=165, v_max=18, first_target=18,  # a reversal's zero crossing
+         changes=[(8, ("mode", RampMode.VELOCITY)), (2242, ("v_target", -18))])
+@example(pulse_div=0, span=1, a_max=2, v_max=3, first_target=1,  # V_TARGET after an arrival
+         changes=[(1196, ("mode", RampMode.VELOCITY))])
 @given(pulse_div=st.integers(0, 3), span=st.integers(-1, 4), a_max=st.integers(1, 2047),
        v_max=st.integers(1, 2047), first_target=st.integers(-20000, 20000),
        changes=st.lists(st.tuples(st.integers(1, 60000), change), max_size=4))
@@ -275,3 +279,18 @@ def test_hard_and_soft_switch_stops_and_the_tolerance_window() -> None:
     window.set_pins(True, False, False)
     assert window.v < 0  # |X_ACTUAL| < tolerance: no stop
     assert abs(sdiff24(window.x_actual, 0)) < 4000
+
+
+@pytest.mark.parametrize("target", [1, 77, 5000, 123_457])
+def test_run_never_passes_its_end_tick(target: int) -> None:
+    """Stopping one clk32 tick short of the arrival leaves the motor still moving."""
+    chip = _configured(v_max=1678, a_max=220, pulse_div=3, ramp_div=8)
+    chip.write(Reg.X_TARGET, target)
+    while chip.run(chip.t + 10**9) is not Stop.ARRIVED:
+        pass
+    arrival = chip.t
+    for end in range(arrival - 40, arrival):
+        twin = _configured(v_max=1678, a_max=220, pulse_div=3, ramp_div=8)
+        twin.write(Reg.X_TARGET, target)
+        assert twin.run(end) is None or twin.t <= end
+        assert twin.t == end and twin.v != 0

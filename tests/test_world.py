@@ -88,3 +88,14 @@ def test_world_survives_a_factory_reset() -> None:
     module = TMCM6212(world=World(axes={0: AxisWorld(switches={"home": Switch(-5, 5)})}))
     module.execute(Request(1, 137, 0, 0, 1234))
     assert module.execute(Request(1, 6, 9, 0, 0)).value == 1
+
+
+def test_an_event_raised_by_a_command_at_time_zero_is_delivered() -> None:
+    """MVP to where the motor stands at t = 0: target reached at once, through the router."""
+    simulation = build_simulation(ServerConfig(clock="virtual", endpoints={}))
+    module = simulation.modules[0]
+    events = []
+    module.listeners.append(events.append)
+    simulation.handle_serial_frame(Request(1, 4, 0, 0, 0).encode())
+    simulation.advance(0.001)
+    assert [(e.kind, e.time_ns) for e in events] == [("target_reached", 0)]

@@ -45,8 +45,9 @@ class Simulation:
         """Bring every module up to the clock's current time."""
         t = self.clock.now_ns()
         for module in self.modules:
+            due = module.next_event_ns()
             # Also when the module is up to date but a command left an event due now.
-            if module.now_ns < t or (module.next_event_ns() or t + 1) <= t:
+            if module.now_ns < t or (due is not None and due <= t):
                 module.advance_to(t)
 
     def next_event_ns(self) -> int | None:

@@ -1,0 +1,112 @@
+#!/usr/bin/env python3
+"""Simulated seconds per wall second: six axes in continuous motion on the virtual clock.
+
+Goal (issue 3): one simulated hour in under 2 s of wall time.
+
+Two workloads, every axis always moving, the virtual clock jumping from event to event, and
+each next move issued at the target-reached instant (as WAIT POS would):
+
+* ``program`` (the goal's workload): axes 0-3 and 5 run the manual's example program (§2.4:
+  MVP ABS ±512000 at 51200 pps and 51200 pps²; axis 5 at twice the speed); axis 4 rotates
+  at 80 000 pps and reverses every 7 s.
+* ``hops`` (stress): the same, but axis 5 makes 20 000-step hops at 200 000 pps and
+  1 000 000 pps², so ramps dominate.  Braking follows the chip's distance law one ramp tick
+  at a time (it has no closed form), so time goes with the number of ramp ticks.
+
+    .venv/bin/python scripts/bench_motion.py [--hours H] [--repeat N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from interpreter.isa import Opcode
+from tmcl_server.clock import VirtualClock
+from tmcl_server.module import TMCM6212, ModuleEvent
+from tmcl_server.protocol import Request
+from tmcl_server.simulation import Simulation
+
+NS = 1_000_000_000
+REVERSE_EVERY_NS = 7 * NS
+
+
+def command(module: TMCM6212, opcode: int, type_: int, motor: int, value: int) -> None:
+    module.execute(Request(1, opcode, type_, motor, value))
+
+
+def run(hours: float, workload: str = "program") -> tuple[float, int, int]:
+    """Returns (wall seconds, moves completed, events handled)."""
+    module = TMCM6212()
+    simulation = Simulation([module], VirtualClock())
+    arrived: list[int] = []
+    events = 0
+
+    def on_event(event: ModuleEvent) -> None:
+        nonlocal events
+        events += 1
+        if event.kind == "target_reached":
+            arrived.append(event.axis)
+
+    module.listeners.append(on_event)
+    targets = {axis: 512_000 for axis in (0, 1, 2, 3, 5)}
+    for axis in targets:
+        command(module, Opcode.SAP, 4, axis, 51200)
+        command(module, Opcode.SAP, 5, axis, 51200)
+    if workload == "hops":
+        targets[5] = 20_000
+        command(module, Opcode.SAP, 4, 5, 200_000)
+        command(module, Opcode.SAP, 5, 5, 1_000_000)
+    else:
+        command(module, Opcode.SAP, 4, 5, 102_400)
+        command(module, Opcode.SAP, 5, 5, 102_400)
+    for axis, target in targets.items():
+        command(module, Opcode.MVP, 0, axis, target)
+    command(module, Opcode.SAP, 5, 4, 100_000)
+    direction = 1
+    command(module, Opcode.ROR, 0, 4, 80_000)
+    next_reverse = REVERSE_EVERY_NS
+    end = round(hours * 3600 * NS)
+    moves = 0
+    start = time.perf_counter()
+    while simulation.now_ns < end:
+        nxt = simulation.next_event_ns()
+        step = min(end, next_reverse, nxt if nxt is not None else end)
+        simulation.advance_to_ns(max(step, simulation.now_ns))
+        while arrived:
+            axis = arrived.pop()
+            targets[axis] = -targets[axis]
+            command(module, Opcode.MVP, 0, axis, targets[axis])
+            moves += 1
+        if simulation.now_ns >= next_reverse:
+            direction = -direction
+            command(module, Opcode.ROR, 0, 4, direction * 80_000)
+            next_reverse += REVERSE_EVERY_NS
+    return time.perf_counter() - start, moves, events
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--hours", type=float, default=1.0, help="simulated hours (default 1)")
+    parser.add_argument("--repeat", type=int, default=3, help="runs; the median is reported")
+    args = parser.parse_args()
+    simulated = args.hours * 3600
+    for workload in ("program", "hops"):
+        results = [run(args.hours, workload) for _ in range(args.repeat)]
+        walls = sorted(r[0] for r in results)
+        wall = statistics.median(walls)
+        _, moves, events = results[0]
+        print(f"{workload}: six axes, {simulated:.0f} simulated s, {moves} moves, {events} events")
+        print(f"  wall time median {wall:.3f} s (min {walls[0]:.3f}, max {walls[-1]:.3f}, "
+              f"{args.repeat} runs): {simulated / wall:,.0f} simulated s per wall s")
+    print(f"goal: one simulated hour in < 2 s wall ({3600 / 2:,.0f} simulated s per wall s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
