@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from axes.interface import AxisEvent, AxisEventKind
+from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.parameters import AXIS_PARAMETERS
 from axes.tmc4210 import (
     DEFAULT_CLOCK_HZ,
@@ -53,6 +53,10 @@ from axes.units import (
 from axes.world import AxisWorld, LoadZone, Switch
 
 log = logging.getLogger(__name__)
+
+#: Telemetry's name for what the chip's ramp mode means to a TMCL host.
+_MODE_NAMES = {RampMode.RAMP: "position", RampMode.SOFT: "position",
+               RampMode.VELOCITY: "velocity", RampMode.HOLD: "hold"}
 
 NS_PER_S = 1_000_000_000
 NS_PER_MS = 1_000_000
@@ -1015,15 +1019,16 @@ class TMC4210Axis:
         self._after_command()
         return to_int32(answer)
 
-    def state(self) -> dict[str, object]:
-        """A snapshot for telemetry (MQTT bridge, tests)."""
+    def status(self) -> AxisStatus:
+        """A snapshot for telemetry (MQTT bridge, tests); clears nothing."""
         self._sync()
         left, right, home = self._levels
-        return {
-            "position": self._position, "target": self._target,
-            "speed": self._actual_speed(), "position_reached": self._position == self._target,
-            "left": left, "right": right, "home": home, "current": self.current,
-            "standby": self._standby, "encoder": self._encoder_position(), "load": self._load(),
-            "errors": self._errors, "reference_search": self._rfs_state,
-            "mechanical_position": self._mechanical(),
-        }
+        return AxisStatus(
+            position=self._position, target=self._target, velocity=self._actual_speed(),
+            mode=_MODE_NAMES[self._chip_mode()],
+            position_reached=self._position == self._target,
+            home_switch=home, left_switch=left, right_switch=right, load=self._load(),
+            error_flags=self._errors, current=self.current, standby=self._standby,
+            encoder_position=self._encoder_position(), reference_search=self._rfs_state,
+            mechanical_position=self._mechanical(),
+        )

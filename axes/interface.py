@@ -49,6 +49,14 @@ class AxisStatus:
     right_switch: bool = False
     load: int = 0
     error_flags: int = 0
+    #: Motor current now (AP 6 while moving, AP 7 in standby), 0..255.
+    current: int = 0
+    standby: bool = False
+    encoder_position: int = 0
+    #: Non-zero while a reference search runs (its phase).
+    reference_search: int = 0
+    #: Where the mechanics really are (differs from ``position`` when the motor slips).
+    mechanical_position: int = 0
 
 
 class Axis(Protocol):

@@ -56,7 +56,7 @@ def search(module: TMCM6212, mode: int, start: int = 0) -> list[ModuleEvent]:
 
 
 def mechanical(module: TMCM6212) -> int:
-    return module.axes[0].state()["mechanical_position"]
+    return module.axis(0).status().mechanical_position
 
 
 # mode, where the zero point lands (mechanical), AP 196 (None: not set by this mode)

@@ -93,13 +93,16 @@ def test_first_steps_position_loop_runs_ten_minutes_of_program() -> None:
     """)
     bench.run()
     bench.advance(2.5)
-    assert bench.module.axis(0).get_parameter(3) == -51200  # ROL: turning left at full speed
+    # ROL: turning left at full speed (AP 3 reads the chip's quantised velocity back)
+    assert bench.module.axis(0).get_parameter(3) == pytest.approx(-51200, rel=1e-3)
     bench.advance(600)
     arrivals = [(e.time_ns, bench.position()) for e in bench.kinds("target_reached")]
     # First move ends ~11 s after the rotations; every later one spans 1024000 steps.
     assert len(arrivals) >= 25
     gaps = {round((b - a) / S, 3) for (a, _), (b, _) in pairwise(arrivals[1:])}
-    assert gaps == {21.0}  # 20 s at 51200 pps + 2 x 0.5 s ramps, plus no drift
+    # 20 s at 51200 pps + 2 x 0.5 s ramps; the chip's quantised velocity makes it 20.998 s,
+    # and every leg takes exactly as long as the others (no drift)
+    assert len(gaps) == 1 and gaps.pop() == pytest.approx(21.0, abs=0.005)
     assert bench.interpreter.status is ApplicationStatus.RUN
     assert bench.gp(GP.APPLICATION_STATUS) == 1
 
@@ -161,8 +164,9 @@ def test_subroutine_example() -> None:
     assert len(positions) >= 6
     # Each leg: 10000 steps at 51200 pps^2 never reaches 51200 pps: a triangle of
     # 2 * sqrt(10000 / 51200) = 0.884 s; then SubW waits 0.5 s more before the next MVP.
+    # The emulated TMC4210 quantises velocity and acceleration: within 5 ms of the ideal.
     legs = [round((b - a) / MS) for a, b in pairwise(positions)]
-    assert set(legs) == {884 + 500}
+    assert all(abs(leg - (884 + 500)) <= 5 for leg in legs), legs
     assert len(bench.interpreter.stack) <= 1
 
 
@@ -242,8 +246,9 @@ def test_pytrinamic_vector_interrupts_revector_each_other() -> None:
         bench.interpreter.store(address, ins)
     bench.run()
     bench.advance(9)
-    assert [bench_pos for bench_pos in (e.time_ns // (S // 1000) for e in
-                                        bench.kinds("target_reached"))] == [2000, 4000, 6000, 8000]
+    arrivals_ms = [e.time_ns // (S // 1000) for e in bench.kinds("target_reached")]
+    # every 2 s, give or take the chip's ramp quantisation (a few ms over the run)
+    assert arrivals_ms == pytest.approx([2000, 4000, 6000, 8000], abs=10)
     bench.advance(1)
     assert bench.interpreter.pc == 4 and not bench.interpreter.in_interrupt
 

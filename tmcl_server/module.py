@@ -324,7 +324,8 @@ class TMCM6212:
                 "position": s.position, "target": s.target, "velocity": s.velocity,
                 "mode": s.mode, "reached": s.position_reached, "home": s.home_switch,
                 "left": s.left_switch, "right": s.right_switch, "load": s.load,
-                "errors": s.error_flags,
+                "errors": s.error_flags, "current": s.current, "standby": s.standby,
+                "encoder": s.encoder_position, "reference_search": s.reference_search,
             })
         return {
             "t": self.now_ns / 1e9,
