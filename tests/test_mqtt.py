@@ -17,12 +17,14 @@ import pytest
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
+from interpreter.assembler import assemble
 from interpreter.isa import Opcode
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.mosquitto import MOSQUITTO, Broker
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_server.server import ServerConfig
 from tmcl_server.transports.mqtt import MqttSettings
+from tmcl_server.upload import StreamClient, upload
 
 from .conftest import RawClient
 
@@ -313,3 +315,70 @@ def test_clean_shutdown_says_offline(broker, sim):
             await probe.wait(lambda m: m.payload == b"offline")
 
     asyncio.run(scenario())
+
+
+RIG_PROGRAM = """
+    VECT 27, LeftHit          // left stop switch of axis 0
+    VECT 40, InputOne         // input 1 changed
+    SGP 27, 3, 1              // trigger on low -> high
+    SGP 40, 3, 3              // either edge
+    EI 27
+    EI 40
+    EI 255
+    ROL 0, 20000
+Idle:
+    JA Idle
+LeftHit:
+    SIO 0, 2, 1
+    RETI
+InputOne:
+    GGP 0, 2
+    CALC ADD, 1
+    AGP 0, 2                  // count input changes in user variable 0
+    RETI
+"""
+
+
+def test_sim_topics_trigger_a_limit_stop_and_interrupts_in_a_running_program(broker, sim):
+    client = StreamClient.tcp(sim.tcp, 1, timeout=5)
+    upload(client, assemble(RIG_PROGRAM).instructions, run=True)
+
+    async def scenario():
+        async with probing(broker) as probe:
+            await probe.client.subscribe("rig/tmcl/1/#", qos=1)
+            await asyncio.to_thread(sim.advance, 1.0)  # the program turns axis 0 left
+            moving = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/state"
+                                      and json_of(m)["axes"][0]["velocity"] < 0)
+            assert json_of(moving)["program"]["state"] == 1
+            mark = probe.mark()
+            await probe.client.publish("rig/tmcl/1/sim/switch/0/left", b"1", qos=1)
+            # Two edges of input 1, simulated time apart (edges at one instant latch one
+            # pending interrupt, as a hardware flag does).
+            for payload in (b"1", b'{"analog": 0}'):
+                seen = probe.mark()
+                await probe.client.publish("rig/tmcl/1/sim/input/1", payload, qos=1)
+                await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/event"
+                                 and json_of(m)["kind"] == "input_changed", since=seen)
+                await asyncio.to_thread(sim.advance, 0.1)
+            await probe.client.publish("rig/tmcl/1/sim/switch/0/sideways", b"1", qos=1)
+            error = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/sim_error")
+            assert "sideways" in json_of(error)["error"]
+            await asyncio.to_thread(sim.advance, 0.5)
+            stopped = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/state"
+                                       and json_of(m)["axes"][0]["left"]
+                                       and json_of(m)["outputs"][0] == 1, since=mark)
+            axis = json_of(stopped)["axes"][0]
+            assert axis["velocity"] == 0  # the limit switch stopped the motor
+            events = [json_of(m) for m in probe.on("rig/tmcl/1/event")]
+            kinds = [e["kind"] for e in events]
+            assert {"kind": "left_switch", "axis": 0, "active": True} in [
+                {k: e[k] for k in ("kind", "axis", "active") if k in e} for e in events]
+            taken = [e["vector"] for e in events if e["kind"] == "interrupt_taken"]
+            assert taken.count(27) == 1 and taken.count(40) == 2
+            assert kinds.index("left_switch") < kinds.index("interrupt_taken")
+
+    try:
+        asyncio.run(scenario())
+        assert client.send(Opcode.GGP, 0, 2, 0)[3] == 2  # both input edges were counted
+    finally:
+        client.close()

@@ -19,7 +19,7 @@ from typing import Any, Protocol
 from axes.firmware import TMC4210Axis
 from axes.interface import Axis, AxisEvent, AxisEventKind
 from axes.parameters import AXIS_PARAMETERS, STORABLE_AXIS_PARAMETERS, ParamSpec
-from axes.world import AxisWorld, LoadZone, Switch, World
+from axes.world import INFINITY, AxisWorld, LoadZone, Switch, World
 from interpreter.isa import MoveType, Opcode
 from tmcl_server.clock import NS_PER_MS
 from tmcl_server.eeprom import Eeprom
@@ -437,6 +437,14 @@ class TMCM6212:
                                                              normally_closed)
         target = self._world_axis(axis)
         target.set_switch(name, switch)
+        self.world.axes.setdefault(axis, target.world)
+
+    def force_switch(self, axis: int, name: str, active: bool) -> None:
+        """Hold a switch at a level wherever the axis is (a test rig pressing it by hand)."""
+        if name not in ("left", "right", "home"):
+            raise ValueError(f"unknown switch {name!r}")
+        target = self._world_axis(axis)
+        target.set_switch(name, Switch(-INFINITY, INFINITY) if active else None)
         self.world.axes.setdefault(axis, target.world)
 
     def set_load(self, axis: int, zones: list[tuple[int, int, int]],

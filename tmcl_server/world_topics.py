@@ -1,6 +1,15 @@
 """Turn ``sim/...`` messages (MQTT) into changes of the simulated world.
 
-    sim/input/<n>           "1"/"0"/true/false (digital) or {"analog": 0..65535}
+    sim/input/<n>                 1/0/true/false (digital) or {"analog": 0..65535}
+    sim/switch/<axis>/<name>      name = left | right | home
+                                  1/0/true/false: hold the switch at that level wherever the
+                                  axis is; {"position": p, "width": w, "side": s,
+                                  "normally_closed": b}: place it; null: remove it
+    sim/load/<axis>               0..1023 (the load value everywhere), or
+                                  {"free": v, "zones": [[from, to, load], ...]}
+    sim/encoder_slip/<axis>       0.0..1.0
+
+docs/mqtt.md and docs/world.md describe the units (positions are mechanical positions).
 """
 
 from __future__ import annotations
@@ -8,7 +17,12 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from axes.parameters import NUMBER_OF_AXES
+from axes.world import LOAD_MAX, SWITCH_NAMES
 from tmcl_server.module import TMCM6212
+from tmcl_server.tables import ANALOG_MAX
+
+_SWITCH_FIELDS = {"position", "width", "side", "normally_closed"}
 
 
 class WorldTopicError(ValueError):
@@ -40,17 +54,70 @@ def _level(value: Any) -> bool:
     raise WorldTopicError(f"expected 0/1 or true/false, got {value!r}")
 
 
+def _integer(value: Any, what: str, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+        raise WorldTopicError(f"{what} must be an integer {lo}..{hi}, got {value!r}")
+    return value
+
+
+def _input(module: TMCM6212, port: int, value: Any) -> None:
+    if isinstance(value, dict) and set(value) == {"analog"}:
+        module.set_analog_input(port, _integer(value["analog"], "analog value", 0, ANALOG_MAX))
+    else:
+        module.set_digital_input(port, _level(value))
+
+
+def _switch(module: TMCM6212, axis: int, name: str, value: Any) -> None:
+    if name not in SWITCH_NAMES:
+        raise WorldTopicError(f"switch must be one of {', '.join(SWITCH_NAMES)}, got {name!r}")
+    if value is None:
+        module.set_switch(axis, name, None)
+    elif isinstance(value, dict):
+        unknown = set(value) - _SWITCH_FIELDS
+        if unknown or "position" not in value:
+            raise WorldTopicError(f"a switch placement needs position (and may have width, "
+                                  f"side, normally_closed); got {sorted(value)}")
+        module.set_switch(axis, name, value["position"], value.get("width"), value.get("side"),
+                          bool(value.get("normally_closed", False)))
+    else:
+        module.force_switch(axis, name, _level(value))
+
+
+def _load(module: TMCM6212, axis: int, value: Any) -> None:
+    if isinstance(value, dict):
+        zones = value.get("zones", [])
+        if not isinstance(zones, list) or not all(
+                isinstance(z, list) and len(z) == 3 for z in zones):
+            raise WorldTopicError("zones must be a list of [from, to, load]")
+        free = value.get("free")
+        module.set_load(axis, [(int(a), int(b), _integer(c, "load", 0, LOAD_MAX))
+                               for a, b, c in zones],
+                        None if free is None else _integer(free, "load", 0, LOAD_MAX))
+    else:
+        module.set_load(axis, [], _integer(value, "load", 0, LOAD_MAX))
+
+
+def _slip(module: TMCM6212, axis: int, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value <= 1:
+        raise WorldTopicError(f"encoder slip must be a number 0..1, got {value!r}")
+    module.set_encoder_slip(axis, float(value))
+
+
 def apply_sim_message(module: TMCM6212, path: list[str], payload: bytes) -> None:
     value = _parse(payload)
-    match path:
-        case ["input", port]:
-            n = _index(port, "input", len(module.analog_inputs))
-            if isinstance(value, dict) and set(value) == {"analog"}:
-                analog = value["analog"]
-                if not isinstance(analog, int) or not 0 <= analog <= 65535:
-                    raise WorldTopicError(f"analog value must be 0..65535, got {analog!r}")
-                module.set_analog_input(n, analog)
-            else:
-                module.set_digital_input(n, _level(value))
-        case _:
-            raise WorldTopicError(f"unknown sim topic {'/'.join(path)!r}")
+    try:
+        match path:
+            case ["input", port]:
+                _input(module, _index(port, "input", len(module.analog_inputs)), value)
+            case ["switch", axis, name]:
+                _switch(module, _index(axis, "axis", NUMBER_OF_AXES), name, value)
+            case ["load", axis]:
+                _load(module, _index(axis, "axis", NUMBER_OF_AXES), value)
+            case ["encoder_slip", axis]:
+                _slip(module, _index(axis, "axis", NUMBER_OF_AXES), value)
+            case _:
+                raise WorldTopicError(f"unknown sim topic {'/'.join(path)!r}")
+    except (ValueError, TypeError) as exc:
+        if isinstance(exc, WorldTopicError):
+            raise
+        raise WorldTopicError(str(exc)) from exc
