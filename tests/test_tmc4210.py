@@ -23,7 +23,7 @@ from axes.tmc4210 import (
     Reg,
     Stop,
     datagram,
-    sdiff24,
+    signed,
 )
 from axes.units import pmul_pdiv, stop_speed
 
@@ -278,7 +278,7 @@ def test_hard_and_soft_switch_stops_and_the_tolerance_window() -> None:
     window.run(10_000)
     window.set_pins(True, False, False)
     assert window.v < 0  # |X_ACTUAL| < tolerance: no stop
-    assert abs(sdiff24(window.x_actual, 0)) < 4000
+    assert abs(signed(window.x_actual, 24)) < 4000
 
 
 @pytest.mark.parametrize("target", [1, 77, 5000, 123_457])
