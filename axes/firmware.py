@@ -504,6 +504,11 @@ class TMC4210Axis:
         """
         if self._pps_units:
             pulse_div = choose_pulse_div(top_speed, self.clock_hz)
+            if pulse_div > self._pulse_div and self._v_actual():
+                # A finer scale mid-move would round the running speed (its fraction bits
+                # are lost in the rescale) and can cost a step of overshoot: a lower limit
+                # runs on the present, coarser scale until the motor is at rest.
+                pulse_div = self._pulse_div
             if abs(top_speed) > max_step_rate(0, self.clock_hz):
                 log.warning("axis %d: %d pps is beyond the TMC4210 at %d Hz; running at %d pps",
                             self.index, top_speed, self.clock_hz,
