@@ -282,6 +282,15 @@ class ReferenceSearch:
 # == the axis ==================================================================================
 
 
+_UNKNOWN = object()  # lookahead not computed since the last change
+
+#: Parameters whose value depends on the motion (read from the chip at the present time).
+_LIVE_PARAMETERS = frozenset({AP_TARGET_POSITION, AP_ACTUAL_POSITION, AP_ACTUAL_SPEED,
+                              AP_POSITION_REACHED, AP_LEFT_SWITCH, AP_RIGHT_SWITCH,
+                              AP_HOME_SWITCH, AP_LOAD, AP_ERROR_FLAGS, AP_ENCODER_POSITION,
+                              180})
+
+
 @dataclass(slots=True)
 class _Lookahead:
     chip: TMC4210
@@ -300,7 +309,8 @@ class TMC4210Axis:
         self._params = {n: spec.default for n, spec in AXIS_PARAMETERS.items()}
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
-        self._lookahead_cache: _Lookahead | None = None
+        #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
+        self._lookahead_cache: _Lookahead | object | None = _UNKNOWN
         # Firmware state
         self._x_last = 0  # last X_ACTUAL read (24 bit)
         self._position = 0  # AP 1, 32 bit
@@ -349,12 +359,12 @@ class TMC4210Axis:
     # == time ==================================================================================
 
     def _invalidate(self) -> None:
-        self._lookahead_cache = None
+        self._lookahead_cache = _UNKNOWN
 
     def _lookahead(self) -> _Lookahead | None:
         """Run a copy of the chip to its next notable instant (or the horizon)."""
-        if self._lookahead_cache is not None:
-            return self._lookahead_cache
+        if self._lookahead_cache is not _UNKNOWN:
+            return self._lookahead_cache  # type: ignore[return-value]
         twin = self.chip.clone()
         horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + LOOKAHEAD_NS
         stop = twin.run(twin.ticks_at(horizon_ns))
@@ -899,6 +909,8 @@ class TMC4210Axis:
         self._awaiting_arrival = False
 
     def get_parameter(self, number: int) -> int:
+        if number not in _LIVE_PARAMETERS:
+            return self._params[number]  # configuration: no need to bring the chip up to date
         self._sync()
         if number == AP_TARGET_POSITION:
             return self._target
