@@ -26,7 +26,7 @@ from pathlib import Path
 
 import serial
 
-REQUEST = bytes([1, 6, 4, 0, 0, 0, 0, 0, 11])  # GAP 4, 0
+REQUEST = bytes([1, 6, 1, 0, 0, 0, 0, 0, 8])  # GAP 1, 0: the actual position, the usual poll
 
 ECHO_SERVER = r"""
 import asyncio, sys
@@ -99,7 +99,7 @@ def lockstep_pytrinamic(endpoint: str, seconds: float, latencies: list[int],
         if echo:
             iface.send(6, 100, 0, 0)
         else:
-            iface.get_axis_parameter(4, 0)
+            iface.get_axis_parameter(1, 0)
         local.append(time.perf_counter_ns() - t0)
     iface.close()
     latencies.extend(local)
