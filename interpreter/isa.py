@@ -258,5 +258,11 @@ OPERANDS: dict[Opcode, tuple[Field, ...]] = {
     Opcode.ACO: (_TYPE, _MOTOR),
 }
 
+#: The symbolic names of the type field, per command that has them (MVP: ABS/REL/COORD, ...).
+TYPE_SYMBOLS: dict[Opcode, type[IntEnum]] = {
+    opcode: f.symbols for opcode, fields in OPERANDS.items()
+    for f in fields if f.slot == "type" and f.symbols is not None
+}
+
 #: CALC accepts ADD..LOAD only; SWAP exists for CALCX alone.
 CALC_MAX_OPERATION = CalcOp.LOAD

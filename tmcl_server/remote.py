@@ -11,23 +11,12 @@ fields are 0.  Anything else is a :class:`RequestError` that says what was wrong
 from __future__ import annotations
 
 import json
-from enum import IntEnum
 from typing import Any
 
-from interpreter.isa import CalcOp, Condition, ErrorFlag, MoveType, Opcode, RfsType, WaitCondition
+from interpreter.isa import TYPE_SYMBOLS, Opcode
 from tmcl_server.protocol import AnyReply, RawReply, Request, to_int32
 from tmcl_server.tables import Status
 
-#: Symbolic names of the type field, per command.
-TYPE_SYMBOLS: dict[int, type[IntEnum]] = {
-    Opcode.MVP: MoveType,
-    Opcode.RFS: RfsType,
-    Opcode.CALC: CalcOp,
-    Opcode.CALCX: CalcOp,
-    Opcode.JC: Condition,
-    Opcode.WAIT: WaitCondition,
-    Opcode.CLE: ErrorFlag,
-}
 FIELDS = ("cmd", "type", "motor", "bank", "value")
 
 
