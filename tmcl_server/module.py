@@ -68,6 +68,10 @@ class Interface(Enum):
     __hash__ = object.__hash__  # Enum hashes by name in Python code; this is on the hot path
 
 
+#: The heartbeat period (GP 68 / GP 82, ms) watching each kind of interface.
+HEARTBEAT_PARAMETERS = {Interface.SERIAL: GP.SERIAL_HEARTBEAT, Interface.CAN: GP.CAN_HEARTBEAT}
+
+
 class ReplySink(Protocol):
     """Where a module can push replies nobody asked for right now (command 138 events)."""
 
@@ -173,7 +177,8 @@ class TMCM6212:
         self._heartbeat_tripped = {Interface.SERIAL: False, Interface.CAN: False}
         self._due_ns: int | None = None
         self._due_stale = True
-        self._reply_delay_s = self.globals[0][GP.TELEGRAM_PAUSE] / 1000.0
+        #: GP 75 telegram pause (ms) before a serial reply, in seconds (kept up to date).
+        self.reply_delay_s = self.globals[0][GP.TELEGRAM_PAUSE] / 1000.0
         self._addresses_changed()
         self.program.power_up()
 
@@ -216,11 +221,6 @@ class TMCM6212:
     def accepts_can(self, can_id: int) -> bool:
         secondary = self.globals[0][GP.CAN_SECONDARY_ID]
         return can_id == self.can_id or (secondary != 0 and can_id == secondary)
-
-    @property
-    def reply_delay_s(self) -> float:
-        """GP 75 telegram pause (ms) before a serial reply, in seconds."""
-        return self._reply_delay_s
 
     def make_reply(self, status: int, opcode: int, value: int, interface: Interface) -> Reply:
         bank0 = self.globals[0]
@@ -353,21 +353,20 @@ class TMCM6212:
                 self._on_axis_event(event)
         self._check_heartbeats()
 
+    def _heartbeat_deadline(self, interface: Interface) -> int | None:
+        """When the heartbeat of ``interface`` trips, if it is on and armed."""
+        period = self.globals[0][HEARTBEAT_PARAMETERS[interface]]
+        if not period or self._heartbeat_tripped[interface]:
+            return None
+        return self._last_command_ns[interface] + period * NS_PER_MS
+
     def _heartbeat_deadlines(self) -> list[int]:
-        deadlines = []
-        for interface, gp in ((Interface.SERIAL, GP.SERIAL_HEARTBEAT),
-                              (Interface.CAN, GP.CAN_HEARTBEAT)):
-            period = self.globals[0][gp]
-            if period and not self._heartbeat_tripped[interface]:
-                deadlines.append(self._last_command_ns[interface] + period * NS_PER_MS)
-        return deadlines
+        return [t for t in map(self._heartbeat_deadline, HEARTBEAT_PARAMETERS) if t is not None]
 
     def _check_heartbeats(self) -> None:
-        for interface, gp in ((Interface.SERIAL, GP.SERIAL_HEARTBEAT),
-                              (Interface.CAN, GP.CAN_HEARTBEAT)):
-            period = self.globals[0][gp]
-            if (period and not self._heartbeat_tripped[interface]
-                    and self.now_ns >= self._last_command_ns[interface] + period * NS_PER_MS):
+        for interface in HEARTBEAT_PARAMETERS:
+            deadline = self._heartbeat_deadline(interface)
+            if deadline is not None and self.now_ns >= deadline:
                 self._heartbeat_tripped[interface] = True
                 for index in range(NUMBER_OF_AXES):
                     self.axis(index).emergency_stop()
@@ -473,10 +472,7 @@ class TMCM6212:
     def _axis(self, motor: int) -> Axis:
         if not 0 <= motor < NUMBER_OF_AXES:
             raise CommandError(Status.INVALID_VALUE)
-        axis = self.axes[motor]
-        for event in axis.advance_to(self.now_ns):  # see axis(): normally none
-            self._on_axis_event(event)
-        return axis
+        return self.axis(motor)
 
     @staticmethod
     def _axis_spec(number: int) -> ParamSpec:
@@ -597,7 +593,7 @@ class TMCM6212:
             if number in ADDRESS_PARAMETERS:
                 self._addresses_changed()
             elif number == GP.TELEGRAM_PAUSE:
-                self._reply_delay_s = value / 1000.0
+                self.reply_delay_s = value / 1000.0
             elif number == GP.COORDINATE_STORAGE and value == 1:
                 self._copy_coordinates_to_eeprom(range(1, NUMBER_OF_COORDINATES))
 

@@ -23,6 +23,7 @@ import can
 
 from tmcl_server.protocol import CAN_PAYLOAD_LENGTH, AnyReply, Reply, decode_can_request
 from tmcl_server.simulation import Simulation
+from tmcl_server.tables import BANK0_PARAMETERS, GP
 from tmcl_server.transports.base import Transport
 
 log = logging.getLogger(__name__)
@@ -31,7 +32,7 @@ DEFAULT_BUS_NAME = "can0"
 #: Data lengths of a TMCL request: 7, or 8 when the host appends a pad byte (pytrinamic does).
 REQUEST_LENGTHS = (CAN_PAYLOAD_LENGTH, CAN_PAYLOAD_LENGTH + 1)
 #: GP 70 factory default, used when no module claims a 138 event (its CAN id changed since).
-DEFAULT_REPLY_ID = 2
+DEFAULT_REPLY_ID = BANK0_PARAMETERS[GP.CAN_REPLY_ID].default
 
 
 class CanParty(Protocol):
