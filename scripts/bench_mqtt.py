@@ -16,14 +16,17 @@ import asyncio
 import json
 import socket
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import aiomqtt
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.helpers: the throwaway broker
+
+from tests.helpers.mosquitto import Broker
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.mosquitto import Broker
 from tmcl_server.protocol import Request
 from tmcl_server.server import ServerConfig
 

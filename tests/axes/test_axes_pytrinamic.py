@@ -11,7 +11,7 @@ from pytrinamic.modules import TMCM6212
 
 from tmcl_server.embed import SimulatorThread
 
-WORLD = Path(__file__).resolve().parent.parent / "docs" / "world-example.toml"
+WORLD = Path(__file__).resolve().parents[2] / "docs" / "world-example.toml"
 
 
 @pytest.fixture

@@ -13,9 +13,8 @@ from pathlib import Path
 import pytest
 
 from interpreter.isa import Opcode
+from tests.conftest import RawClient
 from tmcl_server.cli import build_parser, config_from_args
-
-from .conftest import RawClient
 
 
 class ServerProcess:
@@ -128,7 +127,7 @@ def test_no_transport_is_refused():
 def test_example_script_runs_self_contained():
     result = subprocess.run([sys.executable, "scripts/example_pytrinamic.py", "--self-contained"],
                             capture_output=True, text=True, timeout=60,
-                            cwd=Path(__file__).resolve().parent.parent)
+                            cwd=Path(__file__).resolve().parents[2])
     assert result.returncode == 0, result.stderr
     assert "firmware: 6212V105" in result.stdout
     assert "reached 102400" in result.stdout

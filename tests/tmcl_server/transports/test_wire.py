@@ -12,11 +12,10 @@ import tty
 import pytest
 
 from interpreter.isa import Opcode
+from tests.conftest import RawClient
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_server.tables import GP
-
-from .conftest import RawClient
 
 
 @pytest.fixture

@@ -26,8 +26,8 @@ from interpreter.isa import (
 )
 from tmcl_server.tables import BANK0_PARAMETERS, BANK3_PARAMETERS
 
-ROOT = Path(__file__).resolve().parent.parent
-VECTOR = Path(__file__).resolve().parent / "vectors" / "pytrinamic_test.bin"
+ROOT = Path(__file__).resolve().parents[2]
+VECTOR = Path(__file__).resolve().parents[1] / "vectors" / "pytrinamic_test.bin"
 
 
 def vector_bytes() -> bytes:

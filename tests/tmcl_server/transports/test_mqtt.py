@@ -19,14 +19,13 @@ from paho.mqtt.properties import Properties
 
 from interpreter.assembler import assemble
 from interpreter.isa import Opcode
+from tests.conftest import RawClient
+from tests.helpers.mosquitto import MOSQUITTO, Broker
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.mosquitto import MOSQUITTO, Broker
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_server.server import ServerConfig
 from tmcl_server.transports.mqtt import MqttSettings
 from tmcl_server.upload import StreamClient, upload
-
-from .conftest import RawClient
 
 pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed "
                                 "(./scripts/test.sh installs it with apt-get)")

@@ -240,7 +240,7 @@ def test_host_callable_function_table() -> None:
 
 def test_pytrinamic_vector_interrupts_revector_each_other() -> None:
     """The IDE binary: target-reached handlers re-vector interrupt 3 to each other."""
-    vector = Path(__file__).resolve().parent / "vectors" / "pytrinamic_test.bin"
+    vector = Path(__file__).resolve().parents[1] / "vectors" / "pytrinamic_test.bin"
     bench = Bench()
     for address, ins in enumerate(decode_program(vector.read_bytes())):
         bench.interpreter.store(address, ins)

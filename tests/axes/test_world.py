@@ -12,7 +12,7 @@ from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
 from tmcl_server.server import ServerConfig, build_simulation
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "docs" / "world-example.toml"
+EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "world-example.toml"
 
 
 def test_example_world_file_loads() -> None:

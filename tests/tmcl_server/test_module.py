@@ -6,12 +6,11 @@ import pytest
 
 from axes.parameters import AXIS_PARAMETERS, UINT32_MAX
 from interpreter.isa import Opcode
+from tests.conftest import Bench
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import RawReply, Request
 from tmcl_server.tables import BANK_PARAMETERS, FIRMWARE_VERSION_BINARY, GP, Status
-
-from .conftest import Bench
 
 OK, WRONG_TYPE, INVALID_VALUE, INVALID_COMMAND = 100, 3, 4, 2
 

@@ -1,6 +1,6 @@
 """The emulated TMC4210: register file, status byte, side effects, switches, and motion.
 
-Motion is checked against ``axes.reference_model.ReferenceChip``, a literal one-clk32-tick-at-a-time
+Motion is checked against ``tests.axes.reference_tmc4210.ReferenceChip``, a literal one-clk32-tick-at-a-time
 transcription of the digest's model: the event-driven engine must land on the same position
 and velocity at every instant, and stop at the same tick.
 """
@@ -11,7 +11,6 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from axes.reference_model import ReferenceChip
 from axes.tmc4210 import (
     EN_SD,
     MASK24,
@@ -26,6 +25,7 @@ from axes.tmc4210 import (
     signed,
 )
 from axes.units import pmul_pdiv, stop_speed
+from tests.axes.reference_tmc4210 import ReferenceChip
 
 IDLE_STATUS = 0x15
 
