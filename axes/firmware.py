@@ -368,10 +368,8 @@ class TMC4210Axis:
         twin = self.chip.clone()
         horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + LOOKAHEAD_NS
         stop = twin.run(twin.ticks_at(horizon_ns))
-        if stop is None and twin.v == 0 and twin._steady_steps() == -1:
-            result = None
-        else:
-            result = _Lookahead(twin, stop, twin.ns_at(twin.t))
+        at_rest = stop is None and twin.at_rest()
+        result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))
         self._lookahead_cache = result
         return result
 

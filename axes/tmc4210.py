@@ -20,7 +20,8 @@ from __future__ import annotations
 import copy
 from enum import IntEnum
 from math import isqrt
-from typing import Protocol
+
+from axes.core import Board, Stop
 
 MASK24 = 0xFFFFFF
 HALF24 = 1 << 23
@@ -112,25 +113,6 @@ POS_COMP_SEL = 3 << 6
 MOT1R = 1 << 21
 
 
-class Stop(IntEnum):
-    """Why :meth:`TMC4210.run` returned before its end time."""
-
-    ARRIVED = 1  # ramp/soft positioning ended at the target (the abrupt stop at <= V_MIN)
-    STOPPED = 2  # the velocity became zero some other way
-    MARK = 3  # the motor reached a position the board asked to be told about
-
-
-class Board(Protocol):
-    """What the chip's pins are wired to: the module's input stage and the mechanics."""
-
-    def pins(self, motor_position: int) -> tuple[bool, bool, bool]:
-        """Electrical levels of (REF_L, REF_R, GP_IN) with the motor at ``motor_position``."""
-        ...
-
-    def next_mark(self, motor_position: int, direction: int) -> int | None:
-        """The nearest position beyond ``motor_position`` in ``direction`` that matters."""
-        ...
-
 
 def sdiff24(a: int, b: int) -> int:
     """``a - b`` as a signed 24-bit difference (the chip's direction rule)."""
@@ -215,6 +197,10 @@ class TMC4210:
         self.ramp_next = self.t + 1
         self.ref_l = self.ref_r = self.gp_in = False  # electrical pin levels
         self._refresh_pins()
+
+    def at_rest(self) -> bool:
+        """Stopped, and no ramp tick will start the motor again."""
+        return self.v == 0 and self._steady_steps() == -1
 
     def clone(self) -> TMC4210:
         """An independent copy (for looking ahead without disturbing this chip)."""
