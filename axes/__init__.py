@@ -1,16 +1,13 @@
-"""Motion axes of the simulated TMCM-6212.
+"""Motion axes: a TMCL firmware layer over an emulated motion-controller chip, per axis.
 
-The module talks to an axis only through :class:`axes.interface.Axis`; everything behind that
-interface (motion-controller emulation, switches, encoder, load) belongs to this package:
-:class:`axes.firmware.TMC4210Axis` (the TMCL firmware layer, the module's default axis) over
-:class:`axes.tmc4210.TMC4210` (the emulated chip), in the world of :mod:`axes.world`.
+The module talks to an axis only through :class:`axes.interface.Axis` and builds axes by core
+name with :func:`axes.cores.make_axis`; everything behind that (chip emulation, switches,
+encoder, load) belongs to this package.  The firmware layer reaches its chip only through SPI
+datagrams (:mod:`axes.core` is that contract); the world around the axes is :mod:`axes.world`.
+Importing the package loads no chip core: a core is imported when a module asks for it.
 """
 
-from axes.firmware import TMC4210Axis
-from axes.interface import Axis, AxisEvent, AxisEventKind
-from axes.parameters import AXIS_PARAMETERS, NUMBER_OF_AXES, ParamSpec
-from axes.tmc4210 import TMC4210
+from axes.interface import Axis, AxisEvent, AxisEventKind, AxisStatus
 from axes.world import AxisWorld, World, load_world
 
-__all__ = ["AXIS_PARAMETERS", "NUMBER_OF_AXES", "TMC4210", "Axis", "AxisEvent", "AxisEventKind",
-           "AxisWorld", "ParamSpec", "TMC4210Axis", "World", "load_world"]
+__all__ = ["Axis", "AxisEvent", "AxisEventKind", "AxisStatus", "AxisWorld", "World", "load_world"]

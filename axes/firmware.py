@@ -18,10 +18,10 @@ choice is explained in docs/motion.md.
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from axes.interface import AxisEvent, AxisEventKind, AxisStatus
-from axes.parameters import AXIS_PARAMETERS
 from axes.tmc4210 import (
     DEFAULT_CLOCK_HZ,
     DISABLE_STOP_L,
@@ -51,6 +51,9 @@ from axes.units import (
     velocity_register,
 )
 from axes.world import AxisWorld, LoadZone, Switch
+from tmcl_spec.numbers import NS_PER_MS, NS_PER_S, to_int32
+from tmcl_spec.parameters import AP, ParamSpec
+from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
 
 log = logging.getLogger(__name__)
 
@@ -58,8 +61,6 @@ log = logging.getLogger(__name__)
 _MODE_NAMES = {RampMode.RAMP: "position", RampMode.SOFT: "position",
                RampMode.VELOCITY: "velocity", RampMode.HOLD: "hold"}
 
-NS_PER_S = 1_000_000_000
-NS_PER_MS = 1_000_000
 #: How far ahead the firmware looks for the next event; also bounds how many steps pass
 #: between two reads of the 24-bit X_ACTUAL (4 s at 1 Mpps is well below 2**23).
 LOOKAHEAD_NS = 4 * NS_PER_S
@@ -71,57 +72,11 @@ STALL_POLL_NS = NS_PER_MS
 #: STEP pulse length 4 µs at 16 MHz and mot1r = 1 (the right switch belongs to the axis).
 SMGP_FIRMWARE = MOT1R | (SMGP_POWER_ON & ~0xF00) | 3 << 8
 
-# Axis parameter numbers used by the firmware (manual Table 14).
-AP_TARGET_POSITION = 0
-AP_ACTUAL_POSITION = 1
-AP_TARGET_SPEED = 2
-AP_ACTUAL_SPEED = 3
-AP_MAX_SPEED = 4
-AP_MAX_ACCELERATION = 5
-AP_MAX_CURRENT = 6
-AP_STANDBY_CURRENT = 7
-AP_POSITION_REACHED = 8
-AP_HOME_SWITCH = 9
-AP_RIGHT_SWITCH = 10
-AP_LEFT_SWITCH = 11
-AP_RIGHT_DISABLE = 12
-AP_LEFT_DISABLE = 13
-AP_SWAP_SWITCHES = 14
-AP_VSTOP = 20
-AP_RIGHT_POLARITY = 24
-AP_LEFT_POLARITY = 25
-AP_SOFT_STOP = 26
-AP_MICROSTEPS = 140
-AP_STOP_ON_STALL = 181
-AP_RFS_MODE = 193
-AP_RFS_SPEED = 194
-AP_RFS_SWITCH_SPEED = 195
-AP_SWITCH_DISTANCE = 196
-AP_LAST_REFERENCE = 197
-AP_FULLSTEPS = 202
-AP_FREEWHEELING = 204
-AP_LOAD = 206
-AP_ERROR_FLAGS = 207
-AP_ENCODER_POSITION = 209
-AP_ENCODER_RESOLUTION = 210
-AP_MAX_DEVIATION = 212
-AP_POWER_DOWN_DELAY = 214
-AP_UNIT_MODE = 255
-
 STOP_FLAG = 1 << Irq.STOP
 STOP_MASK = STOP_FLAG << 8
 
 ERROR_STALL = 1
 ERROR_DEVIATION = 2
-
-#: Parameters whose value is a velocity or an acceleration (converted by the unit mode).
-SPEED_PARAMETERS = frozenset({2, 4, 16, 19, 20, 22, 23, 181, 182, 186, 194, 195})
-
-
-def to_int32(value: int) -> int:
-    value &= 0xFFFF_FFFF
-    return value - (1 << 32) if value & 0x8000_0000 else value
-
 
 # == the board: input stage + mechanics ========================================================
 
@@ -285,10 +240,10 @@ class ReferenceSearch:
 _UNKNOWN = object()  # lookahead not computed since the last change
 
 #: Parameters whose value depends on the motion (read from the chip at the present time).
-_LIVE_PARAMETERS = frozenset({AP_TARGET_POSITION, AP_ACTUAL_POSITION, AP_ACTUAL_SPEED,
-                              AP_POSITION_REACHED, AP_LEFT_SWITCH, AP_RIGHT_SWITCH,
-                              AP_HOME_SWITCH, AP_LOAD, AP_ERROR_FLAGS, AP_ENCODER_POSITION,
-                              180})
+_LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_SPEED,
+                              AP.POSITION_REACHED, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
+                              AP.HOME_SWITCH, AP.LOAD, AP.ERROR_FLAGS, AP.ENCODER_POSITION,
+                              AP.SMARTENERGY_ACTUAL_CURRENT})
 
 
 @dataclass(slots=True)
@@ -302,11 +257,12 @@ class TMC4210Axis:
     """One TMCM-6212 axis: TMCL axis parameters in, TMC4210 datagrams out."""
 
     def __init__(self, index: int, clock_hz: int = DEFAULT_CLOCK_HZ,
-                 world: AxisWorld | None = None) -> None:
+                 world: AxisWorld | None = None,
+                 parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS) -> None:
         self.index = index
         self.board = AxisBoard(world)
         self.chip = TMC4210(clock_hz, self.board)
-        self._params = {n: spec.default for n, spec in AXIS_PARAMETERS.items()}
+        self._params = {n: spec.default for n, spec in parameters.items()}
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
         #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
@@ -349,7 +305,7 @@ class TMC4210Axis:
         self._spi_write(Reg.SMGP, SMGP_FIRMWARE)
         self._spi_write(Reg.INTERRUPT, STOP_MASK)
         self._write_ref_conf(RampMode.VELOCITY)
-        self._apply_limits(self._params[AP_MAX_SPEED])
+        self._apply_limits(self._params[AP.MAX_SPEED])
         self._levels = self._read_levels()
 
     @property
@@ -377,7 +333,7 @@ class TMC4210Axis:
         """The firmware's own next deadline (standby current, stallGuard sampling)."""
         times = []
         if self._standstill_since is not None and not self._standby:
-            times.append(self._standstill_since + self._params[AP_POWER_DOWN_DELAY] * 10 * NS_PER_MS)
+            times.append(self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS)
         if self._stall_watch:
             times.append(self._now_ns + STALL_POLL_NS)
         return min(times) if times else None
@@ -460,7 +416,7 @@ class TMC4210Axis:
 
     def _on_timer(self) -> None:
         if (self._standstill_since is not None and not self._standby and self._now_ns
-                >= self._standstill_since + self._params[AP_POWER_DOWN_DELAY] * 10 * NS_PER_MS):
+                >= self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS):
             self._standby = True
             self._emit(AxisEventKind.CURRENT_CHANGED, False)
         self._check_stall()
@@ -492,7 +448,7 @@ class TMC4210Axis:
 
     @property
     def _pps_units(self) -> bool:
-        return self._params[AP_UNIT_MODE] == 1
+        return self._params[AP.UNIT_MODE] == 1
 
     def _to_register(self, speed: int) -> int:
         if self._pps_units:
@@ -546,17 +502,17 @@ class TMC4210Axis:
             pair = (255, 0) if a_max > 1 else (128, 13)
         self._spi_write(Reg.PMUL_PDIV, pair[0] << 8 | pair[1])
         # V_MIN must allow the abrupt stop at the speed the chip arrives with (units.stop_speed).
-        v_min = max(self._to_register(self._params[AP_VSTOP]), stop_speed(a_max, *pair))
+        v_min = max(self._to_register(self._params[AP.VSTOP]), stop_speed(a_max, *pair))
         self._spi_write(Reg.V_MIN, min(v_min, V_REGISTER_MAX))
 
     def _write_ref_conf(self, mode: RampMode) -> None:
         conf = mode
         searching = self._rfs is not None
-        if searching or self._params[AP_LEFT_DISABLE]:
+        if searching or self._params[AP.LEFT_DISABLE]:
             conf |= DISABLE_STOP_L
-        if searching or self._params[AP_RIGHT_DISABLE]:
+        if searching or self._params[AP.RIGHT_DISABLE]:
             conf |= DISABLE_STOP_R
-        if self._params[AP_SOFT_STOP]:
+        if self._params[AP.SOFT_STOP]:
             conf |= SOFT_STOP
         self._spi_write(Reg.REF_CONF_RAMP_MODE, conf)
 
@@ -564,7 +520,7 @@ class TMC4210Axis:
         return RampMode(self._spi_read(Reg.REF_CONF_RAMP_MODE) & 3)
 
     def _apply_limits(self, top_speed: int) -> None:
-        self._set_dividers(self._top_speed(top_speed), self._params[AP_MAX_ACCELERATION])
+        self._set_dividers(self._top_speed(top_speed), self._params[AP.MAX_ACCELERATION])
         self._spi_write(Reg.V_MAX, self._to_register(top_speed))
 
     # == motion ================================================================================
@@ -574,7 +530,7 @@ class TMC4210Axis:
         return max(abs(requested), abs(self._actual_speed()))
 
     def _start_velocity(self, speed: int) -> None:
-        self._set_dividers(self._top_speed(speed), self._params[AP_MAX_ACCELERATION])
+        self._set_dividers(self._top_speed(speed), self._params[AP.MAX_ACCELERATION])
         register = self._to_register(speed)
         self._spi_write(Reg.V_MAX, register)
         self._spi_write(Reg.V_TARGET, (register if speed >= 0 else -register) & 0xFFF)
@@ -585,7 +541,7 @@ class TMC4210Axis:
 
     def _start_positioning(self, target: int, top_speed: int) -> None:
         self._target = target
-        self._set_dividers(self._top_speed(top_speed), self._params[AP_MAX_ACCELERATION])
+        self._set_dividers(self._top_speed(top_speed), self._params[AP.MAX_ACCELERATION])
         self._spi_write(Reg.V_MAX, self._to_register(top_speed))
         self._positioning = True
         self._awaiting_arrival = True
@@ -613,14 +569,14 @@ class TMC4210Axis:
     def rotate(self, velocity: int) -> None:
         self._command()
         self._abort_search()
-        self._velocity_command = self._params[AP_TARGET_SPEED] = velocity
+        self._velocity_command = self._params[AP.TARGET_SPEED] = velocity
         self._start_velocity(velocity)
         self._after_command()
 
     def stop(self) -> None:
         self._command()
         self._abort_search()
-        self._velocity_command = self._params[AP_TARGET_SPEED] = 0
+        self._velocity_command = self._params[AP.TARGET_SPEED] = 0
         self._spi_write(Reg.V_TARGET, 0)
         self._write_ref_conf(RampMode.VELOCITY)
         self._positioning = False
@@ -650,7 +606,7 @@ class TMC4210Axis:
     def move_to(self, target: int) -> None:
         self._command()
         self._abort_search()
-        self._start_positioning(to_int32(target), self._params[AP_MAX_SPEED])
+        self._start_positioning(to_int32(target), self._params[AP.MAX_SPEED])
         self._after_command()
 
     def _command(self) -> None:
@@ -675,7 +631,7 @@ class TMC4210Axis:
                 self._abort_search()
                 self.stop()
             return 0
-        plan, inverted = reference_plan(self._params[AP_RFS_MODE])
+        plan, inverted = reference_plan(self._params[AP.RFS_MODE])
         self._abort_search()
         self._rfs = ReferenceSearch(plan, inverted, points={})
         self._errors = 0
@@ -711,7 +667,7 @@ class TMC4210Axis:
                 search = self._rfs
                 continue
             fast = phase.kind == "seek"
-            speed = self._params[AP_RFS_SPEED if fast else AP_RFS_SWITCH_SPEED]
+            speed = self._params[AP.RFS_SPEED if fast else AP.RFS_SWITCH_SPEED]
             search.direction = phase.direction
             if phase.reverse_on and self._search_level(phase.reverse_on):
                 self._rfs_reverse()
@@ -737,7 +693,7 @@ class TMC4210Axis:
         if phase.reverse_on and not search.reversed_once and self._search_level(phase.reverse_on):
             self._rfs_reverse()
             self._hard_stop()
-            self._start_velocity(search.direction * self._params[AP_RFS_SPEED])
+            self._start_velocity(search.direction * self._params[AP.RFS_SPEED])
             self._update_marks()
             return
         want_active = phase.kind != "leave"
@@ -757,13 +713,13 @@ class TMC4210Axis:
         zero, distance = reference_point(self._rfs.points)
         self._rfs.points["zero"] = zero
         if distance is not None:
-            self._params[AP_SWITCH_DISTANCE] = distance
-        self._start_positioning(zero, self._params[AP_RFS_SWITCH_SPEED])
+            self._params[AP.SWITCH_DISTANCE] = distance
+        self._start_positioning(zero, self._params[AP.RFS_SWITCH_SPEED])
         if not self._awaiting_arrival:
             self._rfs_complete()
 
     def _rfs_complete(self) -> None:
-        self._params[AP_LAST_REFERENCE] = self._position
+        self._params[AP.LAST_REFERENCE] = self._position
         self._rfs = None
         self._rfs_state = 0
         self._set_position(0)
@@ -784,7 +740,7 @@ class TMC4210Axis:
         return -self._to_speed(-v) if v < 0 else self._to_speed(v)
 
     def _check_stall(self) -> None:
-        threshold = self._params[AP_STOP_ON_STALL]
+        threshold = self._params[AP.STOP_ON_STALL]
         watching = False
         if threshold and self._load() == 0 and self._standstill_since is None:
             if abs(self._actual_speed()) >= threshold:
@@ -804,8 +760,8 @@ class TMC4210Axis:
         return self._encoder_offset + int(seen // per_count)
 
     def _counts_per_microstep(self) -> float:
-        resolution = self._params[AP_ENCODER_RESOLUTION]
-        microsteps = self._params[AP_FULLSTEPS] << self._params[AP_MICROSTEPS]
+        resolution = self._params[AP.ENCODER_RESOLUTION]
+        microsteps = self._params[AP.FULLSTEPS] << self._params[AP.MICROSTEPS]
         return resolution / microsteps if microsteps else 0.0
 
     def _encoder_position(self) -> int:
@@ -826,7 +782,7 @@ class TMC4210Axis:
         return abs(self._position - self._encoder_position()) * self._counts_per_microstep()
 
     def _check_deviation(self) -> None:
-        limit = self._params[AP_MAX_DEVIATION]
+        limit = self._params[AP.MAX_DEVIATION]
         if limit and self._standstill_since is None and self._deviation() > limit:
             self._abort_search()
             self._hard_stop()
@@ -839,7 +795,7 @@ class TMC4210Axis:
         The estimate is refined at the mark itself: if the limit is not yet exceeded there, a
         new mark at least one step further is set, so the event lands on the exact step.
         """
-        limit = self._params[AP_MAX_DEVIATION]
+        limit = self._params[AP.MAX_DEVIATION]
         ratio = self._counts_per_microstep()
         world = self.board.world
         if not limit or not ratio or world.encoder_slip <= 0:
@@ -877,12 +833,7 @@ class TMC4210Axis:
     @property
     def current(self) -> int:
         """The motor current now (0..255): AP 6 while moving, AP 7 after the power-down delay."""
-        return self._params[AP_STANDBY_CURRENT if self._standby else AP_MAX_CURRENT]
-
-    @property
-    def freewheeling(self) -> bool:
-        return (self._standby and self._params[AP_STANDBY_CURRENT] == 0
-                and self._params[AP_FREEWHEELING] != 0)
+        return self._params[AP.STANDBY_CURRENT if self._standby else AP.MAX_CURRENT]
 
     # == parameters ============================================================================
 
@@ -910,41 +861,41 @@ class TMC4210Axis:
         if number not in _LIVE_PARAMETERS:
             return self._params[number]  # configuration: no need to bring the chip up to date
         self._sync()
-        if number == AP_TARGET_POSITION:
+        if number == AP.TARGET_POSITION:
             return self._target
-        if number == AP_ACTUAL_POSITION:
+        if number == AP.ACTUAL_POSITION:
             return self._position
-        if number == AP_ACTUAL_SPEED:
+        if number == AP.ACTUAL_SPEED:
             return self._actual_speed()
-        if number == AP_POSITION_REACHED:
+        if number == AP.POSITION_REACHED:
             return int(self._position == self._target)
-        if number in (AP_LEFT_SWITCH, AP_RIGHT_SWITCH, AP_HOME_SWITCH):
+        if number in (AP.LEFT_SWITCH, AP.RIGHT_SWITCH, AP.HOME_SWITCH):
             left, right, home = self._read_levels()
-            return int({AP_LEFT_SWITCH: left, AP_RIGHT_SWITCH: right, AP_HOME_SWITCH: home}[number])
-        if number == AP_LOAD:
+            return int({AP.LEFT_SWITCH: left, AP.RIGHT_SWITCH: right, AP.HOME_SWITCH: home}[number])
+        if number == AP.LOAD:
             return self._load()
-        if number == AP_ERROR_FLAGS:
+        if number == AP.ERROR_FLAGS:
             flags, self._errors = self._errors, 0
             return flags
-        if number == AP_ENCODER_POSITION:
+        if number == AP.ENCODER_POSITION:
             return self._encoder_position()
-        if number == 180:  # smartEnergy actual current: full scale 0..31 of the running current
+        if number == AP.SMARTENERGY_ACTUAL_CURRENT:  # full scale 0..31 of the running current
             return self.current >> 3
         return self._params[number]
 
     def set_parameter(self, number: int, value: int) -> None:
         self._command()
-        if number == AP_TARGET_POSITION:
+        if number == AP.TARGET_POSITION:
             self._abort_search()
-            self._start_positioning(to_int32(value), self._params[AP_MAX_SPEED])
-        elif number == AP_ACTUAL_POSITION:
+            self._start_positioning(to_int32(value), self._params[AP.MAX_SPEED])
+        elif number == AP.ACTUAL_POSITION:
             self._set_position(to_int32(value))
-        elif number == AP_TARGET_SPEED:
+        elif number == AP.TARGET_SPEED:
             self._abort_search()
             self._velocity_command = value
             self._start_velocity(value)
             self._params[number] = value
-        elif number == AP_ENCODER_POSITION:
+        elif number == AP.ENCODER_POSITION:
             self._set_encoder(value)
         else:
             self._params[number] = value
@@ -952,24 +903,24 @@ class TMC4210Axis:
         self._after_command()
 
     def _parameter_side_effects(self, number: int) -> None:
-        if number in (AP_MAX_SPEED, AP_MAX_ACCELERATION, AP_VSTOP, AP_UNIT_MODE):
+        if number in (AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.VSTOP, AP.UNIT_MODE):
             if self._positioning and self._rfs is None:
-                self._apply_limits(self._params[AP_MAX_SPEED])
+                self._apply_limits(self._params[AP.MAX_SPEED])
             elif self._chip_mode() == RampMode.VELOCITY and self._rfs is None:
                 self._set_dividers(self._top_speed(self._velocity_command),
-                                   self._params[AP_MAX_ACCELERATION])
-        elif number in (AP_LEFT_DISABLE, AP_RIGHT_DISABLE, AP_SOFT_STOP):
+                                   self._params[AP.MAX_ACCELERATION])
+        elif number in (AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP):
             self._write_ref_conf(self._chip_mode())
-        elif number in (AP_SWAP_SWITCHES, AP_LEFT_POLARITY, AP_RIGHT_POLARITY):
-            self.board.swap = bool(self._params[AP_SWAP_SWITCHES])
-            self.board.invert_left = bool(self._params[AP_LEFT_POLARITY])
-            self.board.invert_right = bool(self._params[AP_RIGHT_POLARITY])
+        elif number in (AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY):
+            self.board.swap = bool(self._params[AP.SWAP_SWITCHES])
+            self.board.invert_left = bool(self._params[AP.LEFT_POLARITY])
+            self.board.invert_right = bool(self._params[AP.RIGHT_POLARITY])
             self._pins_changed()
-        elif number == AP_MICROSTEPS:
+        elif number == AP.MICROSTEPS:
             self._rebase_encoder()
-            self.board.rescale(self.chip.motor_position, self._params[AP_MICROSTEPS])
+            self.board.rescale(self.chip.motor_position, self._params[AP.MICROSTEPS])
             self._rebase_encoder()
-        elif number in (AP_MAX_CURRENT, AP_STANDBY_CURRENT) and self._standby:
+        elif number in (AP.MAX_CURRENT, AP.STANDBY_CURRENT) and self._standby:
             self._emit(AxisEventKind.CURRENT_CHANGED, False)
 
     def _pins_changed(self) -> None:

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
+
+if TYPE_CHECKING:
+    from axes.world import AxisWorld, LoadZone, Switch
 
 
 class AxisEventKind(Enum):
@@ -102,4 +105,28 @@ class Axis(Protocol):
 
     def status(self) -> AxisStatus:
         """Everything telemetry shows about the axis, without side effects."""
+        ...
+
+    def register_access(self, address: int, value: int | None = None) -> int:
+        """Commands 146/147: one raw datagram to the chip (None reads); the chip's answer."""
+        ...
+
+    # -- the world around the axis (world file, run-time API) ---------------------------------
+
+    @property
+    def world(self) -> AxisWorld:
+        ...
+
+    def set_world(self, world: AxisWorld) -> None:
+        """Replace the switches, load zones and encoder of this axis (edges happen now)."""
+        ...
+
+    def set_switch(self, name: str, switch: Switch | None) -> None:
+        """Place (or with None remove) the "left", "right" or "home" switch."""
+        ...
+
+    def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
+        ...
+
+    def set_encoder_slip(self, slip: float) -> None:
         ...

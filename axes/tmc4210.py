@@ -105,7 +105,6 @@ DISABLE_STOP_L = 1 << 8
 DISABLE_STOP_R = 1 << 9
 SOFT_STOP = 1 << 10
 REF_RNL = 1 << 11
-LATCH_PENDING = 1 << 16
 INV_REF = 1 << 0
 SDO_INT = 1 << 1
 EN_SD = 1 << 5

@@ -16,10 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from axes.parameters import NUMBER_OF_AXES
+from tmcl_spec.parameters import SWITCH_NAMES
 
 INFINITY = float("inf")
-SWITCH_NAMES = ("left", "right", "home")
 DEFAULT_SIDES = {"left": "below", "right": "above", "home": "centre"}
 DEFAULT_LOAD = 500
 LOAD_MAX = 1023
@@ -152,12 +151,14 @@ class World:
     clock_hz: int | None = None
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> World:
+    def from_dict(cls, data: dict[str, Any], number_of_axes: int | None = None) -> World:
+        """The world a dict describes; ``number_of_axes`` bounds the axis indices if given."""
         world = cls()
         for entry in data.get("axis", []):
             index = int(entry["index"])
-            if not 0 <= index < NUMBER_OF_AXES:
-                raise ValueError(f"axis index {index} outside 0..{NUMBER_OF_AXES - 1}")
+            if index < 0 or (number_of_axes is not None and index >= number_of_axes):
+                limit = "" if number_of_axes is None else f"..{number_of_axes - 1}"
+                raise ValueError(f"axis index {index} outside 0{limit}")
             world.axes[index] = AxisWorld.from_dict(entry)
         inputs = data.get("inputs", {})
         for port, value in enumerate(inputs.get("analog", [])):
@@ -169,10 +170,10 @@ class World:
         return world
 
 
-def load_world(path: str | Path) -> World:
+def load_world(path: str | Path, number_of_axes: int | None = None) -> World:
     """Read a TOML world file; errors name the file."""
     try:
         with open(path, "rb") as f:
-            return World.from_dict(tomllib.load(f))
+            return World.from_dict(tomllib.load(f), number_of_axes)
     except (OSError, tomllib.TOMLDecodeError, KeyError, ValueError, TypeError) as exc:
         raise ValueError(f"world file {path}: {exc}") from exc

@@ -17,15 +17,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from interpreter.isa import (
-    CALC_MAX_OPERATION,
-    OPERANDS,
-    PROGRAM_MEMORY_SIZE,
-    CalcOp,
-    Field,
-    Instruction,
-    Opcode,
-)
+from interpreter.isa import PROGRAM_MEMORY_SIZE, Instruction
+from tmcl_spec.commands import CALC_MAX_OPERATION, OPERANDS, CalcOp, Field, Opcode
 
 #: The include files shipped with the package (TMCLParam.tmc, Interrupts.inc).
 INCLUDE_DIR = Path(__file__).with_name("include")

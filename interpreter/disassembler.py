@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from interpreter.isa import OPERANDS, Field, Instruction, Opcode
+from interpreter.isa import Instruction
+from tmcl_spec.commands import OPERANDS, Field, Opcode
 
 _SLOTS = ("type", "motor", "value")
 

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-NUMBER_OF_AXES = 6
-NUMBER_OF_INPUTS = 4
+from tmcl_spec.tmcm6212 import TMCM_6212
+
+NUMBER_OF_AXES = TMCM_6212.number_of_axes
+NUMBER_OF_INPUTS = TMCM_6212.digital_inputs
 NUMBER_OF_TIMERS = 3
 
 TIMER_BASE = 0
@@ -85,9 +87,6 @@ def _table() -> dict[int, tuple[str, str]]:
 
 #: Table 12: vector number -> (symbol in Interrupts.inc, the manual's description).
 INTERRUPT_VECTORS: dict[int, tuple[str, str]] = _table()
-
-#: Vectors an event can raise (everything but the global switch), in priority order.
-SOURCES: tuple[int, ...] = tuple(sorted(v for v in INTERRUPT_VECTORS if v != GLOBAL))
 
 #: Vectors whose bank-3 parameter of the same number is a trigger transition.
 TRIGGERED: frozenset[int] = frozenset(

@@ -16,31 +16,28 @@ from typing import NamedTuple, Protocol
 
 from interpreter import interrupts
 from interpreter.interrupts import Trigger
-from interpreter.isa import (
-    CALL_STACK_DEPTH,
-    EMPTY,
-    PROGRAM_MEMORY_SIZE,
-    WAIT_TICK_NS,
+from interpreter.isa import CALL_STACK_DEPTH, EMPTY, PROGRAM_MEMORY_SIZE, WAIT_TICK_NS, Instruction
+from tmcl_spec.commands import (
+    MOTOR_ALL,
+    STATUS_OK,
     ApplicationStatus,
     CalcOp,
     Condition,
     ErrorFlag,
-    Instruction,
     Opcode,
     RfsType,
     WaitCondition,
 )
+from tmcl_spec.numbers import to_int32 as wrap32
+from tmcl_spec.parameters import AP
 
 #: Simulated time one TMCL instruction takes (a command of the main loop of the firmware).
 INSTRUCTION_NS = 10_000
 #: A running program asks to be run at least this often (how far it may lag a real clock).
 SLICE_NS = 10_000_000
-#: Reply status of a successful command (Table 4).
-STATUS_OK = 100
 
 _MASK = 0xFFFF_FFFF
 _SIGN = 0x8000_0000
-_END = PROGRAM_MEMORY_SIZE  # address of the sentinel after the last memory cell
 
 # Opcodes as plain ints for the dispatch loop.
 _CALC, _COMP, _JC, _JA = Opcode.CALC.value, Opcode.COMP.value, Opcode.JC.value, Opcode.JA.value
@@ -48,12 +45,6 @@ _CALCX, _CSUB, _RSUB = Opcode.CALCX.value, Opcode.CSUB.value, Opcode.RSUB.value
 
 #: Commands that, in a program, load the value they read into the accumulator.
 _LOADS_ACCUMULATOR = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO, Opcode.GCO})
-_MOTOR_ALL = 255  # GCO/SCO motor 255: the EEPROM copy forms, which read nothing
-
-AP_POSITION_REACHED = 8
-AP_HOME_SWITCH = 9
-AP_RIGHT_SWITCH = 10
-AP_LEFT_SWITCH = 11
 
 _ERROR_BITS: dict[int, int] = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
                ErrorFlag.ESD: 16}
@@ -61,11 +52,6 @@ _ALL_ERRORS = sum(_ERROR_BITS.values())
 #: JC condition -> error flag bit it tests.
 _JC_ERROR_BIT: dict[int, int] = {Condition.ETO: 1, Condition.EAL: 2, Condition.EDV: 4, Condition.EPO: 8,
                  Condition.ESD: 16}
-
-
-def wrap32(value: int) -> int:
-    """Two's-complement wrap to a signed 32-bit value, like the firmware's int arithmetic."""
-    return ((value + _SIGN) & _MASK) - _SIGN
 
 
 def _c_div(a: int, b: int) -> int:
@@ -164,12 +150,15 @@ class Interpreter:
     """One TMCL program and the state of its execution (not thread-safe)."""
 
     def __init__(self, port: ModulePort, instruction_ns: int = INSTRUCTION_NS,
-                 number_of_axes: int = interrupts.NUMBER_OF_AXES) -> None:
+                 number_of_axes: int = interrupts.NUMBER_OF_AXES,
+                 memory_size: int = PROGRAM_MEMORY_SIZE) -> None:
         self.port = port
         self.instruction_ns = instruction_ns
         self.number_of_axes = number_of_axes
+        #: Commands program memory holds; the address after the last is the sentinel "end".
+        self.memory_size = memory_size
         #: Program memory plus one empty sentinel cell, so running off the end reads "end".
-        self.code: list[Instruction] = [EMPTY] * (PROGRAM_MEMORY_SIZE + 1)
+        self.code: list[Instruction] = [EMPTY] * (memory_size + 1)
         #: Instructions executed since creation (benchmarks, tests).
         self.executed = 0
         #: If set, a running program never lags the module's clock by more than this: the
@@ -227,17 +216,17 @@ class Interpreter:
             self.store(address, ins)
 
     def store(self, address: int, ins: Instruction) -> None:
-        if not 0 <= address < PROGRAM_MEMORY_SIZE:
-            raise IndexError(f"program address {address} outside 0..{PROGRAM_MEMORY_SIZE - 1}")
+        if not 0 <= address < self.memory_size:
+            raise IndexError(f"program address {address} outside 0..{self.memory_size - 1}")
         opcode, type_, motor, value = ins
         self.code[address] = Instruction(int(opcode), int(type_), int(motor), int(value))
 
     def erase(self) -> None:
-        self.code[:PROGRAM_MEMORY_SIZE] = [EMPTY] * PROGRAM_MEMORY_SIZE
+        self.code[:self.memory_size] = [EMPTY] * self.memory_size
 
     def program(self) -> list[Instruction]:
         """Memory up to the last non-empty cell."""
-        end = PROGRAM_MEMORY_SIZE
+        end = self.memory_size
         while end and self.code[end - 1].opcode == 0:
             end -= 1
         return self.code[:end]
@@ -419,12 +408,12 @@ class Interpreter:
     def _wait_satisfied(self, wait: Wait, t: int) -> bool:
         port, motor = self.port, wait.motor
         if wait.condition == WaitCondition.POS:
-            return port.axis_parameter(t, motor, AP_POSITION_REACHED) == 1
+            return port.axis_parameter(t, motor, AP.POSITION_REACHED) == 1
         if wait.condition == WaitCondition.REFSW:
-            return port.axis_parameter(t, motor, AP_HOME_SWITCH) == 1
+            return port.axis_parameter(t, motor, AP.HOME_SWITCH) == 1
         if wait.condition == WaitCondition.LIMSW:
-            return (port.axis_parameter(t, motor, AP_LEFT_SWITCH) == 1
-                    or port.axis_parameter(t, motor, AP_RIGHT_SWITCH) == 1)
+            return (port.axis_parameter(t, motor, AP.LEFT_SWITCH) == 1
+                    or port.axis_parameter(t, motor, AP.RIGHT_SWITCH) == 1)
         if wait.condition == WaitCondition.RFS:
             return not port.reference_search_active(t, motor)
         return True
@@ -458,6 +447,7 @@ class Interpreter:
         zero = self.zero_source
         cmp_ = self.compare_source
         cost = self.instruction_ns
+        end = self.memory_size
         count = (limit_ns - self.time_ns + cost - 1) // cost
         n = 0
         outcome = _CONTINUE
@@ -496,9 +486,9 @@ class Interpreter:
                     taken = cmp_ <= 0
                 else:
                     taken = bool(self.errors & _JC_ERROR_BIT.get(ty, 0))
-                pc = (va if 0 <= va < _END else _END) if taken else pc + 1
+                pc = (va if 0 <= va < end else end) if taken else pc + 1
             elif op == _JA:
-                pc = va if 0 <= va < _END else _END
+                pc = va if 0 <= va < end else end
             else:
                 self.pc, self.accumulator = pc, acc
                 self.zero_source, self.compare_source = zero, cmp_
@@ -545,10 +535,14 @@ class Interpreter:
         self.pc += 1
         return _CONTINUE
 
+    def _address(self, value: int) -> int:
+        """A jump target: outside program memory it is the empty sentinel cell (the end)."""
+        return value if 0 <= value < self.memory_size else self.memory_size
+
     def _csub(self, ty: int, motor: int, va: int) -> int:
         if len(self.stack) < CALL_STACK_DEPTH:
             self.stack.append(self.pc + 1)
-            self.pc = va if 0 <= va < _END else _END
+            self.pc = self._address(va)
         else:
             self.pc += 1  # stack full: the call is ignored (§3.6.18)
         return _CONTINUE
@@ -568,7 +562,7 @@ class Interpreter:
         return _INTERRUPTS
 
     def _vect(self, ty: int, motor: int, va: int) -> int:
-        self.vectors[ty] = va if 0 <= va < _END else _END
+        self.vectors[ty] = self._address(va)
         self.pc += 1
         return _INTERRUPTS
 
@@ -626,11 +620,11 @@ class Interpreter:
         elif op == Opcode.AGP:
             port.execute(t, Opcode.SGP, ty, motor, self.accumulator)
         elif op == Opcode.ACO:
-            if motor != _MOTOR_ALL:
+            if motor != MOTOR_ALL:
                 port.execute(t, Opcode.SCO, ty, motor, self.accumulator)
         else:
             status, value = port.execute(t, op, ty, motor, va)
-            loads = op in _LOADS_ACCUMULATOR and not (op == Opcode.GCO and motor == _MOTOR_ALL)
+            loads = op in _LOADS_ACCUMULATOR and not (op == Opcode.GCO and motor == MOTOR_ALL)
             if status == STATUS_OK and (loads or (op == Opcode.RFS and ty == RfsType.STATUS)):
                 self.accumulator = self.zero_source = wrap32(value)
         self.pc += 1

@@ -34,8 +34,8 @@ from pathlib import Path
 
 import can
 
-from interpreter.isa import Opcode
 from tmcl_server.protocol import Request
+from tmcl_spec.commands import Opcode
 
 GOAL_PER_S = 4_500
 MODULE_ID = 3

@@ -26,11 +26,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from interpreter.isa import Opcode
 from tmcl_server.clock import VirtualClock
 from tmcl_server.module import TMCM6212, ModuleEvent
 from tmcl_server.protocol import Request
 from tmcl_server.simulation import Simulation
+from tmcl_spec.commands import Opcode
 
 NS = 1_000_000_000
 REVERSE_EVERY_NS = 7 * NS

@@ -1,4 +1,4 @@
-"""``tmcl-server``: run simulated TMCM-6212 modules from the shell."""
+"""``tmcl-server``: run simulated TMCL modules (a TMCM-6212 by default) from the shell."""
 
 from __future__ import annotations
 
@@ -8,10 +8,11 @@ import logging
 import signal
 import sys
 
+from axes.cores import CHIP_CORES
 from tmcl_server.server import Server, ServerConfig
-from tmcl_server.tables import FIRMWARE_VERSION_STRING
-from tmcl_server.transports.socketcand import DEFAULT_SOCKETCAND_PORT
+from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
+from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES
 
 log = logging.getLogger("tmcl_server")
 
@@ -19,8 +20,7 @@ log = logging.getLogger("tmcl_server")
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tmcl-server",
-        description="Simulated TRINAMIC TMCM-6212 modules speaking TMCL "
-                    f"(firmware {FIRMWARE_VERSION_STRING.decode()}).")
+        description="Simulated TRINAMIC TMCL modules (by default TMCM-6212, firmware V1.05).")
     who = parser.add_mutually_exclusive_group()
     who.add_argument("--modules", type=int, metavar="N",
                      help="host N modules with addresses (and CAN ids) 1..N (default 1)")
@@ -57,6 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "(default: nothing persists)")
     parser.add_argument("--speed", type=float, default=1.0, metavar="X",
                         help="run simulated time X times faster than real time")
+    parser.add_argument("--module-type", default=DEFAULT_MODULE_TYPE, choices=sorted(MODULE_TYPES),
+                        help=f"which module every address holds (default {DEFAULT_MODULE_TYPE})")
+    parser.add_argument("--axis-core", choices=sorted(CHIP_CORES),
+                        help="the motion-controller chip the axes run on (default: the module "
+                             "type's own)")
     parser.add_argument("--world", metavar="FILE",
                         help="TOML file placing switches, load zones, encoder slip and inputs "
                              "(docs/world.md); default: free axes, open switches")
@@ -85,8 +90,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         endpoints["pty"] = args.pty
     if args.serial:
         endpoints["serial"] = args.serial
-    for kind, values in (("can_bus", [args.can_bus] if args.can_bus else []), ("can", args.can),
-                         ("slcan", args.slcan_pty), ("socketcand", args.socketcand)):
+    for kind, values in (("can", args.can), ("slcan", args.slcan_pty),
+                         ("socketcand", args.socketcand)):
         if values:
             endpoints[kind] = values
     if args.mqtt:
@@ -97,9 +102,14 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         raise SystemExit("tmcl-server: --speed must be positive")
     if args.mqtt_rate <= 0:
         raise SystemExit("tmcl-server: --mqtt-rate must be positive")
+    try:
+        can_bus_name = check_bus_name(args.can_bus) if args.can_bus else DEFAULT_BUS_NAME
+    except ValueError as exc:
+        raise SystemExit(f"tmcl-server: --can-bus: {exc}") from None
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock="real", speed=args.speed, ready_file=args.ready_file,
-                        mqtt_rate=args.mqtt_rate, world=args.world)
+                        mqtt_rate=args.mqtt_rate, can_bus_name=can_bus_name, world=args.world,
+                        module_type=args.module_type, axis_core=args.axis_core)
 
 
 async def run(config: ServerConfig) -> None:
@@ -113,7 +123,8 @@ async def run(config: ServerConfig) -> None:
             print(f"warning: module {module.slot}: {module.eeprom.problem}; running on factory "
                   "defaults, nothing is saved", file=sys.stderr, flush=True)
     addresses = ", ".join(str(m.address) for m in server.simulation.modules)
-    print(f"tmcl-server: TMCM-6212 module(s) at address {addresses}", flush=True)
+    kind = server.simulation.modules[0].type.name
+    print(f"tmcl-server: {kind} module(s) at address {addresses}", flush=True)
     for kind, endpoints in server.endpoints.items():
         for endpoint in endpoints:
             print(f"{kind} {endpoint}", flush=True)

@@ -10,12 +10,9 @@ from __future__ import annotations
 
 import time
 
-NS_PER_S = 1_000_000_000
-NS_PER_MS = 1_000_000
+from tmcl_spec.numbers import NS_PER_S, seconds_to_ns
 
-
-def seconds_to_ns(seconds: float) -> int:
-    return round(seconds * NS_PER_S)
+__all__ = ["Clock", "RealClock", "VirtualClock", "seconds_to_ns"]
 
 
 class Clock:

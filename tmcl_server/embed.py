@@ -18,7 +18,7 @@ import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from tmcl_server.module import TMCM6212
+from tmcl_server.module import TMCLModule
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.simulation import Simulation
 
@@ -29,7 +29,9 @@ class SimulatorThread:
     def __init__(self, config: ServerConfig | None = None, *, modules: int | None = None,
                  addresses: list[int] | None = None, clock: str | None = None,
                  speed: float | None = None, state_dir: str | None = None,
-                 world: str | None = None, **endpoints: list[str]) -> None:
+                 world: str | None = None, module_type: str | None = None,
+                 axis_core: str | None = None, can_bus: str | list[str] | None = None,
+                 **endpoints: list[str]) -> None:
         config = config or ServerConfig(endpoints={})
         if modules is not None:
             config.addresses = list(range(1, modules + 1))
@@ -43,6 +45,12 @@ class SimulatorThread:
             config.state_dir = state_dir
         if world is not None:
             config.world = str(world)
+        if module_type is not None:
+            config.module_type = module_type
+        if axis_core is not None:
+            config.axis_core = axis_core
+        if can_bus is not None:  # the bus's name (a one-element list, as the ready file has it)
+            config.can_bus_name = can_bus if isinstance(can_bus, str) else can_bus[0]
         for kind, arguments in endpoints.items():
             config.endpoints[kind] = list(arguments)
         self.config = config
@@ -110,7 +118,7 @@ class SimulatorThread:
         assert self.server is not None
         return self.server.simulation
 
-    def module(self, address: int = 1) -> TMCM6212:
+    def module(self, address: int = 1) -> TMCLModule:
         """The module object itself: only touch it through :meth:`call`."""
         return self.call(self.simulation.module, address)
 

@@ -1,10 +1,12 @@
-"""The TMCM-6212 module model: parameters, I/O, coordinates, EEPROM, and command dispatch.
+"""The module model: parameters, I/O, coordinates, EEPROM, and command dispatch.
 
-Every TMCL command has one handler here named ``_cmd_<mnemonic>`` (for example
-:meth:`TMCM6212._cmd_mvp`); :data:`interpreter.isa.Opcode` gives the names.  Handlers either
-return the reply value (``None`` echoes the request value) or raise :class:`CommandError`
-with a status code from Table 4.  Motion is delegated to the axes (axes/), programs to the
-interpreter (interpreter/).
+A :class:`TMCLModule` is built from a module type (:mod:`tmcl_spec.modules`): the profile
+names its tables, its I/O and the chip core of its axes; :class:`TMCM6212` is the default.
+:attr:`TMCLModule.COMMANDS` maps every opcode to its handler, ``_cmd_<mnemonic>`` (for
+example :meth:`TMCLModule._cmd_mvp`); standalone mode's commands (128-135 and program
+commands sent in direct mode) are in :attr:`tmcl_server.program.ProgramSupport.COMMANDS`.
+Handlers return the reply value or raise :class:`CommandError` (tmcl_server/dispatch.py).
+Motion is delegated to the axes (axes/), programs to the interpreter (interpreter/).
 """
 
 from __future__ import annotations
@@ -13,78 +15,43 @@ import logging
 import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import Enum
-from typing import Any, Protocol
+from typing import Any, ClassVar
 
-from axes.firmware import TMC4210Axis
+from axes.cores import make_axis
 from axes.interface import Axis, AxisEvent, AxisEventKind
-from axes.parameters import AXIS_PARAMETERS, STORABLE_AXIS_PARAMETERS, ParamSpec
-from axes.world import INFINITY, AxisWorld, LoadZone, Switch, World
-from interpreter.isa import MoveType, Opcode
-from tmcl_server.clock import NS_PER_MS
+from axes.world import DEFAULT_SIDES, INFINITY, AxisWorld, LoadZone, Switch, World
+from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
 from tmcl_server.eeprom import Eeprom
-from tmcl_server.protocol import AnyReply, RawReply, Reply, Request, to_int32
-from tmcl_server.tables import (
-    ANALOG_MAX,
-    BANK_PARAMETERS,
-    DIGITAL_THRESHOLD,
-    FIRMWARE_VERSION_BINARY,
-    FIRMWARE_VERSION_STRING,
-    GP,
+from tmcl_server.program import ProgramSupport
+from tmcl_server.protocol import AnyReply, RawReply, Reply, Request
+from tmcl_spec.commands import (
+    ALWAYS_REPLIED,
+    FACTORY_RESET_KEY,
     MOTOR_ALL,
-    NUMBER_OF_AXES,
-    NUMBER_OF_COORDINATES,
-    NUMBER_OF_INPUTS,
-    NUMBER_OF_OUTPUTS,
-    STORABLE_USER_VARIABLES,
     IOBank,
+    MoveType,
+    Opcode,
     Status,
 )
+from tmcl_spec.modules import ModuleType, module_type
+from tmcl_spec.numbers import NS_PER_MS, to_int32
+from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, ParamSpec
 
 log = logging.getLogger(__name__)
 
-AP_ACTUAL_POSITION = 1
-AP_RELATIVE_POSITIONING_OPTION = 127
-AP_ENCODER_POSITION = 209
-FACTORY_RESET_KEY = 1234
-#: Commands whose replies GP 255 never suppresses.
-ALWAYS_REPLIED = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO)})
 #: Commands that only read: they cannot create or move an internal event.
 READ_ONLY_OPCODES = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO),
                                int(Opcode.GET_FIRMWARE_VERSION)})
 #: Bank-0 parameters that decide which frames a module answers.
 ADDRESS_PARAMETERS = frozenset({GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.CAN_ID,
                                 GP.CAN_SECONDARY_ID})
+#: MVP REL counts from: AP 127 value -> axis parameter.
+_RELATIVE_ORIGIN = {0: AP.TARGET_POSITION, 1: AP.ACTUAL_POSITION, 2: AP.ENCODER_POSITION}
 _OK = int(Status.OK)
 _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
-
-class Interface(Enum):
-    """Which kind of bus a request came from: it decides addressing and heartbeat."""
-
-    SERIAL = "serial"  # RS-485 / USB: TCP, pty and real serial ports in the simulator
-    CAN = "can"
-
-    __hash__ = object.__hash__  # Enum hashes by name in Python code; this is on the hot path
-
-
 #: The heartbeat period (GP 68 / GP 82, ms) watching each kind of interface.
 HEARTBEAT_PARAMETERS = {Interface.SERIAL: GP.SERIAL_HEARTBEAT, Interface.CAN: GP.CAN_HEARTBEAT}
-
-
-class ReplySink(Protocol):
-    """Where a module can push replies nobody asked for right now (command 138 events)."""
-
-    def send_unsolicited(self, reply: Reply) -> None: ...
-
-
-class CommandError(Exception):
-    def __init__(self, status: Status) -> None:
-        super().__init__(status.name)
-        self.status = int(status)
-
-
-NO_REPLY = object()  # handler result: send nothing at all (command 137)
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,37 +73,39 @@ class _ReachWatch:
 AxisFactory = Callable[[int], Axis]
 
 
-class TMCM6212:
+class TMCLModule:
     """One simulated module.  Not thread-safe: the server calls it from one event loop."""
 
     def __init__(self, slot: int = 1, eeprom: Eeprom | None = None,
                  axis_factory: AxisFactory | None = None, start_ns: int = 0,
-                 world: World | None = None) -> None:
+                 world: World | None = None, kind: ModuleType | str | None = None,
+                 chip_core: str | None = None) -> None:
+        #: The module type (profile): tables, I/O, identity, chip core.
+        self.type = module_type(kind) if kind is None or isinstance(kind, str) else kind
+        #: The motion-controller core of the axes: the profile's unless chosen otherwise.
+        self.chip_core = chip_core or self.type.chip_core
         #: The address the module was created with; names its state directory.
         self.slot = slot
         self.eeprom = eeprom if eeprom is not None else Eeprom()
         #: The physical surroundings (switches, load, encoder slip); kept across restarts.
         self.world = world or World()
         if axis_factory is None:
-            clock_hz = self.world.clock_hz
-            axis_factory = (TMC4210Axis if clock_hz is None
-                            else lambda index: TMC4210Axis(index, clock_hz=clock_hz))
+            core, table, clock_hz = self.chip_core, self.type.axis_parameters, self.world.clock_hz
+            axis_factory = lambda index: make_axis(core, index, table, clock_hz)  # noqa: E731
         self._axis_factory = axis_factory
         self.listeners: list[Callable[[ModuleEvent], None]] = []
         #: Called when the serial or CAN addresses may have changed (routers cache them).
         self.on_address_change: Callable[[], None] | None = None
         self.now_ns = start_ns
-        from tmcl_server.program import ProgramSupport  # it needs this module's CommandError
-
         #: Standalone mode: program memory, the interpreter, control commands 128-135.
-        self.program = ProgramSupport(self)
-        self._handlers: dict[int, Callable[[Request, ReplySink | None, Interface], Any]] = {}
-        for opcode in Opcode:
-            for owner in (self, self.program):
-                handler = getattr(owner, f"_cmd_{opcode.name.lower()}", None)
-                if handler is not None:
-                    self._handlers[opcode] = handler
-                    break
+        self.program = ProgramSupport(self, self.type.program_memory, self.type.number_of_axes)
+        #: Opcode -> bound handler, for the commands this module type knows.
+        self.handlers: dict[int, Handler] = {
+            opcode: handler.__get__(owner)
+            for owner in (self, self.program)
+            for opcode, handler in owner.COMMANDS.items()
+            if opcode in self.type.commands
+        }
         self.power_up()
 
     # == power-up and factory reset ============================================================
@@ -146,7 +115,7 @@ class TMCM6212:
         ee = self.eeprom
         self.globals: dict[int, dict[int, int]] = {
             bank: {n: spec.default for n, spec in table.items()}
-            for bank, table in BANK_PARAMETERS.items()
+            for bank, table in self.type.global_parameters.items()
         }
         bank0 = self.globals[0]
         # A simulated bus needs distinct addresses: each module's factory address is its slot.
@@ -158,16 +127,16 @@ class TMCM6212:
         if self.globals[0][GP.DO_NOT_RESTORE_USER_VARIABLES] == 0:
             for key, value in ee.items("user_variables"):
                 self.globals[2][int(key)] = value
-        self.axes: list[Axis] = [self._axis_factory(i) for i in range(NUMBER_OF_AXES)]
+        self.axes: list[Axis] = [self._axis_factory(i) for i in range(self.type.number_of_axes)]
         for axis in self.axes:
             axis.advance_to(self.now_ns)
             for key, value in (ee.get("axis_parameters", axis.index) or {}).items():
                 axis.set_parameter(int(key), value)
-        self.coordinates = [[0] * NUMBER_OF_COORDINATES for _ in range(NUMBER_OF_AXES)]
+        self.coordinates = [[0] * self.type.coordinates for _ in self.axes]
         if self.globals[0][GP.COORDINATE_STORAGE] == 1:
-            self._copy_coordinates_from_eeprom(range(1, NUMBER_OF_COORDINATES))
-        self.outputs = [0] * NUMBER_OF_OUTPUTS
-        self.analog_inputs = [0] * NUMBER_OF_INPUTS
+            self._copy_coordinates_from_eeprom(range(1, self.type.coordinates))
+        self.outputs = [0] * self.type.outputs
+        self.analog_inputs = [0] * self.type.analog_inputs
         self.apply_world(self.world)
         self._tick_origin_ms = self.now_ns // NS_PER_MS
         self._random = random.Random(0)
@@ -260,7 +229,7 @@ class TMCM6212:
         opcode = request.opcode
         if opcode not in READ_ONLY_OPCODES:
             self._due_stale = True  # the command may start, stop or move an event
-        handler = self._handlers.get(opcode)
+        handler = self.handlers.get(opcode)
         if handler is None:
             return _INVALID_COMMAND, request.value
         try:
@@ -307,7 +276,7 @@ class TMCM6212:
                 continue
             if not due:
                 break
-            self._step_to(target)
+            self.step_to(target)
         if t_ns > self.now_ns:
             self.now_ns = t_ns  # the axes catch up lazily
 
@@ -318,7 +287,7 @@ class TMCM6212:
     def snapshot(self) -> dict[str, Any]:
         """A JSON-ready picture of the module for telemetry (docs/mqtt.md names the fields)."""
         axes = []
-        for index in range(NUMBER_OF_AXES):
+        for index in range(len(self.axes)):
             s = self.axis(index).status()
             axes.append({
                 "position": s.position, "target": s.target, "velocity": s.velocity,
@@ -332,7 +301,7 @@ class TMCM6212:
             "address": self.address,
             "axes": axes,
             "outputs": list(self.outputs),
-            "inputs": [self.digital_input(p) for p in range(NUMBER_OF_INPUTS)],
+            "inputs": [self.digital_input(p) for p in range(self.type.digital_inputs)],
             "analog": list(self.analog_inputs),
             "program": {"state": self.read_global(GP.APPLICATION_STATUS, 0),
                         "pc": self.read_global(GP.PROGRAM_COUNTER, 0)},
@@ -345,7 +314,8 @@ class TMCM6212:
             self._on_axis_event(event)
         return axis
 
-    def _step_to(self, t_ns: int) -> None:
+    def step_to(self, t_ns: int) -> None:
+        """Make ``t_ns`` the present and handle every event due (it must not lie ahead of one)."""
         self.now_ns = t_ns
         self._due_stale = True
         for axis in self.axes:
@@ -368,7 +338,7 @@ class TMCM6212:
             deadline = self._heartbeat_deadline(interface)
             if deadline is not None and self.now_ns >= deadline:
                 self._heartbeat_tripped[interface] = True
-                for index in range(NUMBER_OF_AXES):
+                for index in range(len(self.axes)):
                     self.axis(index).emergency_stop()
                 self.emit("heartbeat_timeout", None, interface=interface.value)
 
@@ -392,7 +362,7 @@ class TMCM6212:
     # == I/O from the outside world ============================================================
 
     def set_analog_input(self, port: int, value: int) -> None:
-        if not 0 <= port < NUMBER_OF_INPUTS or not 0 <= value <= ANALOG_MAX:
+        if not 0 <= port < self.type.analog_inputs or not 0 <= value <= self.type.analog_full_scale:
             raise ValueError(f"input {port} value {value} out of range")
         before = self.digital_input(port)
         self.analog_inputs[port] = value
@@ -401,10 +371,10 @@ class TMCM6212:
             self.program.on_input_changed(port, int(not before))
 
     def set_digital_input(self, port: int, active: bool) -> None:
-        self.set_analog_input(port, ANALOG_MAX if active else 0)
+        self.set_analog_input(port, self.type.analog_full_scale if active else 0)
 
     def digital_input(self, port: int) -> int:
-        return int(self.analog_inputs[port] >= DIGITAL_THRESHOLD)
+        return int(self.analog_inputs[port] >= self.type.digital_threshold)
 
     # == the world around the axes (world file, tests, MQTT) ===================================
 
@@ -418,29 +388,28 @@ class TMCM6212:
         for port, active in world.digital_inputs.items():
             self.set_digital_input(port, active)
 
-    def _world_axis(self, index: int) -> TMC4210Axis:
+    def _world_axis(self, index: int) -> Axis:
         """The axis at the current time, about to have its world changed."""
+        if not 0 <= index < len(self.axes):
+            raise ValueError(f"axis {index} outside 0..{len(self.axes) - 1} of the {self.type.name}")
         axis = self.axis(index)
-        if not isinstance(axis, TMC4210Axis):
-            raise TypeError(f"axis {index} ({type(axis).__name__}) has no world")
         self._due_stale = True  # switches and load zones decide when the next event is
         return axis
 
     def set_switch(self, axis: int, name: str, position: int | None, width: int | None = None,
                    side: str | None = None, normally_closed: bool = False) -> None:
         """Place (or with ``position=None`` remove) the "left", "right" or "home" switch."""
-        if name not in ("left", "right", "home"):
+        if name not in SWITCH_NAMES:
             raise ValueError(f"unknown switch {name!r}")
-        default_side = {"left": "below", "right": "above", "home": "centre"}[name]
-        switch = None if position is None else Switch.place(position, width, side or default_side,
-                                                             normally_closed)
+        switch = None if position is None else Switch.place(
+            position, width, side or DEFAULT_SIDES[name], normally_closed)
         target = self._world_axis(axis)
         target.set_switch(name, switch)
         self.world.axes.setdefault(axis, target.world)
 
     def force_switch(self, axis: int, name: str, active: bool) -> None:
         """Hold a switch at a level wherever the axis is (a test rig pressing it by hand)."""
-        if name not in ("left", "right", "home"):
+        if name not in SWITCH_NAMES:
             raise ValueError(f"unknown switch {name!r}")
         target = self._world_axis(axis)
         target.set_switch(name, Switch(-INFINITY, INFINITY) if active else None)
@@ -463,26 +432,24 @@ class TMCM6212:
 
     # == checks shared by handlers =============================================================
 
-    @staticmethod
-    def _axis_index(motor: int) -> int:
-        if not 0 <= motor < NUMBER_OF_AXES:
+    def _axis_index(self, motor: int) -> int:
+        if not 0 <= motor < len(self.axes):
             raise CommandError(Status.INVALID_VALUE)
         return motor
 
     def _axis(self, motor: int) -> Axis:
-        if not 0 <= motor < NUMBER_OF_AXES:
+        if not 0 <= motor < len(self.axes):
             raise CommandError(Status.INVALID_VALUE)
         return self.axis(motor)
 
-    @staticmethod
-    def _axis_spec(number: int) -> ParamSpec:
-        spec = AXIS_PARAMETERS.get(number)
+    def _axis_spec(self, number: int) -> ParamSpec:
+        spec = self.type.axis_parameters.get(number)
         if spec is None:
             raise CommandError(Status.WRONG_TYPE)
         return spec
 
     def _global_spec(self, number: int, bank: int) -> ParamSpec:
-        table = BANK_PARAMETERS.get(bank)
+        table = self.type.global_parameters.get(bank)
         if table is None:
             raise CommandError(Status.INVALID_VALUE)
         spec = table.get(number)
@@ -506,11 +473,10 @@ class TMCM6212:
         if req.type == MoveType.ABS:
             target = req.value
         elif req.type == MoveType.REL:
-            origin_kind = axis.get_parameter(AP_RELATIVE_POSITIONING_OPTION)
-            origin_param = {0: 0, 1: AP_ACTUAL_POSITION, 2: AP_ENCODER_POSITION}[origin_kind]
-            target = to_int32(axis.get_parameter(origin_param) + req.value)
+            origin = _RELATIVE_ORIGIN[axis.get_parameter(AP.RELATIVE_POSITIONING_OPTION)]
+            target = to_int32(axis.get_parameter(origin) + req.value)
         elif req.type == MoveType.COORD:
-            if not 0 <= req.value < NUMBER_OF_COORDINATES:
+            if not 0 <= req.value < self.type.coordinates:
                 raise CommandError(Status.INVALID_VALUE)
             target = self.coordinates[axis.index][req.value]
         else:
@@ -547,7 +513,7 @@ class TMCM6212:
 
     def _cmd_stap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         axis = self._axis(req.motor)
-        if req.type not in STORABLE_AXIS_PARAMETERS:
+        if req.type not in self.type.storable_axis_parameters:
             raise CommandError(Status.WRONG_TYPE)
         stored = dict(self.eeprom.get("axis_parameters", axis.index) or {})
         stored[str(req.type)] = axis.get_parameter(req.type)
@@ -555,10 +521,10 @@ class TMCM6212:
 
     def _cmd_rsap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         axis = self._axis(req.motor)
-        if req.type not in STORABLE_AXIS_PARAMETERS:
+        if req.type not in self.type.storable_axis_parameters:
             raise CommandError(Status.WRONG_TYPE)
         stored = self.eeprom.get("axis_parameters", axis.index) or {}
-        value = stored.get(str(req.type), AXIS_PARAMETERS[req.type].default)
+        value = stored.get(str(req.type), self.type.axis_parameters[req.type].default)
         axis.set_parameter(req.type, value)
 
     # == global parameters =====================================================================
@@ -583,7 +549,7 @@ class TMCM6212:
             if number == GP.RANDOM_NUMBER:
                 self._random.seed(value)
                 return
-            spec = BANK_PARAMETERS[0][number]
+            spec = self.type.global_parameters[0][number]
             if spec.auto_stored:
                 self.eeprom.put("globals", number, value)
         old = self.globals[bank][number]
@@ -595,7 +561,7 @@ class TMCM6212:
             elif number == GP.TELEGRAM_PAUSE:
                 self.reply_delay_s = value / 1000.0
             elif number == GP.COORDINATE_STORAGE and value == 1:
-                self._copy_coordinates_to_eeprom(range(1, NUMBER_OF_COORDINATES))
+                self._copy_coordinates_to_eeprom(range(1, self.type.coordinates))
 
     def _cmd_sgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         spec = self._global_spec(req.type, req.motor)
@@ -613,7 +579,7 @@ class TMCM6212:
         spec = self._global_spec(req.type, req.motor)
         if not (spec.storable or spec.auto_stored):
             raise CommandError(Status.WRONG_TYPE)
-        if req.motor == 2 and req.type >= STORABLE_USER_VARIABLES:
+        if req.motor == 2 and req.type >= self.type.storable_user_variables:
             raise CommandError(Status.WRONG_TYPE)
         return spec
 
@@ -633,7 +599,7 @@ class TMCM6212:
     def _cmd_sio(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         if req.motor != IOBank.OUTPUTS:
             raise CommandError(Status.INVALID_VALUE)
-        if not 0 <= req.type < NUMBER_OF_OUTPUTS:
+        if not 0 <= req.type < self.type.outputs:
             raise CommandError(Status.WRONG_TYPE)
         if req.value not in (0, 1):
             raise CommandError(Status.INVALID_VALUE)
@@ -648,10 +614,13 @@ class TMCM6212:
             return self.analog_inputs[port]
         return self.outputs[port]
 
+    def _input_count(self, bank: int) -> int:
+        return (self.type.digital_inputs, self.type.analog_inputs, self.type.outputs)[bank]
+
     def _cmd_gio(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
         if req.motor not in tuple(IOBank):
             raise CommandError(Status.INVALID_VALUE)
-        if not 0 <= req.type < NUMBER_OF_INPUTS:
+        if not 0 <= req.type < self._input_count(req.motor):
             raise CommandError(Status.WRONG_TYPE)
         return self.read_input(req.type, req.motor)
 
@@ -659,7 +628,7 @@ class TMCM6212:
 
     def _coordinate_request(self, req: Request) -> tuple[int, int | None]:
         """Validate (coordinate, motor); motor None means the motor-255 EEPROM form."""
-        if not 0 <= req.type < NUMBER_OF_COORDINATES:
+        if not 0 <= req.type < self.type.coordinates:
             raise CommandError(Status.WRONG_TYPE)
         if req.motor == MOTOR_ALL:
             return req.type, None
@@ -670,24 +639,23 @@ class TMCM6212:
         if number and self.globals[0][GP.COORDINATE_STORAGE] == 1:
             self._copy_coordinates_to_eeprom([number], [motor])
 
-    def _copy_coordinates_to_eeprom(self, numbers: Any, motors: Any = range(NUMBER_OF_AXES)) -> None:
+    def _copy_coordinates_to_eeprom(self, numbers: Any, motors: Any = None) -> None:
         stored = {k: dict(v) for k, v in self.eeprom.items("coordinates")}
-        for motor in motors:
+        for motor in range(len(self.axes)) if motors is None else motors:
             row = stored.setdefault(str(motor), {})
             for n in numbers:
                 row[str(n)] = self.coordinates[motor][n]
         self.eeprom.replace_section("coordinates", stored)
 
     def _copy_coordinates_from_eeprom(self, numbers: Any) -> None:
-        for motor in range(NUMBER_OF_AXES):
+        for motor in range(len(self.axes)):
             row = self.eeprom.get("coordinates", motor) or {}
             for n in numbers:
                 self.coordinates[motor][n] = row.get(str(n), 0)
 
-    @staticmethod
-    def _eeprom_coordinate_range(number: int) -> range:
+    def _eeprom_coordinate_range(self, number: int) -> range:
         """Motor-255 forms: 0 means all of 1..20, otherwise the one coordinate."""
-        return range(1, NUMBER_OF_COORDINATES) if number == 0 else range(number, number + 1)
+        return range(1, self.type.coordinates) if number == 0 else range(number, number + 1)
 
     def _cmd_sco(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         number, motor = self._coordinate_request(req)
@@ -707,7 +675,7 @@ class TMCM6212:
         number, motor = self._coordinate_request(req)
         if motor is None:
             raise CommandError(Status.INVALID_VALUE)
-        position = self.axis(motor).get_parameter(AP_ACTUAL_POSITION)
+        position = self.axis(motor).get_parameter(AP.ACTUAL_POSITION)
         self._set_coordinate(number, motor, position)
         return position
 
@@ -719,13 +687,10 @@ class TMCM6212:
 
     # == motion-controller registers (146/147, and 148 as pytrinamic's read_mc sends it) ======
 
-    def _register_request(self, req: Request) -> tuple[TMC4210Axis, int]:
-        if not 0 <= req.type <= 0x7F:
+    def _register_request(self, req: Request) -> tuple[Axis, int]:
+        if not 0 <= req.type <= 0x7F:  # a 7-bit register address
             raise CommandError(Status.WRONG_TYPE)
-        axis = self._axis(req.motor)
-        if not isinstance(axis, TMC4210Axis):
-            raise CommandError(Status.INVALID_COMMAND)
-        return axis, req.type
+        return self._axis(req.motor), req.type
 
     def _cmd_write_mc(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         axis, address = self._register_request(req)
@@ -735,17 +700,15 @@ class TMCM6212:
         axis, address = self._register_request(req)
         return axis.register_access(address)
 
-    _cmd_read_mc_pytrinamic = _cmd_read_mc
-
     # == control commands ======================================================================
 
     def _cmd_get_firmware_version(self, req: Request, sink: ReplySink | None,
                                   interface: Interface) -> RawReply | int:
         if req.type == 0:
-            return RawReply(bytes((self.host_address,)) + FIRMWARE_VERSION_STRING,
-                            FIRMWARE_VERSION_STRING)
+            version = self.type.version_string
+            return RawReply(bytes((self.host_address,)) + version, version)
         if req.type == 1:
-            return FIRMWARE_VERSION_BINARY
+            return self.type.version_number
         raise CommandError(Status.WRONG_TYPE)
 
     def _cmd_restore_factory_settings(self, req: Request, sink: ReplySink | None,
@@ -760,7 +723,7 @@ class TMCM6212:
                                   interface: Interface) -> None:
         if req.type not in (0, 1):
             raise CommandError(Status.WRONG_TYPE)
-        mask = req.value & ((1 << NUMBER_OF_AXES) - 1)
+        mask = req.value & ((1 << len(self.axes)) - 1)
         if sink is None or mask == 0:
             self._reach_request = None
             return
@@ -776,3 +739,44 @@ class TMCM6212:
             self._reach_watch[axis] = _ReachWatch(sink, interface)
             if not every_move:
                 self._reach_request = None
+
+    # == the dispatch table ====================================================================
+
+    #: Opcode -> handler of every command the module serves itself (standalone mode's are in
+    #: ProgramSupport.COMMANDS); a module type answers status 2 for opcodes it does not list.
+    COMMANDS: ClassVar[dict[int, Callable[..., Any]]] = {
+        Opcode.ROR: _cmd_ror,
+        Opcode.ROL: _cmd_rol,
+        Opcode.MST: _cmd_mst,
+        Opcode.MVP: _cmd_mvp,
+        Opcode.SAP: _cmd_sap,
+        Opcode.GAP: _cmd_gap,
+        Opcode.STAP: _cmd_stap,
+        Opcode.RSAP: _cmd_rsap,
+        Opcode.SGP: _cmd_sgp,
+        Opcode.GGP: _cmd_ggp,
+        Opcode.STGP: _cmd_stgp,
+        Opcode.RSGP: _cmd_rsgp,
+        Opcode.RFS: _cmd_rfs,
+        Opcode.SIO: _cmd_sio,
+        Opcode.GIO: _cmd_gio,
+        Opcode.SCO: _cmd_sco,
+        Opcode.GCO: _cmd_gco,
+        Opcode.CCO: _cmd_cco,
+        Opcode.ACO: _cmd_aco,
+        Opcode.GET_FIRMWARE_VERSION: _cmd_get_firmware_version,
+        Opcode.RESTORE_FACTORY_SETTINGS: _cmd_restore_factory_settings,
+        Opcode.TARGET_REACHED_EVENT: _cmd_target_reached_event,
+        Opcode.WRITE_MC: _cmd_write_mc,
+        Opcode.READ_MC: _cmd_read_mc,
+        Opcode.READ_MC_PYTRINAMIC: _cmd_read_mc,  # what pytrinamic's read_mc sends
+    }
+
+
+class TMCM6212(TMCLModule):
+    """The default module: a TMCM-6212 (firmware V1.05) on TMC4210 cores."""
+
+    def __init__(self, slot: int = 1, eeprom: Eeprom | None = None,
+                 axis_factory: AxisFactory | None = None, start_ns: int = 0,
+                 world: World | None = None) -> None:
+        super().__init__(slot, eeprom, axis_factory, start_ns, world, "tmcm-6212")

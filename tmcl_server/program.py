@@ -1,35 +1,30 @@
-"""Standalone mode of the TMCM-6212: the module side of the TMCL interpreter.
+"""Standalone mode: the module side of the TMCL interpreter.
 
 :class:`ProgramSupport` sits between the module model and :mod:`interpreter.machine`: it
 implements the interpreter's :class:`~interpreter.machine.ModulePort`, serves the control
-commands 128-135 (the module finds the ``_cmd_<name>`` handlers here as well as on itself),
-keeps program memory in the EEPROM, and turns module events into interrupts.  Choices the
-manual leaves open are in docs/interpreter.md.
+commands 128-135 and the program commands sent in direct mode (its :attr:`COMMANDS` table,
+merged into the module's), keeps program memory in the EEPROM, and turns module events into
+interrupts.  It reaches the module only through :class:`StandaloneHost`, the few things it
+needs; the module imports this file, never the other way round.  Choices the manual leaves
+open are in docs/interpreter.md.
 """
 
 from __future__ import annotations
 
 import struct
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import Any, ClassVar, Protocol
 
-from axes.interface import AxisEvent, AxisEventKind
+from axes.interface import Axis, AxisEvent, AxisEventKind
 from interpreter import interrupts
 from interpreter.interrupts import Trigger
-from interpreter.isa import (
-    PROGRAM_MEMORY_SIZE,
-    CodeProtection,
-    ErrorFlag,
-    Instruction,
-    Opcode,
-    RfsType,
-)
+from interpreter.isa import Instruction
 from interpreter.machine import Interpreter
-from tmcl_server.module import CommandError
+from tmcl_server.dispatch import CommandError, Interface, ReplySink
+from tmcl_server.eeprom import Eeprom
 from tmcl_server.protocol import RawReply, Request, checksum
-from tmcl_server.tables import GP, Status
-
-if TYPE_CHECKING:
-    from tmcl_server.module import TMCM6212, Interface, ReplySink
+from tmcl_spec.commands import CodeProtection, ErrorFlag, Opcode, RfsType, Status
+from tmcl_spec.parameters import GP
 
 EEPROM_SECTION = "program"
 #: On a real clock a running program may fall this far behind before it skips time.
@@ -49,12 +44,42 @@ _SWITCH_VECTORS = {
 }
 
 
+class StandaloneHost(Protocol):
+    """What standalone mode needs from the module it runs on."""
+
+    now_ns: int
+    eeprom: Eeprom
+    #: bank -> number -> value, as stored in RAM (GP 77, GP 81, bank 3 timers and triggers).
+    globals: dict[int, dict[int, int]]
+
+    @property
+    def address(self) -> int: ...
+
+    @property
+    def host_address(self) -> int: ...
+
+    def step_to(self, t_ns: int) -> None:
+        """Make ``t_ns`` the module's present (an instruction runs at that time)."""
+
+    def perform(self, request: Request, sink: ReplySink | None = None,
+                interface: Interface = Interface.SERIAL) -> tuple[int, Any]:
+        """Run a command's handler as direct mode does: (status, value)."""
+
+    def axis(self, index: int) -> Axis:
+        """Axis ``index`` at the module's present time."""
+
+    def emit(self, kind: str, axis: int | None, time_ns: int | None = None, **data: Any) -> None:
+        """Tell the module's listeners (telemetry) about a program event."""
+
+
 class ProgramSupport:
     """Program memory, download mode, the interpreter and its control commands for one module."""
 
-    def __init__(self, module: TMCM6212) -> None:
+    def __init__(self, module: StandaloneHost, memory_size: int,
+                 number_of_axes: int = interrupts.NUMBER_OF_AXES) -> None:
         self.module = module
-        self.interpreter = Interpreter(self)
+        self.memory_size = memory_size
+        self.interpreter = Interpreter(self, number_of_axes=number_of_axes, memory_size=memory_size)
         self.downloading = False
         self.download_address = 0
         self._dirty = False
@@ -79,7 +104,7 @@ class ProgramSupport:
 
     def _sync(self, time_ns: int) -> None:
         if time_ns > self.module.now_ns:
-            self.module._step_to(time_ns)
+            self.module.step_to(time_ns)
 
     def execute(self, time_ns: int, opcode: int, type_: int, motor: int, value: int) -> tuple[int, int]:
         self._sync(time_ns)
@@ -149,7 +174,7 @@ class ProgramSupport:
 
     def store(self, request: Request) -> tuple[int, int]:
         """Download mode: keep the command in program memory instead of executing it."""
-        if self.download_address >= PROGRAM_MEMORY_SIZE:
+        if self.download_address >= self.memory_size:
             return Status.MAX_EXCEEDED, request.value
         self.interpreter.store(self.download_address,
                                Instruction(request.opcode, request.type, request.motor, request.value))
@@ -181,7 +206,7 @@ class ProgramSupport:
         if req.type == 0:
             self.interpreter.start(self.module.now_ns)
         elif req.type == 1:
-            if not 0 <= req.value < PROGRAM_MEMORY_SIZE:
+            if not 0 <= req.value < self.memory_size:
                 raise CommandError(Status.INVALID_VALUE)
             self.interpreter.start(self.module.now_ns, req.value)
         else:
@@ -199,7 +224,7 @@ class ProgramSupport:
                                  interface: Interface) -> None:
         if self._protection & CodeProtection.WRITE:
             raise CommandError(Status.WRITE_PROTECTED)
-        if not 0 <= req.value < PROGRAM_MEMORY_SIZE:
+        if not 0 <= req.value < self.memory_size:
             raise CommandError(Status.INVALID_VALUE)
         self.interpreter.stop()
         self.downloading = True
@@ -213,7 +238,7 @@ class ProgramSupport:
     def _cmd_read_program_memory(self, req: Request, sink: ReplySink | None,
                                  interface: Interface) -> RawReply:
         """The legacy layout: ``[host][opcode][type][motor][value x4][checksum]``."""
-        if not 0 <= req.value < PROGRAM_MEMORY_SIZE:
+        if not 0 <= req.value < self.memory_size:
             raise CommandError(Status.INVALID_VALUE)
         ins = self.interpreter.code[req.value]
         if self._protection & CodeProtection.READ:
@@ -240,9 +265,6 @@ class ProgramSupport:
     def _acknowledge(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         """Flow and calculation commands in direct mode: OK, and the program is untouched."""
 
-    _cmd_calc = _cmd_comp = _cmd_jc = _cmd_ja = _cmd_csub = _cmd_rsub = _acknowledge
-    _cmd_wait = _cmd_stop = _cmd_calcx = _cmd_cle = _cmd_reti = _acknowledge
-
     def _cmd_ei(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         self.interpreter.enable_interrupt(req.type)
 
@@ -250,7 +272,7 @@ class ProgramSupport:
         self.interpreter.disable_interrupt(req.type)
 
     def _cmd_vect(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        if not 0 <= req.value < PROGRAM_MEMORY_SIZE:
+        if not 0 <= req.value < self.memory_size:
             raise CommandError(Status.INVALID_VALUE)
         self.interpreter.vectors[req.type] = req.value
 
@@ -266,3 +288,24 @@ class ProgramSupport:
     def _cmd_agp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         self._accumulator_to(Opcode.SGP, req)
 
+    # == the dispatch table ====================================================================
+
+    #: Opcode -> handler of the commands standalone mode serves (merged into the module's).
+    COMMANDS: ClassVar[dict[int, Callable[..., Any]]] = {
+        Opcode.STOP_APPLICATION: _cmd_stop_application,
+        Opcode.RUN_APPLICATION: _cmd_run_application,
+        Opcode.STEP_APPLICATION: _cmd_step_application,
+        Opcode.RESET_APPLICATION: _cmd_reset_application,
+        Opcode.ENTER_DOWNLOAD_MODE: _cmd_enter_download_mode,
+        Opcode.EXIT_DOWNLOAD_MODE: _cmd_exit_download_mode,
+        Opcode.READ_PROGRAM_MEMORY: _cmd_read_program_memory,
+        Opcode.GET_APPLICATION_STATUS: _cmd_get_application_status,
+        Opcode.EI: _cmd_ei,
+        Opcode.DI: _cmd_di,
+        Opcode.VECT: _cmd_vect,
+        Opcode.AAP: _cmd_aap,
+        Opcode.AGP: _cmd_agp,
+        **dict.fromkeys((Opcode.CALC, Opcode.COMP, Opcode.JC, Opcode.JA, Opcode.CSUB, Opcode.RSUB,
+                         Opcode.WAIT, Opcode.STOP, Opcode.CALCX, Opcode.CLE, Opcode.RETI),
+                        _acknowledge),
+    }

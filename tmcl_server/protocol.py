@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from tmcl_spec.numbers import to_int32
+
 FRAME_LENGTH = 9
 CAN_PAYLOAD_LENGTH = 7
 #: A partial frame older than this (gap between bytes) is discarded, as real modules do.
@@ -28,12 +30,6 @@ _CAN_REPLY_TAIL = struct.Struct(">BBi")
 
 def checksum(data: bytes | bytearray | memoryview) -> int:
     return sum(data) & 0xFF
-
-
-def to_int32(value: int) -> int:
-    """Wrap any integer to the signed 32-bit range of the value field."""
-    value &= 0xFFFFFFFF
-    return value - 0x1_0000_0000 if value & 0x8000_0000 else value
 
 
 class Request(NamedTuple):

@@ -8,47 +8,30 @@ tests through :class:`tmcl_server.embed.SimulatorThread`, or from the shell with
 from __future__ import annotations
 
 import asyncio
-import functools
 import json
 import logging
 import os
 import tempfile
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from axes.world import World, load_world
 from tmcl_server.clock import Clock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
-from tmcl_server.module import TMCM6212
+from tmcl_server.module import TMCLModule
 from tmcl_server.program import REAL_CLOCK_MAX_LAG_NS
 from tmcl_server.simulation import Simulation
+from tmcl_server.transports import transport_class
 from tmcl_server.transports.base import Transport
-from tmcl_server.transports.can_bridge import PythonCanTransport
-from tmcl_server.transports.canbus import CanBusTransport
-from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ, MqttBridge
-from tmcl_server.transports.pty import PtyTransport
-from tmcl_server.transports.serial_port import SerialPortTransport
-from tmcl_server.transports.slcan import SlcanPtyTransport
-from tmcl_server.transports.socketcand import SocketcandTransport
-from tmcl_server.transports.tcp import TcpTransport
+from tmcl_server.transports.can import DEFAULT_BUS_NAME
+from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ
+from tmcl_spec.modules import DEFAULT_MODULE_TYPE, module_type
+
+if TYPE_CHECKING:
+    from tmcl_server.transports.can.bus import SimulatedCanBus
 
 log = logging.getLogger(__name__)
-
-#: Builds a transport for one command-line endpoint argument.
-TransportFactory = Callable[[Simulation, str], Transport]
-
-TRANSPORT_FACTORIES: dict[str, TransportFactory] = {
-    "tcp": TcpTransport,
-    "pty": PtyTransport,
-    "serial": SerialPortTransport,
-    # CAN (docs/can.md): the simulated bus, python-can buses, and the two gateways into it.
-    "can_bus": CanBusTransport,
-    "can": PythonCanTransport,
-    "slcan": SlcanPtyTransport,
-    "socketcand": SocketcandTransport,
-    "mqtt": MqttBridge,
-}
 
 
 @dataclass
@@ -56,7 +39,8 @@ class ServerConfig:
     """Everything the command line can say, as data (also the embedding API's input)."""
 
     addresses: list[int] = field(default_factory=lambda: [1])
-    #: Endpoint arguments per transport kind, e.g. {"tcp": ["127.0.0.1:2323"]}.
+    #: Endpoint arguments per transport kind (tmcl_server.transports.TRANSPORTS), e.g.
+    #: {"tcp": ["127.0.0.1:2323"]}.
     endpoints: dict[str, list[str]] = field(default_factory=lambda: {"tcp": ["127.0.0.1:2323"]})
     state_dir: str | None = None
     #: "real" (wall clock x speed) or "virtual" (moves only when advanced).
@@ -65,8 +49,14 @@ class ServerConfig:
     ready_file: str | None = None
     #: Highest rate of MQTT state messages per module (Hz).
     mqtt_rate: float = DEFAULT_RATE_HZ
+    #: Name of the simulated CAN bus (socketcand clients open it by name).
+    can_bus_name: str = DEFAULT_BUS_NAME
     #: TOML world file (switches, load, encoder slip, inputs) applied to every module.
     world: str | None = None
+    #: Which module every slot holds (tmcl_spec.modules.MODULE_TYPES).
+    module_type: str = DEFAULT_MODULE_TYPE
+    #: The chip core of the axes (axes.cores.CHIP_CORES); None: the module type's own.
+    axis_core: str | None = None
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -82,12 +72,14 @@ def module_state_dir(state_dir: str | os.PathLike[str], slot: int) -> Path:
 
 def build_simulation(config: ServerConfig) -> Simulation:
     clock = config.make_clock()
+    kind = module_type(config.module_type)
     modules = []
     for slot in config.addresses:
         directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
         # each module gets its own copy: the simulator API changes worlds per module
-        world = load_world(config.world) if config.world else World()
-        module = TMCM6212(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world)
+        world = load_world(config.world, kind.number_of_axes) if config.world else World()
+        module = TMCLModule(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world,
+                            kind=kind, chip_core=config.axis_core)
         if not clock.virtual:  # a program too busy for the host's clock must not starve it
             module.program.interpreter.max_lag_ns = REAL_CLOCK_MAX_LAG_NS
         modules.append(module)
@@ -104,10 +96,13 @@ def write_atomically(path: str | os.PathLike[str], text: str) -> None:
 
 
 class Server:
+    """Owns the simulation, the transports and what they share (the CAN bus)."""
+
     def __init__(self, config: ServerConfig | None = None,
                  simulation: Simulation | None = None) -> None:
         self.config = config or ServerConfig()
         self.simulation = simulation or build_simulation(self.config)
+        self._can_bus: SimulatedCanBus | None = None
         self.transports: list[Transport] = []
         self.endpoints: dict[str, list[str]] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -119,6 +114,19 @@ class Server:
     def clock(self) -> Clock:
         return self.simulation.clock
 
+    # -- what transports get (transports.base.TransportHost) ----------------------------------
+
+    def option(self, name: str) -> Any:
+        return getattr(self.config, name)
+
+    def can_bus(self) -> SimulatedCanBus:
+        """The simulated CAN bus, created with the modules on it when a transport first asks."""
+        if self._can_bus is None:
+            from tmcl_server.transports.can.bus import open_can_bus  # imports python-can
+
+            self._can_bus = open_can_bus(self.simulation, self.config.can_bus_name)
+        return self._can_bus
+
     # -- lifecycle ----------------------------------------------------------------------------
 
     async def start(self) -> dict[str, list[str]]:
@@ -126,16 +134,16 @@ class Server:
         self.simulation.on_change = self._reschedule
         try:
             for kind, arguments in self.config.endpoints.items():
-                factory = TRANSPORT_FACTORIES[kind]
-                if factory is MqttBridge:
-                    factory = functools.partial(MqttBridge, rate_hz=self.config.mqtt_rate)
+                cls = transport_class(kind)
                 for argument in arguments:
-                    transport = factory(self.simulation, argument)
+                    transport = cls.build(self, argument)
                     self.transports.append(transport)
                     self.endpoints.setdefault(transport.kind, []).extend(await transport.start())
         except BaseException:
             await self.stop()
             raise
+        if self._can_bus is not None:
+            self.endpoints["can_bus"] = [self._can_bus.name]
         self._reschedule()
         if self.config.ready_file:
             write_atomically(self.config.ready_file, json.dumps(self.endpoints) + "\n")

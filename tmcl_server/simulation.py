@@ -10,25 +10,26 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 
 from tmcl_server.clock import Clock, VirtualClock, seconds_to_ns
-from tmcl_server.module import READ_ONLY_OPCODES, TMCM6212, Interface, ReplySink
+from tmcl_server.dispatch import Interface, ReplySink
+from tmcl_server.module import READ_ONLY_OPCODES, TMCLModule
 from tmcl_server.protocol import AnyReply, ChecksumError, Request, decode_request
 
-Routed = tuple["TMCM6212", AnyReply]
+Routed = tuple["TMCLModule", AnyReply]
 
 
 class Simulation:
-    def __init__(self, modules: Iterable[TMCM6212], clock: Clock) -> None:
+    def __init__(self, modules: Iterable[TMCLModule], clock: Clock) -> None:
         self.modules = list(modules)
         self.clock = clock
         #: Called after every command and every time step, so a server can reschedule its
         #: timer when a command created an earlier event.
         self.on_change: Callable[[], None] | None = None
-        self._serial_map: dict[int, list[TMCM6212]] | None = None
+        self._serial_map: dict[int, list[TMCLModule]] | None = None
         for module in self.modules:
             module.on_address_change = self._forget_addresses
             module.advance_to(clock.now_ns())
 
-    def module(self, address: int) -> TMCM6212:
+    def module(self, address: int) -> TMCLModule:
         """The module that currently answers to a serial address."""
         for module in self.modules:
             if module.address == address:
@@ -104,9 +105,9 @@ class Simulation:
     def _forget_addresses(self) -> None:
         self._serial_map = None
 
-    def _build_serial_map(self) -> dict[int, list[TMCM6212]]:
+    def _build_serial_map(self) -> dict[int, list[TMCLModule]]:
         """Serial address -> modules answering it (rebuilt when a module's address changes)."""
-        table: dict[int, list[TMCM6212]] = {}
+        table: dict[int, list[TMCLModule]] = {}
         for address in range(256):
             answering = [m for m in self.modules if m.accepts_serial(address)]
             if answering:
@@ -136,7 +137,7 @@ class Simulation:
         self.sync()
         return self._execute(targets, request, Interface.CAN, sink)
 
-    def execute_on(self, targets: list[TMCM6212], request: Request, interface: Interface,
+    def execute_on(self, targets: list[TMCLModule], request: Request, interface: Interface,
                    sink: ReplySink | None = None) -> list[Routed]:
         """Run a request on given modules, whatever its address (topic-addressed hosts)."""
         self.sync()
@@ -148,7 +149,7 @@ class Simulation:
             module.invalidate_schedule()
         self._changed()
 
-    def _execute(self, targets: list[TMCM6212], request: Request, interface: Interface,
+    def _execute(self, targets: list[TMCLModule], request: Request, interface: Interface,
                  sink: ReplySink | None) -> list[Routed]:
         routed: list[Routed] = []
         for module in targets:

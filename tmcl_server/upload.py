@@ -21,11 +21,12 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from interpreter.assembler import AssemblyError, assemble_file
-from interpreter.isa import Instruction, Opcode, decode_program
-from tmcl_server.protocol import FRAME_LENGTH, Request, decode_reply, to_int32
-from tmcl_server.tables import Status
+from interpreter.isa import Instruction, decode_program
+from tmcl_server.protocol import FRAME_LENGTH, Request, decode_reply
 from tmcl_server.transports.serial_port import parse_serial_spec
 from tmcl_server.transports.tcp import parse_host_port
+from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.numbers import to_int32
 
 #: (byte 1, byte 2, byte 3, value) of a reply: module, status, opcode, value normally;
 #: opcode, type, motor, value for command 134.

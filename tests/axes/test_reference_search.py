@@ -14,9 +14,9 @@ from __future__ import annotations
 import pytest
 
 from axes.world import AxisWorld, Switch, World
-from interpreter.isa import Opcode
 from tmcl_server.module import TMCM6212, ModuleEvent
 from tmcl_server.protocol import Request
+from tmcl_spec.commands import Opcode
 
 NS = 1_000_000_000
 

@@ -11,6 +11,7 @@ from tmcl_server.cli import build_parser, config_from_args
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
 from tmcl_server.server import ServerConfig, build_simulation
+from tmcl_spec.tmcm6212 import TMCM_6212
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "world-example.toml"
 
@@ -49,7 +50,14 @@ def test_bad_world_files_are_reported_with_their_name(tmp_path: Path, text: str)
     path = tmp_path / "bad.toml"
     path.write_text(text)
     with pytest.raises(ValueError, match=r"bad\.toml"):
-        load_world(path)
+        load_world(path, TMCM_6212.number_of_axes)  # the module type bounds the axis index
+
+
+def test_a_world_for_more_axes_than_the_module_has_stops_the_server(tmp_path: Path) -> None:
+    path = tmp_path / "seven.toml"
+    path.write_text("[[axis]]\nindex = 6\n")
+    with pytest.raises(ValueError, match=r"seven\.toml.*axis index 6 outside 0\.\.5"):
+        build_simulation(ServerConfig(clock="virtual", world=str(path)))
 
 
 def test_world_reaches_the_module_through_config_and_cli(tmp_path: Path) -> None:

@@ -11,20 +11,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from axes.parameters import AXIS_PARAMETERS
 from interpreter.assembler import INCLUDE_DIR, AssemblyError, assemble, assemble_file
 from interpreter.cli import main as tmcl_asm
 from interpreter.disassembler import disassemble, listing
 from interpreter.interrupts import INTERRUPT_VECTORS
-from interpreter.isa import (
-    OPERANDS,
-    PROGRAM_MEMORY_SIZE,
-    Instruction,
-    Opcode,
-    decode_program,
-    encode_program,
-)
-from tmcl_server.tables import BANK0_PARAMETERS, BANK3_PARAMETERS
+from interpreter.isa import PROGRAM_MEMORY_SIZE, Instruction, decode_program, encode_program
+from tmcl_spec.commands import OPERANDS, Opcode
+from tmcl_spec.tmcm6212 import AXIS_PARAMETERS, BANK0_PARAMETERS, BANK3_PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[2]
 VECTOR = Path(__file__).resolve().parents[1] / "vectors" / "pytrinamic_test.bin"

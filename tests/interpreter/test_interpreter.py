@@ -9,18 +9,9 @@ from hypothesis import strategies as st
 from interpreter import interrupts
 from interpreter.assembler import assemble
 from interpreter.interrupts import Trigger
-from interpreter.isa import (
-    CALL_STACK_DEPTH,
-    PROGRAM_MEMORY_SIZE,
-    WAIT_TICK_NS,
-    ApplicationStatus,
-    CalcOp,
-    Condition,
-    ErrorFlag,
-    Instruction,
-    Opcode,
-)
+from interpreter.isa import CALL_STACK_DEPTH, PROGRAM_MEMORY_SIZE, WAIT_TICK_NS, Instruction
 from interpreter.machine import INSTRUCTION_NS, Interpreter, calculate, wrap32
+from tmcl_spec.commands import ApplicationStatus, CalcOp, Condition, ErrorFlag, Opcode
 
 MS = 1_000_000
 INT32 = st.integers(-(2**31), 2**31 - 1)

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from interpreter.isa import Opcode
 from tests.conftest import RawClient
 from tmcl_server.cli import build_parser, config_from_args
+from tmcl_spec.commands import Opcode
 
 
 class ServerProcess:

@@ -7,11 +7,11 @@ import os
 
 import pytest
 
-from interpreter.isa import Opcode
 from tests.conftest import Bench
 from tmcl_server.eeprom import FILE_NAME, FORMAT_VERSION, Eeprom
 from tmcl_server.module import TMCM6212
-from tmcl_server.tables import GP
+from tmcl_spec.commands import Opcode
+from tmcl_spec.parameters import GP
 
 
 def restart(tmp_path) -> Bench:

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import pytest
 
-from axes.parameters import AXIS_PARAMETERS, UINT32_MAX
-from interpreter.isa import Opcode
 from tests.conftest import Bench
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import RawReply, Request
-from tmcl_server.tables import BANK_PARAMETERS, FIRMWARE_VERSION_BINARY, GP, Status
+from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.numbers import UINT32_MAX
+from tmcl_spec.parameters import GP
+from tmcl_spec.tmcm6212 import AXIS_PARAMETERS, BANK_PARAMETERS, TMCM_6212
 
 OK, WRONG_TYPE, INVALID_VALUE, INVALID_COMMAND = 100, 3, 4, 2
 
@@ -20,7 +21,7 @@ def test_version_string_and_binary(bench: Bench):
     (_, reply), = routed
     assert isinstance(reply, RawReply)
     assert reply.encode() == bytes([2]) + b"6212V105"
-    assert bench.ok(136, 1) == FIRMWARE_VERSION_BINARY == (6212 << 16) | (1 << 8) | 5
+    assert bench.ok(136, 1) == TMCM_6212.version_number == (6212 << 16) | (1 << 8) | 5
     assert bench.status(136, 2) == WRONG_TYPE
 
 

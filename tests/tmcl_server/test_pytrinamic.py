@@ -7,9 +7,9 @@ from pytrinamic.connections import ConnectionManager
 from pytrinamic.modules import TMCM6212
 from pytrinamic.tmcl import TMCLReplyStatusError
 
-from axes.parameters import AXIS_PARAMETERS
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.tables import BANK0_PARAMETERS, GP
+from tmcl_spec.parameters import GP
+from tmcl_spec.tmcm6212 import AXIS_PARAMETERS, BANK0_PARAMETERS
 
 WRITABLE_AXIS = [s for s in AXIS_PARAMETERS.values() if s.writable and s.number not in (0, 1, 2, 209)]
 

@@ -10,16 +10,17 @@ from pathlib import Path
 import pytest
 
 from axes.interface import AxisEvent, AxisEventKind
-from axes.parameters import AXIS_PARAMETERS
 from interpreter.assembler import assemble
-from interpreter.isa import ApplicationStatus, ErrorFlag, Instruction, Opcode, decode_program
+from interpreter.isa import Instruction, decode_program
 from interpreter.machine import Interpreter
 from tmcl_server.clock import VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212, ModuleEvent
 from tmcl_server.protocol import RawReply, Reply, Request, checksum
 from tmcl_server.simulation import Simulation
-from tmcl_server.tables import GP, Status
+from tmcl_spec.commands import ApplicationStatus, ErrorFlag, Opcode, Status
+from tmcl_spec.parameters import GP
+from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
 
 S = 1_000_000_000
 MS = 1_000_000

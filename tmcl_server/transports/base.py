@@ -1,4 +1,5 @@
-"""Pieces shared by the byte-stream transports (TCP, pty, serial port)."""
+"""What every transport is (:class:`Transport`), what the server gives it (:class:`TransportHost`),
+and the pieces shared by the byte-stream transports (TCP, pty, serial port)."""
 
 from __future__ import annotations
 
@@ -7,18 +8,38 @@ import logging
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from tmcl_server.protocol import FRAME_LENGTH, FrameAssembler, Reply
 from tmcl_server.simulation import Simulation
 
+if TYPE_CHECKING:
+    from tmcl_server.transports.can.bus import SimulatedCanBus
+
 log = logging.getLogger(__name__)
+
+
+class TransportHost(Protocol):
+    """What the server hands a transport it builds: the simulation, and shared resources."""
+
+    simulation: Simulation
+
+    def option(self, name: str) -> Any:
+        """A server setting a transport may need (e.g. ``mqtt_rate``)."""
+
+    def can_bus(self) -> SimulatedCanBus:
+        """The simulated CAN bus the server owns (created, with the modules on it, on first use)."""
 
 
 class Transport(ABC):
     """A listening endpoint.  ``kind`` is its key in the ready file (``tcp``, ``pty``, ...)."""
 
     kind: str
+
+    @classmethod
+    def build(cls, host: TransportHost, argument: str) -> Transport:
+        """The endpoint for one command-line argument (``127.0.0.1:2323``, a pty path, ...)."""
+        return cls(host.simulation, argument)  # type: ignore[call-arg]
 
     @abstractmethod
     async def start(self) -> list[str]:

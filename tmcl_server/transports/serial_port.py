@@ -11,8 +11,8 @@ import threading
 import serial
 
 from tmcl_server.simulation import Simulation
-from tmcl_server.tables import BAUD_RATES
 from tmcl_server.transports.base import StreamSession, Transport
+from tmcl_spec.tmcm6212 import BAUD_RATES
 
 log = logging.getLogger(__name__)
 

@@ -9,11 +9,11 @@ from collections.abc import Callable
 import can
 import pytest
 
-from interpreter.isa import Opcode
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_can_reply
-from tmcl_server.tables import GP
-from tmcl_server.transports.can_bridge import parse_can_spec
+from tmcl_server.transports.can.python_can import parse_can_spec
+from tmcl_spec.commands import Opcode
+from tmcl_spec.parameters import GP
 
 WAIT_S = 5.0  # a fail-safe for a frame that is due, never a pause to hope in
 

@@ -7,21 +7,18 @@ the wire with python-can and pytrinamic.
 
 from __future__ import annotations
 
-import gc
-import weakref
-
 import can
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from interpreter.isa import Opcode
 from tmcl_server.protocol import Request, decode_can_reply
 from tmcl_server.server import ServerConfig, build_simulation
 from tmcl_server.simulation import Simulation
-from tmcl_server.tables import FIRMWARE_VERSION_STRING, GP, Status
-from tmcl_server.transports import canbus
-from tmcl_server.transports.canbus import SimulatedCanBus, bus_of, module_node_of
+from tmcl_server.transports.can.bus import ModuleNode, SimulatedCanBus, open_can_bus
+from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.parameters import GP
+from tmcl_spec.tmcm6212 import TMCM_6212
 
 AP_TARGET_POSITION = 0
 AP_ACTUAL_POSITION = 1
@@ -57,14 +54,24 @@ def make_simulation(*addresses: int) -> Simulation:
     return build_simulation(ServerConfig(addresses=list(addresses), clock="virtual"))
 
 
+def modules_on(bus: SimulatedCanBus) -> ModuleNode:
+    assert bus.modules is not None
+    return bus.modules
+
+
 @pytest.fixture
 def sim() -> Simulation:
     return make_simulation(1, 3, 5)
 
 
 @pytest.fixture
-def host(sim: Simulation) -> Host:
-    return Host(bus_of(sim))
+def bus(sim: Simulation) -> SimulatedCanBus:
+    return open_can_bus(sim)
+
+
+@pytest.fixture
+def host(bus: SimulatedCanBus) -> Host:
+    return Host(bus)
 
 
 def test_request_of_seven_bytes_gets_a_seven_byte_reply_from_gp70(host: Host) -> None:
@@ -86,7 +93,7 @@ def test_request_of_eight_bytes_gets_eight_bytes_padded_with_zero(host: Host) ->
 @pytest.mark.parametrize("length", [7, 8])
 def test_version_string_goes_out_as_its_eight_characters(host: Host, length: int) -> None:
     (reply,) = host.command(5, Opcode.GET_FIRMWARE_VERSION, 0, length=length)
-    assert bytes(reply.data) == FIRMWARE_VERSION_STRING and len(FIRMWARE_VERSION_STRING) == 8
+    assert bytes(reply.data) == TMCM_6212.version_string and len(TMCM_6212.version_string) == 8
 
 
 def test_reply_id_follows_gp70_and_module_byte_the_can_id(host: Host) -> None:
@@ -107,10 +114,10 @@ def test_duplicate_id_gives_two_replies_as_on_a_real_bus(host: Host) -> None:
     assert [r.data[0] for r in host.command(1, Opcode.GAP, AP_ACTUAL_POSITION, 0)] == [1]
 
 
-def test_foreign_ids_get_silence(sim: Simulation, host: Host) -> None:
+def test_foreign_ids_get_silence(bus: SimulatedCanBus, host: Host) -> None:
     for can_id in (0, 2, 4, 7, 0x7FF):
         assert host.command(can_id, Opcode.GAP, AP_ACTUAL_POSITION, 0) == []
-    assert module_node_of(sim).stats["foreign"] == 5
+    assert modules_on(bus).stats["foreign"] == 5
 
 
 @pytest.mark.parametrize(("frame", "counter"), [
@@ -121,10 +128,10 @@ def test_foreign_ids_get_silence(sim: Simulation, host: Host) -> None:
     (dict(can_id=1, data=b"\x06\x01\x00\x00\x00\x00\x00", is_extended_id=True), "extended"),
     (dict(can_id=1, data=b"\x00", is_error_frame=True), "error_frames"),
 ])
-def test_bad_frames_are_ignored_and_counted(sim: Simulation, host: Host, frame: dict,
+def test_bad_frames_are_ignored_and_counted(bus: SimulatedCanBus, host: Host, frame: dict,
                                             counter: str) -> None:
     assert host.send(frame.pop("can_id"), frame.pop("data"), **frame) == []
-    assert module_node_of(sim).stats[counter] == 1
+    assert modules_on(bus).stats[counter] == 1
     assert len(host.command(1, Opcode.GAP, AP_ACTUAL_POSITION, 0)) == 1  # still serving
 
 
@@ -132,11 +139,11 @@ def test_bad_frames_are_ignored_and_counted(sim: Simulation, host: Host, frame: 
        extended=st.booleans())
 def test_no_frame_whatsoever_breaks_the_bus(data: bytes, can_id: int, remote: bool,
                                             extended: bool) -> None:
-    sim = make_simulation(1)
-    host = Host(bus_of(sim))
+    bus = open_can_bus(make_simulation(1))
+    host = Host(bus)
     host.send(can_id, b"" if remote else data, is_remote_frame=remote, is_extended_id=extended)
-    assert module_node_of(sim).stats["errors"] == 0
-    assert bus_of(sim).stats["party_errors"] == 0
+    assert modules_on(bus).stats["errors"] == 0
+    assert bus.stats["party_errors"] == 0
     (reply,) = host.command(1, Opcode.GGP, GP.CAN_ID, 0)
     assert decode_can_reply(reply.data).value == 1
 
@@ -148,8 +155,7 @@ def test_invalid_command_is_answered_with_its_status(host: Host) -> None:
     assert decode_can_reply(reply.data).status == Status.INVALID_VALUE
 
 
-def test_every_other_party_hears_every_frame_but_its_own(sim: Simulation) -> None:
-    bus = bus_of(sim)
+def test_every_other_party_hears_every_frame_but_its_own(bus: SimulatedCanBus) -> None:
     alice, bob = Host(bus), Host(bus)
     alice.command(3, Opcode.GAP, AP_ACTUAL_POSITION, 0)
     assert [f.arbitration_id for f in alice.heard] == [2]  # the reply only
@@ -158,7 +164,7 @@ def test_every_other_party_hears_every_frame_but_its_own(sim: Simulation) -> Non
 
 def test_modules_do_not_take_each_others_replies_for_requests() -> None:
     sim = make_simulation(1, 2)  # module 2's CAN id equals the default reply id
-    host = Host(bus_of(sim))
+    host = Host(open_can_bus(sim))
     replies = host.command(1, Opcode.ROR, 0, 0, 1000)  # the reply starts with 01 64 01 ...
     assert [r.data[0] for r in replies] == [1]
     assert sim.module(2).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
@@ -205,12 +211,9 @@ def test_serial_traffic_does_not_feed_the_can_heartbeat(sim: Simulation, host: H
     assert sim.module(1).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
 
 
-def test_a_simulation_and_its_bus_are_freed_together() -> None:
+def test_bus_names_socketcand_can_carry_are_checked() -> None:
     sim = make_simulation(1)
-    Host(bus_of(sim)).command(1, Opcode.GGP, GP.CAN_ID, 0)
-    gone = weakref.ref(sim)
-    assert sim in canbus._BUSES and sim in canbus._NODES
-    del sim
-    gc.collect()
-    assert gone() is None  # so its entries (weak keys) left the registry with it
-    assert len(canbus._BUSES) == len(canbus._NODES)
+    assert open_can_bus(sim, "line2").name == "line2"
+    for bad in ("", "two words", "a<b>", "x" * 17):
+        with pytest.raises(ValueError, match="bad CAN bus name"):
+            open_can_bus(sim, bad)

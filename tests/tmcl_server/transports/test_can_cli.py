@@ -11,10 +11,10 @@ from pathlib import Path
 
 import can
 
-from interpreter.isa import Opcode
 from tmcl_server.cli import build_parser, config_from_args
 from tmcl_server.protocol import Request, decode_can_reply
-from tmcl_server.tables import GP
+from tmcl_spec.commands import Opcode
+from tmcl_spec.parameters import GP
 
 WAIT_S = 10.0
 
@@ -23,9 +23,10 @@ def test_can_options_become_endpoints() -> None:
     args = build_parser().parse_args(["--no-tcp", "--can-bus", "line2", "--can", "virtual:x",
                                       "--slcan-pty", "/tmp/a", "--socketcand", "--socketcand",
                                       ":0"])
-    assert config_from_args(args).endpoints == {
-        "can_bus": ["line2"], "can": ["virtual:x"], "slcan": ["/tmp/a"],
-        "socketcand": ["127.0.0.1:29536", ":0"]}
+    config = config_from_args(args)
+    assert config.endpoints == {"can": ["virtual:x"], "slcan": ["/tmp/a"],
+                                "socketcand": ["127.0.0.1:29536", ":0"]}
+    assert config.can_bus_name == "line2"
 
 
 def test_server_lists_the_gateways_and_serves_the_named_bus(tmp_path: Path) -> None:

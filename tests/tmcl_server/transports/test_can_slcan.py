@@ -16,12 +16,12 @@ from hypothesis import strategies as st
 from pytrinamic.connections import ConnectionManager
 from pytrinamic.modules import TMCM6212 as PytrinamicTMCM6212
 
-from interpreter.isa import Opcode
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_can_reply
-from tmcl_server.tables import FIRMWARE_VERSION_STRING, GP
-from tmcl_server.transports.canbus import module_node_of
-from tmcl_server.transports.slcan import decode_slcan_transmit, encode_slcan_frame
+from tmcl_server.transports.can.slcan import decode_slcan_transmit, encode_slcan_frame
+from tmcl_spec.commands import Opcode
+from tmcl_spec.parameters import GP
+from tmcl_spec.tmcm6212 import TMCM_6212
 
 WAIT_S = 5.0  # a fail-safe for an answer that is due, never a pause to hope in
 
@@ -42,7 +42,7 @@ def pytrinamic_iface(shared_sim: SimulatorThread) -> Iterator[object]:
 
 
 def test_pytrinamic_reads_the_version_string(pytrinamic_iface: object) -> None:
-    assert pytrinamic_iface.get_version_string() == FIRMWARE_VERSION_STRING.decode()  # type: ignore[attr-defined]
+    assert pytrinamic_iface.get_version_string() == TMCM_6212.version_string.decode()  # type: ignore[attr-defined]
 
 
 def test_pytrinamic_sets_and_gets_parameters(pytrinamic_iface: object) -> None:
@@ -143,7 +143,7 @@ def test_eight_byte_request_and_time_stamps(port: SlcanPort) -> None:
     assert port.ask(b"O") == b"\r"
     assert port.ask(tmcl_line(1, Opcode.GET_FIRMWARE_VERSION, length=8)) == b"z\r"
     line = port.answer()
-    assert line.startswith(b"t0028" + FIRMWARE_VERSION_STRING.hex().upper().encode())
+    assert line.startswith(b"t0028" + TMCM_6212.version_string.hex().upper().encode())
     assert len(line) == len(b"t0028") + 16 + 4 + 1  # four hex digits of milliseconds, CR
 
 
@@ -169,7 +169,7 @@ def test_bad_lines_are_refused_and_remote_and_extended_frames_ignored(
     assert port.ask(b"t0013060100") == b"z\r"  # DLC 3 to a module
     assert port.ask(tmcl_line(1, Opcode.GGP, GP.CAN_ID)) == b"z\r"
     assert decode_slcan_transmit(port.answer().rstrip(b"\r")) is not None
-    stats = sim.call(lambda: dict(module_node_of(sim.simulation).stats))
+    stats = sim.call(lambda: dict(sim.server.can_bus().modules.stats))
     assert (stats["remote"], stats["extended"], stats["bad_length"], stats["requests"]) == (1, 1, 1, 1)
 
 

@@ -10,11 +10,10 @@ from collections.abc import Callable, Iterator
 import can
 import pytest
 
-from interpreter.isa import Opcode
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Reply, Request, decode_can_reply
-from tmcl_server.tables import GP, Status
-from tmcl_server.transports.canbus import module_node_of
+from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.parameters import GP
 
 AP_ACTUAL_SPEED = 3
 AP_MAX_SPEED = 4
@@ -72,7 +71,7 @@ def make_host(sim: SimulatorThread) -> Iterator[Callable[..., CanHost]]:
 
 
 def node_stats(sim: SimulatorThread) -> Counter[str]:
-    return sim.call(lambda: Counter(module_node_of(sim.simulation).stats))
+    return sim.call(lambda: Counter(sim.server.can_bus().modules.stats))
 
 
 def server_stats(sim: SimulatorThread) -> Counter[str]:

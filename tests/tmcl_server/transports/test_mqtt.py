@@ -18,14 +18,14 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from interpreter.assembler import assemble
-from interpreter.isa import Opcode
 from tests.conftest import RawClient
 from tests.helpers.mosquitto import MOSQUITTO, Broker
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_server.server import ServerConfig
-from tmcl_server.transports.mqtt import MqttSettings
+from tmcl_server.transports.mqtt.bridge import MqttSettings
 from tmcl_server.upload import StreamClient, upload
+from tmcl_spec.commands import Opcode
 
 pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed "
                                 "(./scripts/test.sh installs it with apt-get)")

@@ -11,11 +11,11 @@ import tty
 
 import pytest
 
-from interpreter.isa import Opcode
 from tests.conftest import RawClient
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_reply
-from tmcl_server.tables import GP
+from tmcl_spec.commands import Opcode
+from tmcl_spec.parameters import GP
 
 
 @pytest.fixture

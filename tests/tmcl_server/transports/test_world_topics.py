@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from tmcl_server.module import TMCM6212
-from tmcl_server.world_topics import WorldTopicError, apply_sim_message
+from tmcl_server.transports.mqtt.world_topics import WorldTopicError, apply_sim_message
 
 
 @pytest.fixture

@@ -19,14 +19,12 @@ from enum import Enum
 
 import can
 
-from tmcl_server.simulation import Simulation
-from tmcl_server.transports.base import Transport
-from tmcl_server.transports.canbus import SimulatedCanBus, bus_of
+from tmcl_server.transports.base import Transport, TransportHost
+from tmcl_server.transports.can.bus import SimulatedCanBus
 from tmcl_server.transports.tcp import disable_nagle, listening_endpoints, parse_host_port
 
 log = logging.getLogger(__name__)
 
-DEFAULT_SOCKETCAND_PORT = 29536
 #: An element longer than this without its closing ``>`` is junk (socketcand's MAXLEN is 4096).
 MAX_ELEMENT = 4096
 #: Frames for a client are held this long after ``< rawmode >`` is acknowledged, so they do not
@@ -220,12 +218,16 @@ class SocketcandClient(asyncio.Protocol):
 class SocketcandTransport(Transport):
     kind = "socketcand"
 
-    def __init__(self, simulation: Simulation, address: str) -> None:
+    def __init__(self, bus: SimulatedCanBus, address: str) -> None:
         self.host, self.port = parse_host_port(address)
-        self.bus = bus_of(simulation)
+        self.bus = bus
         self.clients: set[SocketcandClient] = set()
         self.stats: Counter[str] = Counter()
         self._server: asyncio.Server | None = None
+
+    @classmethod
+    def build(cls, host: TransportHost, argument: str) -> SocketcandTransport:
+        return cls(host.can_bus(), argument)
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()

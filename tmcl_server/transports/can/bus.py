@@ -9,13 +9,13 @@ as on a real wire (a CAN controller does not receive its own frames).  The parti
 * every socketcand client (``--socketcand``, socketcand.py).
 
 Frames are :class:`can.Message` objects and are delivered synchronously, in order, on the
-server's event loop.  Each simulation has exactly one bus (``--can-bus NAME`` names it).
+server's event loop.  The server owns one bus (``--can-bus NAME`` names it) and hands it to
+every CAN transport it builds.
 """
 
 from __future__ import annotations
 
 import logging
-import weakref
 from collections import Counter, deque
 from typing import Protocol
 
@@ -23,12 +23,12 @@ import can
 
 from tmcl_server.protocol import CAN_PAYLOAD_LENGTH, AnyReply, Reply, decode_can_request
 from tmcl_server.simulation import Simulation
-from tmcl_server.tables import BANK0_PARAMETERS, GP
-from tmcl_server.transports.base import Transport
+from tmcl_server.transports.can import DEFAULT_BUS_NAME, check_bus_name
+from tmcl_spec.parameters import GP
+from tmcl_spec.tmcm6212 import BANK0_PARAMETERS
 
 log = logging.getLogger(__name__)
 
-DEFAULT_BUS_NAME = "can0"
 #: Data lengths of a TMCL request: 7, or 8 when the host appends a pad byte (pytrinamic does).
 REQUEST_LENGTHS = (CAN_PAYLOAD_LENGTH, CAN_PAYLOAD_LENGTH + 1)
 #: GP 70 factory default, used when no module claims a 138 event (its CAN id changed since).
@@ -47,6 +47,8 @@ class SimulatedCanBus:
 
     def __init__(self, name: str = DEFAULT_BUS_NAME) -> None:
         self.name = name
+        #: The simulator's modules on this bus (set by :func:`open_can_bus`).
+        self.modules: ModuleNode | None = None
         self._parties: tuple[CanParty, ...] = ()
         self._pending: deque[tuple[can.Message, CanParty | None]] = deque()
         self._delivering = False
@@ -123,8 +125,7 @@ class ModuleNode:
 
     def __init__(self, bus: SimulatedCanBus, simulation: Simulation) -> None:
         self.bus = bus
-        # Weak: the registry below maps the simulation to this node, and must not keep it alive.
-        self.simulation: Simulation = weakref.proxy(simulation)
+        self.simulation = simulation
         self.stats: Counter[str] = Counter()
         self._sinks = {length: _EventSink(self, length) for length in REQUEST_LENGTHS}
 
@@ -169,42 +170,11 @@ class ModuleNode:
         self.bus.send(can.Message(arbitration_id=can_id, is_extended_id=False, data=data), self)
 
 
-_BUSES: weakref.WeakKeyDictionary[Simulation, SimulatedCanBus] = weakref.WeakKeyDictionary()
-_NODES: weakref.WeakKeyDictionary[Simulation, ModuleNode] = weakref.WeakKeyDictionary()
-
-
-def bus_of(simulation: Simulation) -> SimulatedCanBus:
-    """The simulation's bus, created (with its modules attached) on first use."""
-    bus = _BUSES.get(simulation)
-    if bus is None:
-        bus = _BUSES[simulation] = SimulatedCanBus()
-        node = _NODES[simulation] = ModuleNode(bus, simulation)
-        bus.attach(node)
+def open_can_bus(simulation: Simulation, name: str = DEFAULT_BUS_NAME) -> SimulatedCanBus:
+    """A new bus with the simulation's modules on it (the server owns one per simulation)."""
+    check_bus_name(name)
+    bus = SimulatedCanBus(name)
+    bus.modules = ModuleNode(bus, simulation)
+    bus.attach(bus.modules)
     return bus
 
-
-def module_node_of(simulation: Simulation) -> ModuleNode:
-    """The modules' party on the simulation's bus (its ``stats`` count ignored frames)."""
-    bus_of(simulation)
-    return _NODES[simulation]
-
-
-class CanBusTransport(Transport):
-    """``--can-bus NAME``: name the simulated bus (socketcand clients ``open`` it by name)."""
-
-    kind = "can_bus"
-
-    def __init__(self, simulation: Simulation, name: str) -> None:
-        if not name or any(c.isspace() or c in "<>" for c in name) or len(name) > 16:
-            raise ValueError(f"bad CAN bus name {name!r} (1..16 characters, no blanks or <>)")
-        self.bus = bus_of(simulation)
-        if self.bus.name not in (DEFAULT_BUS_NAME, name):
-            raise ValueError(f"this simulation already has CAN bus {self.bus.name!r}; "
-                             "one simulator runs one bus")
-        self.bus.name = name
-
-    async def start(self) -> list[str]:
-        return [self.bus.name]
-
-    async def close(self) -> None:
-        """Nothing to release: the bus lives as long as its simulation."""

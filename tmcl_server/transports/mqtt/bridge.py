@@ -34,18 +34,19 @@ import aiomqtt
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
-from tmcl_server.clock import NS_PER_S
-from tmcl_server.module import TMCM6212, Interface, ModuleEvent
+from tmcl_server.dispatch import Interface
+from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import FRAME_LENGTH, ChecksumError, Reply, decode_request
-from tmcl_server.remote import RequestError, reply_to_json, request_from_json
 from tmcl_server.simulation import Simulation
-from tmcl_server.transports.base import Transport
-from tmcl_server.world_topics import WorldTopicError, apply_sim_message
+from tmcl_server.transports.base import Transport, TransportHost
+from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ
+from tmcl_server.transports.mqtt.requests import RequestError, reply_to_json, request_from_json
+from tmcl_server.transports.mqtt.world_topics import WorldTopicError, apply_sim_message
+from tmcl_spec.numbers import NS_PER_S
 
 log = logging.getLogger(__name__)
 
 DEFAULT_PREFIX = "tmcl"
-DEFAULT_RATE_HZ = 10.0
 ENV_USERNAME = "TMCL_MQTT_USERNAME"
 ENV_PASSWORD = "TMCL_MQTT_PASSWORD"
 BACKOFF_START_S = 0.2
@@ -100,7 +101,7 @@ class _Outgoing:
 class _ModuleFeed:
     """Per-module publishing state."""
 
-    module: TMCM6212
+    module: TMCLModule
     base: str
     last_state: bytes | None = None
     listener: Callable[[ModuleEvent], None] | None = field(default=None, repr=False)
@@ -143,6 +144,10 @@ class MqttBridge(Transport):
                        for m in simulation.modules]
         self._task: asyncio.Task[None] | None = None
         self.connections = 0  # successful connections so far (for tests and logs)
+
+    @classmethod
+    def build(cls, host: TransportHost, argument: str) -> MqttBridge:
+        return cls(host.simulation, argument, rate_hz=host.option("mqtt_rate"))
 
     @property
     def status_topic(self) -> str:

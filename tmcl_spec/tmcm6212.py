@@ -1,69 +1,23 @@
-"""Axis parameters of the TMCM-6212 (firmware manual §4.1, Table 14) as data.
+"""The TMCM-6212 (firmware V1.05): its tables from the firmware manual, and its profile.
 
-Each entry gives number, name, access, the valid range and the factory default.  The manual
-gives ranges but no defaults; the defaults chosen here are documented in docs/parameters.md.
-The module validates SAP/GAP requests against this table before an axis sees them.
+Axis parameters (§4.1, Table 14), global parameters of banks 0, 2 and 3 (§4.2, Tables 16-20),
+the I/O ports (§3.6.12-13), coordinates (§3.6.22) and the firmware identity (command 136).
+The manual gives ranges but no factory defaults; the defaults chosen here are explained in
+docs/module.md.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-INT32_MIN = -(2**31)
-INT32_MAX = 2**31 - 1
-UINT32_MAX = 2**32 - 1
+from tmcl_spec.commands import Opcode
+from tmcl_spec.modules import ModuleType
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN, UINT32_MAX
+from tmcl_spec.parameters import AP, GP, ParamSpec
 
 MAX_VELOCITY_PPS = 7_999_774
 MAX_ACCELERATION_PPS2 = 7_629_278
 
 
-@dataclass(frozen=True, slots=True)
-class ParamSpec:
-    """One row of a parameter table.
-
-    ``access`` uses the manual's letters: R readable, W writable, E storable with
-    STGP/RSGP (or STAP/RSAP), A automatically stored in EEPROM when written.
-    ``allowed`` restricts the value to a set when the range is not contiguous.
-    ``unsigned`` means the 32-bit wire value is read as unsigned before the range check.
-    """
-
-    number: int
-    name: str
-    access: str
-    minimum: int = INT32_MIN
-    maximum: int = INT32_MAX
-    default: int = 0
-    allowed: frozenset[int] | None = None
-    unsigned: bool = False
-
-    @property
-    def readable(self) -> bool:
-        return "R" in self.access
-
-    @property
-    def writable(self) -> bool:
-        return "W" in self.access
-
-    @property
-    def storable(self) -> bool:
-        return "E" in self.access
-
-    @property
-    def auto_stored(self) -> bool:
-        return "A" in self.access
-
-    def accepts(self, value: int) -> bool:
-        """True if a (signed 32-bit wire) value is valid for this parameter."""
-        if self.unsigned:
-            value &= UINT32_MAX
-        if self.allowed is not None:
-            return value in self.allowed
-        return self.minimum <= value <= self.maximum
-
-    def normalise(self, value: int) -> int:
-        """Wire value as stored (unsigned parameters keep their unsigned meaning)."""
-        return value & UINT32_MAX if self.unsigned else value
-
+# -- axis parameters ---------------------------------------------------------------------------
 
 def _p(number: int, name: str, access: str, lo: int = INT32_MIN, hi: int = INT32_MAX,
        default: int = 0, allowed: frozenset[int] | None = None) -> ParamSpec:
@@ -76,7 +30,7 @@ _BOOL = (0, 1)
 
 #: Reference search modes: 1..8, +64 for modes 1..4 (right switch), +128 for modes 5..8
 #: (inverted home switch).  The manual's examples also quote 129..132 for "mode 5..8 + 128";
-#: both spellings are accepted (docs/parameters.md).
+#: both spellings are accepted (docs/module.md).
 REFERENCE_SEARCH_MODES = frozenset(
     list(range(1, 9)) + [m + 64 for m in range(1, 5)] + [m + 128 for m in range(5, 9)]
     + [129, 130, 131, 132]
@@ -161,8 +115,103 @@ AXIS_PARAMETERS: dict[int, ParamSpec] = {
 }
 
 #: Parameters whose RAM value is kept when STAP stores an axis's configuration.
-STORABLE_AXIS_PARAMETERS: tuple[int, ...] = tuple(
-    n for n, s in AXIS_PARAMETERS.items() if s.writable and n not in (0, 1, 2, 209)
+STORABLE_AXIS_PARAMETERS = frozenset(
+    n for n, s in AXIS_PARAMETERS.items()
+    if s.writable and n not in (AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.TARGET_SPEED,
+                                AP.ENCODER_POSITION)
 )
 
-NUMBER_OF_AXES = 6
+
+# -- global parameters -------------------------------------------------------------------------
+
+def _g(number: int, name: str, access: str, lo: int, hi: int, default: int = 0,
+       unsigned: bool = False) -> ParamSpec:
+    return ParamSpec(number, name, access, lo, hi, default, None, unsigned)
+
+
+BANK0_PARAMETERS: dict[int, ParamSpec] = {
+    s.number: s
+    for s in (
+        # Range 0..11: the manual's range column says 0..7 but its own table lists 8..11.
+        _g(GP.BAUD_RATE, "RS485 baud rate", "RWA", 0, 11, 0),
+        _g(GP.SERIAL_ADDRESS, "Serial address", "RWA", 1, 255, 1),
+        _g(GP.SERIAL_HEARTBEAT, "Serial heartbeat", "RWA", 0, 65535, 0),
+        _g(GP.CAN_BIT_RATE, "CAN bit rate", "RWA", 2, 8, 8),
+        _g(GP.CAN_REPLY_ID, "CAN reply ID", "RWA", 0, 2047, 2),
+        _g(GP.CAN_ID, "CAN ID", "RWA", 0, 2047, 1),
+        _g(GP.TELEGRAM_PAUSE, "Telegram pause time", "RWA", 0, 255, 0),
+        _g(GP.HOST_ADDRESS, "Serial host address", "RWA", 0, 255, 2),
+        _g(GP.AUTO_START, "Auto start mode", "RWA", 0, 1, 0),
+        _g(GP.CODE_PROTECTION, "TMCL code protection", "RWA", 0, 3, 0),
+        _g(GP.CAN_HEARTBEAT, "CAN heartbeat", "RWA", 0, 65535, 0),
+        _g(GP.CAN_SECONDARY_ID, "CAN secondary address", "RWA", 0, 2047, 0),
+        _g(GP.COORDINATE_STORAGE, "Coordinate storage", "RWA", 0, 1, 0),
+        _g(GP.DO_NOT_RESTORE_USER_VARIABLES, "Do not restore user variables", "RWA", 0, 1, 0),
+        _g(GP.SERIAL_SECONDARY_ADDRESS, "Serial secondary address", "RWA", 0, 255, 0),
+        _g(GP.APPLICATION_STATUS, "TMCL application status", "R", 0, 3),
+        _g(GP.DOWNLOAD_MODE, "Download mode", "R", 0, 1),
+        _g(GP.PROGRAM_COUNTER, "TMCL program counter", "R", 0, INT32_MAX),
+        _g(GP.TICK_TIMER, "TMCL tick timer", "RW", 0, INT32_MAX),
+        _g(GP.RANDOM_NUMBER, "Random number", "RW", 0, INT32_MAX),
+        _g(GP.SUPPRESS_REPLY, "Suppress reply", "RW", 0, 1, 0),
+    )
+}
+
+USER_VARIABLE_COUNT = 256
+STORABLE_USER_VARIABLES = 56  # 0..55 can be stored with STGP (Table 18, fw 1.05 note)
+
+BANK2_PARAMETERS: dict[int, ParamSpec] = {
+    n: ParamSpec(n, f"User variable #{n}", "RWE" if n < STORABLE_USER_VARIABLES else "RW")
+    for n in range(USER_VARIABLE_COUNT)
+}
+
+BANK3_PARAMETERS: dict[int, ParamSpec] = {
+    **{
+        n: _g(n, f"Timer {n} period", "RW", 0, UINT32_MAX, 0, unsigned=True)
+        for n in range(3)
+    },
+    **{
+        n: _g(n, f"Stop {'left' if n % 2 else 'right'} {(n - 27) // 2} trigger transition",
+              "RW", 0, 3)
+        for n in range(27, 39)
+    },
+    **{n: _g(n, f"Input {n - 39} trigger transition", "RW", 0, 3) for n in range(39, 43)},
+}
+
+BANK_PARAMETERS: dict[int, dict[int, ParamSpec]] = {
+    0: BANK0_PARAMETERS,
+    2: BANK2_PARAMETERS,
+    3: BANK3_PARAMETERS,
+}
+
+
+
+# -- I/O ports and serial line -----------------------------------------------------------------
+
+NUMBER_OF_INPUTS = 4
+NUMBER_OF_OUTPUTS = 4
+#: GP 65 index -> bits per second.
+BAUD_RATES = (9600, 14400, 19200, 28800, 38400, 57600, 76800, 115200, 230400, 250000,
+              500000, 1000000)
+
+
+# -- the profile -------------------------------------------------------------------------------
+
+TMCM_6212 = ModuleType(
+    key="tmcm-6212",
+    name="TMCM-6212",
+    module_number=6212,
+    firmware=(1, 5),
+    number_of_axes=6,
+    axis_parameters=AXIS_PARAMETERS,
+    global_parameters=BANK_PARAMETERS,
+    storable_axis_parameters=STORABLE_AXIS_PARAMETERS,
+    storable_user_variables=STORABLE_USER_VARIABLES,
+    digital_inputs=NUMBER_OF_INPUTS,
+    analog_inputs=NUMBER_OF_INPUTS,
+    outputs=NUMBER_OF_OUTPUTS,
+    coordinates=21,  # 0..20; coordinate 0 is RAM only
+    program_memory=6144,  # TMCL commands it can store (manual §1, "Software")
+    chip_core="tmc4210",
+    commands=frozenset(Opcode),
+)

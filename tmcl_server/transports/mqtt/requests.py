@@ -13,9 +13,9 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from interpreter.isa import TYPE_SYMBOLS, Opcode
-from tmcl_server.protocol import AnyReply, RawReply, Request, to_int32
-from tmcl_server.tables import Status
+from tmcl_server.protocol import AnyReply, RawReply, Request
+from tmcl_spec.commands import TYPE_SYMBOLS, Opcode, Status
+from tmcl_spec.numbers import to_int32
 
 FIELDS = ("cmd", "type", "motor", "bank", "value")
 

@@ -23,8 +23,8 @@ from collections.abc import Callable
 import can
 
 from tmcl_server.simulation import Simulation
-from tmcl_server.transports.base import ByteSession
-from tmcl_server.transports.canbus import SimulatedCanBus, bus_of
+from tmcl_server.transports.base import ByteSession, TransportHost
+from tmcl_server.transports.can.bus import SimulatedCanBus
 from tmcl_server.transports.pty import PtyTransport
 
 log = logging.getLogger(__name__)
@@ -199,13 +199,18 @@ class SlcanSession:
 class SlcanPtyTransport(PtyTransport):
     kind = "slcan"
 
-    def __init__(self, simulation: Simulation, link: str) -> None:
+    def __init__(self, simulation: Simulation, link: str, bus: SimulatedCanBus) -> None:
         super().__init__(simulation, link)
+        self.bus = bus
         self.session: SlcanSession | None = None
         self._warned_full = False
 
+    @classmethod
+    def build(cls, host: TransportHost, argument: str) -> SlcanPtyTransport:
+        return cls(host.simulation, argument, host.can_bus())
+
     def _make_session(self, loop: asyncio.AbstractEventLoop) -> ByteSession:
-        self.session = SlcanSession(bus_of(self.simulation), self._write, self._discard_output)
+        self.session = SlcanSession(self.bus, self._write, self._discard_output)
         return self.session
 
     def _discard_output(self) -> None:

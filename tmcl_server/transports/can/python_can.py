@@ -15,9 +15,8 @@ from collections import Counter
 
 import can
 
-from tmcl_server.simulation import Simulation
-from tmcl_server.transports.base import Transport
-from tmcl_server.transports.canbus import bus_of
+from tmcl_server.transports.base import Transport, TransportHost
+from tmcl_server.transports.can.bus import SimulatedCanBus
 
 log = logging.getLogger(__name__)
 
@@ -39,13 +38,17 @@ def parse_can_spec(text: str) -> tuple[str, str, int | None]:
 class PythonCanTransport(Transport):
     kind = "can"
 
-    def __init__(self, simulation: Simulation, spec: str) -> None:
+    def __init__(self, bus: SimulatedCanBus, spec: str) -> None:
         self.spec = spec
         self.interface, self.channel, self.bitrate = parse_can_spec(spec)
-        self.bus = bus_of(simulation)
+        self.bus = bus
         self.stats: Counter[str] = Counter()
         self._can: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
+
+    @classmethod
+    def build(cls, host: TransportHost, argument: str) -> PythonCanTransport:
+        return cls(host.can_bus(), argument)
 
     async def start(self) -> list[str]:
         options = {} if self.bitrate is None else {"bitrate": self.bitrate}

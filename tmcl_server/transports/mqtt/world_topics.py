@@ -17,10 +17,8 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from axes.parameters import NUMBER_OF_AXES
 from axes.world import LOAD_MAX, SWITCH_NAMES
-from tmcl_server.module import TMCM6212
-from tmcl_server.tables import ANALOG_MAX
+from tmcl_server.module import TMCLModule
 
 _SWITCH_FIELDS = {"position", "width", "side", "normally_closed"}
 
@@ -60,14 +58,15 @@ def _integer(value: Any, what: str, lo: int, hi: int) -> int:
     return value
 
 
-def _input(module: TMCM6212, port: int, value: Any) -> None:
+def _input(module: TMCLModule, port: int, value: Any) -> None:
     if isinstance(value, dict) and set(value) == {"analog"}:
-        module.set_analog_input(port, _integer(value["analog"], "analog value", 0, ANALOG_MAX))
+        module.set_analog_input(port, _integer(value["analog"], "analog value", 0,
+                                                       module.type.analog_full_scale))
     else:
         module.set_digital_input(port, _level(value))
 
 
-def _switch(module: TMCM6212, axis: int, name: str, value: Any) -> None:
+def _switch(module: TMCLModule, axis: int, name: str, value: Any) -> None:
     if name not in SWITCH_NAMES:
         raise WorldTopicError(f"switch must be one of {', '.join(SWITCH_NAMES)}, got {name!r}")
     if value is None:
@@ -83,7 +82,7 @@ def _switch(module: TMCM6212, axis: int, name: str, value: Any) -> None:
         module.force_switch(axis, name, _level(value))
 
 
-def _load(module: TMCM6212, axis: int, value: Any) -> None:
+def _load(module: TMCLModule, axis: int, value: Any) -> None:
     if isinstance(value, dict):
         zones = value.get("zones", [])
         if not isinstance(zones, list) or not all(
@@ -97,24 +96,24 @@ def _load(module: TMCM6212, axis: int, value: Any) -> None:
         module.set_load(axis, [], _integer(value, "load", 0, LOAD_MAX))
 
 
-def _slip(module: TMCM6212, axis: int, value: Any) -> None:
+def _slip(module: TMCLModule, axis: int, value: Any) -> None:
     if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value <= 1:
         raise WorldTopicError(f"encoder slip must be a number 0..1, got {value!r}")
     module.set_encoder_slip(axis, float(value))
 
 
-def apply_sim_message(module: TMCM6212, path: list[str], payload: bytes) -> None:
+def apply_sim_message(module: TMCLModule, path: list[str], payload: bytes) -> None:
     value = _parse(payload)
     try:
         match path:
             case ["input", port]:
                 _input(module, _index(port, "input", len(module.analog_inputs)), value)
             case ["switch", axis, name]:
-                _switch(module, _index(axis, "axis", NUMBER_OF_AXES), name, value)
+                _switch(module, _index(axis, "axis", len(module.axes)), name, value)
             case ["load", axis]:
-                _load(module, _index(axis, "axis", NUMBER_OF_AXES), value)
+                _load(module, _index(axis, "axis", len(module.axes)), value)
             case ["encoder_slip", axis]:
-                _slip(module, _index(axis, "axis", NUMBER_OF_AXES), value)
+                _slip(module, _index(axis, "axis", len(module.axes)), value)
             case _:
                 raise WorldTopicError(f"unknown sim topic {'/'.join(path)!r}")
     except (ValueError, TypeError) as exc:

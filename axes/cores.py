@@ -1,0 +1,38 @@
+"""Motion-controller cores by name: an axis is a TMCL firmware layer over a chip core.
+
+A module type names its core (``tmc4210`` on the TMCM-6212); :func:`make_axis` builds one
+axis of it.  Like python-can's ``BACKENDS``, the table holds import paths as strings, so a
+core is only imported when a module asks for it.  A new core is one entry here plus its
+files (docs/architecture.md, "Adding a chip core").
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+
+from axes.interface import Axis
+from axes.world import AxisWorld
+from tmcl_spec.parameters import ParamSpec
+
+#: Core name -> "module:class" of its firmware layer (an :class:`axes.interface.Axis`).
+CHIP_CORES: dict[str, str] = {
+    "tmc4210": "axes.firmware:TMC4210Axis",
+}
+DEFAULT_CORE = "tmc4210"
+
+
+def axis_class(core: str) -> type[Axis]:
+    try:
+        where = CHIP_CORES[core.lower()]
+    except KeyError:
+        raise ValueError(f"unknown chip core {core!r} (known: {', '.join(CHIP_CORES)})") from None
+    module_name, _, attribute = where.partition(":")
+    return getattr(importlib.import_module(module_name), attribute)
+
+
+def make_axis(core: str, index: int, parameters: Mapping[int, ParamSpec],
+              clock_hz: int | None = None, world: AxisWorld | None = None) -> Axis:
+    """Axis ``index`` on core ``core``, with the module's axis-parameter table."""
+    options = {} if clock_hz is None else {"clock_hz": clock_hz}
+    return axis_class(core)(index, parameters=parameters, world=world, **options)

@@ -1,0 +1,12 @@
+"""The TMCL vocabulary: every fact of the firmware manual that code needs, as data, in one home.
+
+``tmcl_server``, ``interpreter`` and ``axes`` all import from here; this package imports
+nothing but the standard library, so the codec, the assembler or a host tool can use it
+without pulling in the server, a transport library, the axes or the interpreter.
+
+* :mod:`tmcl_spec.numbers`  -- 32-bit value wrapping, units of simulated time
+* :mod:`tmcl_spec.commands` -- opcodes, operand symbols, status codes, I/O banks
+* :mod:`tmcl_spec.parameters` -- parameter rows (:class:`ParamSpec`) and their names (AP, GP)
+* :mod:`tmcl_spec.modules` -- module types (profiles): which tables a module has, by name
+* :mod:`tmcl_spec.tmcm6212` -- the TMCM-6212 profile and its tables
+"""

@@ -1,0 +1,74 @@
+"""Module types: what distinguishes one TMCL module from another, as data.
+
+A :class:`ModuleType` (a *profile*) names a module's tables, its I/O, its firmware identity
+and the motion-controller core its axes run on.  The module model (``tmcl_server.module``)
+is built from a profile, so a new module type is a new profile file, not a copy of the model.
+
+Profiles are found by name (``tmcm-6212``); each lives in its own file and is imported only
+when asked for.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from tmcl_spec.parameters import ParamSpec
+
+
+@dataclass(frozen=True)
+class ModuleType:
+    key: str  # the name users choose it by, e.g. "tmcm-6212"
+    name: str  # as printed on the module, e.g. "TMCM-6212"
+    module_number: int  # command 136 type 1, high 16 bits
+    firmware: tuple[int, int]  # (major, minor)
+    number_of_axes: int
+    axis_parameters: Mapping[int, ParamSpec]
+    #: bank -> number -> row (banks 0, 2, 3 on the TMCM-6212).
+    global_parameters: Mapping[int, Mapping[int, ParamSpec]]
+    #: Axis parameters STAP/RSAP store and restore.
+    storable_axis_parameters: frozenset[int]
+    #: User variables 0..n-1 can be stored with STGP.
+    storable_user_variables: int
+    digital_inputs: int
+    analog_inputs: int
+    outputs: int
+    coordinates: int
+    program_memory: int  # TMCL commands the program memory holds
+    #: The motion-controller core that drives the axes (a name from ``axes.cores``).
+    chip_core: str
+    #: The opcodes the firmware knows; others answer status 2.
+    commands: frozenset[int]
+    #: Full scale of an analogue input reading, and where its digital reading switches.
+    analog_full_scale: int = 65535
+    digital_threshold: int = 32768
+
+    @property
+    def version_string(self) -> bytes:
+        """Command 136 type 0: e.g. ``6212V105``."""
+        major, minor = self.firmware
+        return f"{self.module_number:04d}V{major}{minor:02d}".encode()
+
+    @property
+    def version_number(self) -> int:
+        """Command 136 type 1: module number, major and minor version in one value."""
+        major, minor = self.firmware
+        return self.module_number << 16 | major << 8 | minor
+
+
+#: Profile name -> "module:attribute" where it is defined (imported on first use).
+MODULE_TYPES: dict[str, str] = {
+    "tmcm-6212": "tmcl_spec.tmcm6212:TMCM_6212",
+}
+DEFAULT_MODULE_TYPE = "tmcm-6212"
+
+
+def module_type(key: str = DEFAULT_MODULE_TYPE) -> ModuleType:
+    """The profile called ``key``; ValueError naming the known ones if there is none."""
+    try:
+        where = MODULE_TYPES[key.lower()]
+    except KeyError:
+        raise ValueError(f"unknown module type {key!r} (known: {', '.join(MODULE_TYPES)})") from None
+    module_name, _, attribute = where.partition(":")
+    return getattr(importlib.import_module(module_name), attribute)

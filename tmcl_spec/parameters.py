@@ -1,0 +1,172 @@
+"""Parameters: one row of a table (:class:`ParamSpec`), and the numbers the firmware names.
+
+The tables themselves belong to a module type (:mod:`tmcl_spec.tmcm6212`); the numbers below
+mean the same on every TMCL module of the family, so firmware code names them here instead
+of writing the numbers.  Plain ints, not IntEnums: they index dictionaries on every request.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN, UINT32_MAX
+
+
+@dataclass(frozen=True, slots=True)
+class ParamSpec:
+    """One row of a parameter table.
+
+    ``access`` uses the manual's letters: R readable, W writable, E storable with
+    STGP/RSGP (or STAP/RSAP), A automatically stored in EEPROM when written.
+    ``allowed`` restricts the value to a set when the range is not contiguous.
+    ``unsigned`` means the 32-bit wire value is read as unsigned before the range check.
+    """
+
+    number: int
+    name: str
+    access: str
+    minimum: int = INT32_MIN
+    maximum: int = INT32_MAX
+    default: int = 0
+    allowed: frozenset[int] | None = None
+    unsigned: bool = False
+
+    @property
+    def readable(self) -> bool:
+        return "R" in self.access
+
+    @property
+    def writable(self) -> bool:
+        return "W" in self.access
+
+    @property
+    def storable(self) -> bool:
+        return "E" in self.access
+
+    @property
+    def auto_stored(self) -> bool:
+        return "A" in self.access
+
+    def accepts(self, value: int) -> bool:
+        """True if a (signed 32-bit wire) value is valid for this parameter."""
+        if self.unsigned:
+            value &= UINT32_MAX
+        if self.allowed is not None:
+            return value in self.allowed
+        return self.minimum <= value <= self.maximum
+
+    def normalise(self, value: int) -> int:
+        """Wire value as stored (unsigned parameters keep their unsigned meaning)."""
+        return value & UINT32_MAX if self.unsigned else value
+
+
+class AP:
+    """Axis parameter numbers (TMCM-6212 manual §4.1, Table 14)."""
+
+    TARGET_POSITION = 0
+    ACTUAL_POSITION = 1
+    TARGET_SPEED = 2
+    ACTUAL_SPEED = 3
+    MAX_SPEED = 4
+    MAX_ACCELERATION = 5
+    MAX_CURRENT = 6
+    STANDBY_CURRENT = 7
+    POSITION_REACHED = 8
+    HOME_SWITCH = 9
+    RIGHT_SWITCH = 10
+    LEFT_SWITCH = 11
+    RIGHT_DISABLE = 12
+    LEFT_DISABLE = 13
+    SWAP_SWITCHES = 14
+    A1 = 15
+    V1 = 16
+    MAX_DECELERATION = 17
+    D1 = 18
+    VSTART = 19
+    VSTOP = 20
+    RAMP_WAIT = 21
+    COOLSTEP_THRESHOLD_SPEED = 22
+    DCSTEP_MIN_SPEED = 23
+    RIGHT_POLARITY = 24
+    LEFT_POLARITY = 25
+    SOFT_STOP = 26
+    HIGH_SPEED_CHOPPER = 27
+    HIGH_SPEED_FULLSTEP = 28
+    MEASURED_SPEED = 29
+    POWER_DOWN_RAMP = 31
+    DCSTEP_TIME = 32
+    DCSTEP_STALLGUARD = 33
+    RELATIVE_POSITIONING_OPTION = 127
+    MICROSTEPS = 140
+    CHOPPER_BLANK_TIME = 162
+    CONSTANT_TOFF_MODE = 163
+    DISABLE_FAST_DECAY_COMPARATOR = 164
+    CHOPPER_HYSTERESIS_END = 165
+    CHOPPER_HYSTERESIS_START = 166
+    CHOPPER_OFF_TIME = 167
+    SMARTENERGY_CURRENT_MINIMUM = 168
+    SMARTENERGY_CURRENT_DOWN_STEP = 169
+    SMARTENERGY_HYSTERESIS = 170
+    SMARTENERGY_CURRENT_UP_STEP = 171
+    SMARTENERGY_HYSTERESIS_START = 172
+    STALLGUARD_FILTER = 173
+    STALLGUARD_THRESHOLD = 174
+    SMARTENERGY_ACTUAL_CURRENT = 180
+    STOP_ON_STALL = 181
+    SMARTENERGY_THRESHOLD_SPEED = 182
+    RANDOM_TOFF_MODE = 184
+    CHOPPER_SYNCHRONIZATION = 185
+    PWM_THRESHOLD_SPEED = 186
+    PWM_GRADIENT = 187
+    PWM_AMPLITUDE = 188
+    RFS_MODE = 193
+    RFS_SPEED = 194
+    RFS_SWITCH_SPEED = 195
+    SWITCH_DISTANCE = 196
+    LAST_REFERENCE = 197
+    ENCODER_MODE = 201
+    FULLSTEPS = 202
+    FREEWHEELING = 204
+    LOAD = 206
+    ERROR_FLAGS = 207
+    DRIVER_ERROR_FLAGS = 208
+    ENCODER_POSITION = 209
+    ENCODER_RESOLUTION = 210
+    MAX_DEVIATION = 212
+    POWER_DOWN_DELAY = 214
+    UNIT_MODE = 255
+
+
+class GP:
+    """Global parameter numbers of bank 0 (manual §4.2, Table 16) the firmware looks at."""
+
+    BAUD_RATE = 65
+    SERIAL_ADDRESS = 66
+    SERIAL_HEARTBEAT = 68
+    CAN_BIT_RATE = 69
+    CAN_REPLY_ID = 70
+    CAN_ID = 71
+    TELEGRAM_PAUSE = 75
+    HOST_ADDRESS = 76
+    AUTO_START = 77
+    CODE_PROTECTION = 81
+    CAN_HEARTBEAT = 82
+    CAN_SECONDARY_ID = 83
+    COORDINATE_STORAGE = 84
+    DO_NOT_RESTORE_USER_VARIABLES = 85
+    SERIAL_SECONDARY_ADDRESS = 87
+    APPLICATION_STATUS = 128
+    DOWNLOAD_MODE = 129
+    PROGRAM_COUNTER = 130
+    TICK_TIMER = 132
+    RANDOM_NUMBER = 133
+    SUPPRESS_REPLY = 255
+
+
+#: The banks of global parameters (§4.2): 0 module settings, 2 user variables, 3 interrupts.
+BANK_MODULE = 0
+BANK_USER_VARIABLES = 2
+BANK_INTERRUPTS = 3
+
+#: Names of an axis's switches, as the world file, the MQTT topics and the API spell them.
+SWITCH_NAMES = ("left", "right", "home")
