@@ -77,3 +77,75 @@ class ChipModel(Protocol):
     def set_pins(self, left: bool, right: bool, home: bool) -> None:
         """Drive the switch inputs (electrical levels); edges act at once."""
         ...
+
+
+class ChipDriver(Protocol):
+    """The chip-specific half of the TMCL firmware for one axis: what it does with its chip.
+
+    The generic half (:class:`axes.firmware.AxisFirmware`: parameters, reference search,
+    stallGuard, encoder, current, events, time) calls these; a driver talks to :attr:`chip`
+    through SPI datagrams only.  Speeds are in the axis's units (pps, or the chip's own in
+    unit mode 0), positions are the 32-bit AP 1 / AP 0 values.
+    """
+
+    #: The chip; the firmware replaces it by a look-ahead copy it has run forward.
+    chip: ChipModel
+    #: AP 1 as of the last :meth:`read_position`.
+    position: int
+
+    def power_up(self) -> None:
+        """Initialise the chip as the firmware does after reset."""
+
+    def register_access(self, address: int, value: int | None = None) -> int:
+        """Commands 146/147: one raw datagram (None reads); the chip's answer as signed 32 bit."""
+
+    # -- readings at the chip's present ----------------------------------------------------------
+
+    def read_position(self) -> int:
+        """Read the position from the chip (and keep it in :attr:`position`)."""
+
+    def moving(self) -> bool: ...
+
+    def actual_speed(self) -> int:
+        """AP 3: signed speed now."""
+
+    def levels(self) -> tuple[bool, bool, bool]:
+        """Logical (left, right, home) switch levels as the chip reports them."""
+
+    def take_switch_stop(self) -> bool:
+        """True once after a stop switch stopped the motor (the flag is cleared)."""
+
+    def mode_name(self) -> str:
+        """Telemetry's name for the chip's mode: "position", "velocity", "hold", ..."""
+
+    def heading(self) -> int:
+        """Direction of travel, or of the travel about to start (-1, 0, +1)."""
+
+    # -- commands ----------------------------------------------------------------------------
+
+    def start_velocity(self, speed: int) -> None:
+        """ROR/ROL: run at a signed speed with AP 5's acceleration."""
+
+    def start_positioning(self, target: int, top_speed: int) -> None:
+        """MVP: ramp to ``target`` at up to ``top_speed``."""
+
+    def continue_move(self, target: int) -> None:
+        """At a notable instant of a move to ``target`` (rolling targets on narrow chips)."""
+
+    def refill_mark(self, target: int) -> int | None:
+        """A motor position the firmware must be woken at during a move (or None)."""
+
+    def ramp_stop(self) -> None:
+        """MST: decelerate to standstill."""
+
+    def hard_stop(self) -> None:
+        """Stop at once."""
+
+    def set_position(self, value: int) -> bool:
+        """AP 1 write; True if a move in flight was turned into a ramped stop."""
+
+    def limits_changed(self, positioning: bool, velocity_command: int) -> None:
+        """A speed, acceleration, ramp or unit parameter changed: re-plan what runs."""
+
+    def configure_stops(self, searching: bool) -> None:
+        """Stop switches as the parameters say; a reference search drives through them."""

@@ -17,7 +17,7 @@ from tmcl_spec.parameters import ParamSpec
 
 #: Core name -> "module:class" of its firmware layer (an :class:`axes.interface.Axis`).
 CHIP_CORES: dict[str, str] = {
-    "tmc4210": "axes.firmware:TMC4210Axis",
+    "tmc4210": "axes.tmc4210_firmware:TMC4210Axis",
 }
 DEFAULT_CORE = "tmc4210"
 

@@ -1,237 +1,42 @@
-"""The TMCM-6212 firmware for one axis, on top of an emulated TMC4210.
+"""The TMCL firmware layer of one axis, whatever motion-controller chip is under it.
 
-:class:`TMC4210Axis` implements :class:`axes.interface.Axis`.  It owns the chip and talks to
-it only through :meth:`TMC4210.spi` datagrams, exactly like the module's microcontroller: it
-converts axis parameters in pps/pps² to register values (choosing PULSE_DIV/RAMP_DIV and
-computing PMUL/PDIV), extends the 24-bit position to 32 bits, runs the reference-search state
-machine, watches encoder deviation and stallGuard load, and manages the motor current.
-
-It also owns the :class:`AxisBoard`: the module's input stage (limit-switch swap and polarity)
-and the mechanics (the world's switches, load zones and encoder) as the chip's pins see them.
+:class:`AxisFirmware` implements :class:`axes.interface.Axis`: the axis parameters, the
+reference-search state machine (plans in axes/reference_search.py), stallGuard, the encoder
+and its deviation, the motor current, the events a host or a program sees, and time.  It
+reaches its chip only through a *driver* (:class:`axes.core.ChipDriver`), the chip-specific
+half of the firmware that speaks the chip's SPI datagrams (``axes/tmc4210_firmware.py`` for
+the TMC4210).  The mechanics and the input stage are the :class:`axes.board.AxisBoard`.
 
 Time: the axis keeps the simulated time it was last advanced to.  To find its next event it
-runs a *copy* of the chip forward (:meth:`_lookahead`); :meth:`advance_to` then adopts that
-copy at the event instant, so each stretch of motion is computed once.  Every modelling
-choice is explained in docs/motion.md.
+runs a *copy* of the chip forward (:meth:`AxisFirmware._lookahead`); :meth:`advance_to` then
+adopts that copy at the event instant, so each stretch of motion is computed once.  Every
+modelling choice is explained in docs/motion.md.
 """
 
 from __future__ import annotations
 
-import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from axes.board import AxisBoard
+from axes.core import ChipDriver, ChipModel, Stop
 from axes.interface import AxisEvent, AxisEventKind, AxisStatus
-from axes.tmc4210 import (
-    DEFAULT_CLOCK_HZ,
-    DISABLE_STOP_L,
-    DISABLE_STOP_R,
-    EN_SD,
-    MASK24,
-    MOT1R,
-    SMGP_POWER_ON,
-    SOFT_STOP,
-    TMC4210,
-    Irq,
-    RampMode,
-    Reg,
-    Stop,
-    datagram,
-    sdiff24,
-    signed,
-)
-from axes.units import (
-    V_REGISTER_MAX,
-    choose_pulse_div,
-    choose_ramp_div,
-    max_step_rate,
-    pmul_pdiv,
-    step_rate,
-    stop_speed,
-    velocity_register,
-)
+from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.world import AxisWorld, LoadZone, Switch
 from tmcl_spec.numbers import NS_PER_MS, NS_PER_S, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
-from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
-
-log = logging.getLogger(__name__)
-
-#: Telemetry's name for what the chip's ramp mode means to a TMCL host.
-_MODE_NAMES = {RampMode.RAMP: "position", RampMode.SOFT: "position",
-               RampMode.VELOCITY: "velocity", RampMode.HOLD: "hold"}
 
 #: How far ahead the firmware looks for the next event; also bounds how many steps pass
-#: between two reads of the 24-bit X_ACTUAL (4 s at 1 Mpps is well below 2**23).
+#: between two reads of a 24-bit position register (4 s at 1 Mpps is well below 2**23).
 LOOKAHEAD_NS = 4 * NS_PER_S
-#: Rolling targets: a move farther than this is fed to the chip in pieces of this length.
-ROLLING_SPAN = 1 << 22
-ROLLING_REFRESH = 1 << 21
 #: How often the firmware samples stallGuard while it could stall but does not yet.
 STALL_POLL_NS = NS_PER_MS
-#: STEP pulse length 4 µs at 16 MHz and mot1r = 1 (the right switch belongs to the axis).
-SMGP_FIRMWARE = MOT1R | (SMGP_POWER_ON & ~0xF00) | 3 << 8
-
-STOP_FLAG = 1 << Irq.STOP
-STOP_MASK = STOP_FLAG << 8
 
 ERROR_STALL = 1
 ERROR_DEVIATION = 2
 
-# == the board: input stage + mechanics ========================================================
-
-
-class AxisBoard:
-    """What the chip's pins and STEP output are connected to, for one axis.
-
-    Mechanical position (world units, 1/256 microsteps) = ``mech_base`` + (motor steps -
-    ``steps_base``) * 2**(8 - microstep setting).  Switch levels are the world's electrical
-    levels, swapped (AP 14) and XOR-ed with the polarity parameters (AP 24/25) by the
-    module's input stage before they reach REF_L/REF_R; the home switch drives GP_IN.
-    """
-
-    def __init__(self, world: AxisWorld | None = None) -> None:
-        self.world = world or AxisWorld()
-        self.swap = False
-        self.invert_left = False
-        self.invert_right = False
-        self.scale = 1
-        self.mech_base = 0
-        self.steps_base = 0
-        #: Extra motor positions the firmware wants to be woken at (deviation, rolling target).
-        self.firmware_marks: list[int] = []
-        self._edges = self.world.edges()
-
-    def set_world(self, world: AxisWorld) -> None:
-        self.world = world
-        self._edges = world.edges()
-
-    def world_changed(self) -> None:
-        self._edges = self.world.edges()
-
-    def rescale(self, motor_position: int, microstep_setting: int) -> None:
-        """A new microstep resolution: later steps move 2**(8 - setting) world units each."""
-        self.mech_base = self.mechanical(motor_position)
-        self.steps_base = motor_position
-        self.scale = 1 << (8 - microstep_setting)
-
-    def mechanical(self, motor_position: int) -> int:
-        return self.mech_base + (motor_position - self.steps_base) * self.scale
-
-    def pins(self, motor_position: int) -> tuple[bool, bool, bool]:
-        mech = self.mechanical(motor_position)
-        left = self.world.level("left", mech)
-        right = self.world.level("right", mech)
-        if self.swap:
-            left, right = right, left
-        return left != self.invert_left, right != self.invert_right, self.world.level("home", mech)
-
-    def next_mark(self, motor_position: int, direction: int) -> int | None:
-        mech = self.mechanical(motor_position)
-        best: int | None = None
-        if direction > 0:
-            for edge in self._edges:  # levels at p and p - 1 differ: first step with mech >= edge
-                if edge > mech:
-                    best = self.steps_base + -(-(edge - self.mech_base) // self.scale)
-                    break
-        else:
-            for edge in reversed(self._edges):  # last step with mech <= edge - 1
-                if edge - 1 < mech:
-                    best = self.steps_base + (edge - 1 - self.mech_base) // self.scale
-                    break
-        for mark in self.firmware_marks:
-            if (mark - motor_position) * direction > 0 and (
-                    best is None or (mark - best) * direction < 0):
-                best = mark
-        return best
-
-
-# == the reference search ======================================================================
-
-
-@dataclass(slots=True)
-class Phase:
-    """One step of a reference search: drive until a switch reaches a level."""
-
-    kind: str  # "seek" (fast, may reverse), "leave", "enter" (slow), "finish"
-    switch: str  # "left", "right" or "home"
-    direction: int
-    record: str | None = None  # name under which to keep the position where it happened
-    reverse_on: str | None = None  # seek only: limit switch that turns the search around
-
-
-def _calibrate(switch: str, direction: int, tag: str) -> list[Phase]:
-    """Back out of a switch slowly and re-enter it: its switching point without hysteresis.
-
-    ``direction`` is the way the switch was entered; records ``tag1`` and ``tag2``.
-    """
-    return [Phase("leave", switch, -direction, f"{tag}1"), Phase("enter", switch, direction, f"{tag}2")]
-
-
-def _middle(switch: str, direction: int) -> list[Phase]:
-    """Both ends of a switch cam entered travelling ``direction``: its middle."""
-    return [*_calibrate(switch, direction, "near"), Phase("leave", switch, direction, "back1"),
-            Phase("enter", switch, -direction, "back2")]
-
-
-def reference_plan(mode: int) -> tuple[list[Phase], bool]:
-    """The phases of RFS for AP 193 ``mode``, and whether the home switch is inverted."""
-    inverted = mode >= 128
-    base = mode - 128 if inverted else mode
-    if inverted and base <= 4:
-        base += 4  # the manual's own examples spell "mode 5..8 + 128" as 129..132
-    mirrored = 64 < base < 128
-    base = base - 64 if mirrored else base
-    near, far, down = ("right", "left", 1) if mirrored else ("left", "right", -1)
-    seek_near = Phase("seek", near, down)
-    seek_far = Phase("seek", far, -down)
-    if base == 1:
-        phases = [seek_near, *_calibrate(near, down, "near")]
-    elif base == 2:
-        phases = [seek_far, *_calibrate(far, -down, "other"), seek_near, *_calibrate(near, down, "near")]
-    elif base == 3:
-        phases = [seek_far, *_calibrate(far, -down, "other"), seek_near, *_middle(near, down)]
-    elif base == 4:
-        phases = [seek_near, *_middle(near, down)]
-    elif base == 5:
-        phases = [Phase("seek", "home", -1, reverse_on="left"), *_calibrate("home", -1, "near")]
-    elif base == 6:
-        phases = [Phase("seek", "home", 1, reverse_on="right"), *_calibrate("home", 1, "near")]
-    elif base == 7:
-        phases = [Phase("seek", "home", 1), *_middle("home", 1)]
-    elif base == 8:
-        phases = [Phase("seek", "home", -1), *_middle("home", -1)]
-    else:
-        raise ValueError(f"reference search mode {mode} is not defined")
-    return [*phases, Phase("finish", "", 0)], inverted
-
-
-def reference_point(points: dict[str, int]) -> tuple[int, int | None]:
-    """(zero point, end-switch distance or None) from the positions a search recorded.
-
-    A calibrated edge is the mean of the two switching points (leaving and re-entering); the
-    middle of a cam is the mean of both calibrated ends.  Means are floored.
-    """
-    tags = ("near", "back") if "back1" in points else ("near",)
-    zero = sum(points[f"{tag}{n}"] for tag in tags for n in (1, 2)) // (2 * len(tags))
-    if "other1" in points:
-        other = (points["other1"] + points["other2"]) // 2
-        return zero, abs(other - zero)
-    return zero, None
-
-
-@dataclass(slots=True)
-class ReferenceSearch:
-    phases: list[Phase]
-    inverted_home: bool
-    index: int = 0
-    points: dict[str, int] | None = None
-    direction: int = 0
-    reversed_once: bool = False
-
-    @property
-    def phase(self) -> Phase:
-        return self.phases[self.index]
+#: Builds the chip-specific half of the firmware for an axis: (parameters, board) -> driver.
+DriverFactory = Callable[[Mapping[int, int], AxisBoard], ChipDriver]
 
 
 # == the axis ==================================================================================
@@ -248,69 +53,52 @@ _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_
 
 @dataclass(slots=True)
 class _Lookahead:
-    chip: TMC4210
+    chip: ChipModel
     stop: Stop | None  # None: nothing happened up to the horizon
     time_ns: int
 
 
-class TMC4210Axis:
-    """One TMCM-6212 axis: TMCL axis parameters in, TMC4210 datagrams out."""
+class AxisFirmware:
+    """One TMCL axis: axis parameters in, datagrams to its chip (through the driver) out."""
 
-    def __init__(self, index: int, clock_hz: int = DEFAULT_CLOCK_HZ,
-                 world: AxisWorld | None = None,
-                 parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS) -> None:
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec], world: AxisWorld | None,
+                 make_driver: DriverFactory) -> None:
         self.index = index
         self.board = AxisBoard(world)
-        self.chip = TMC4210(clock_hz, self.board)
         self._params = {n: spec.default for n, spec in parameters.items()}
+        self.driver = make_driver(self._params, self.board)
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
         #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
         self._lookahead_cache: _Lookahead | object | None = _UNKNOWN
-        # Firmware state
-        self._x_last = 0  # last X_ACTUAL read (24 bit)
-        self._position = 0  # AP 1, 32 bit
         self._target = 0  # AP 0, 32 bit
-        self._chip_target = 0  # the X_TARGET the chip has now (24 bit)
         self._positioning = False
         self._awaiting_arrival = False
         self._velocity_command = 0
-        self._pulse_div = 0
-        self._ramp_div = 0
         self._rfs: ReferenceSearch | None = None
         self._rfs_state = 0
         self._errors = 0
-        self._levels = (False, False, False)  # logical left, right, home
         self._standstill_since: int | None = 0
         self._standby = False
         self._encoder_offset = 0  # encoder counts added to what the mechanics give
         self._encoder_mech_base = 0  # mechanical position at which slip was last rebased
         self._stall_watch = False
-        self._init_chip()
+        self.driver.power_up()
+        self._levels = self.driver.levels()  # logical left, right, home
 
-    # == chip access ===========================================================================
-
-    def _spi_write(self, reg: int, data: int) -> None:
-        self.chip.spi(datagram(reg, data))
-
-    def _spi_read(self, reg: int) -> int:
-        return self.chip.spi(datagram(reg, read=True)) & MASK24
-
-    def _init_chip(self) -> None:
-        """What the firmware does at power-up (spec §8.2): outputs on, right switch wired.
-
-        The int_stop interrupt is enabled so that the firmware learns of hard switch stops.
-        """
-        self._spi_write(Reg.IF_CONFIGURATION, EN_SD)
-        self._spi_write(Reg.SMGP, SMGP_FIRMWARE)
-        self._spi_write(Reg.INTERRUPT, STOP_MASK)
-        self._write_ref_conf(RampMode.VELOCITY)
-        self._apply_limits(self._params[AP.MAX_SPEED])
-        self._levels = self._read_levels()
+    @property
+    def chip(self) -> ChipModel:
+        """The emulated chip (tests and the lookahead look at it; the firmware uses the driver)."""
+        return self.driver.chip
 
     @property
     def clock_hz(self) -> int:
-        return self.chip.clock_hz
+        return self.driver.chip.clock_hz
+
+    @property
+    def _position(self) -> int:
+        """AP 1, as of the last read from the chip."""
+        return self.driver.position
 
     # == time ==================================================================================
 
@@ -356,7 +144,7 @@ class TMC4210Axis:
             timer = self._timer_due()
             chip_at = ahead.time_ns if ahead is not None else None
             if chip_at is not None and chip_at <= t_ns and (timer is None or chip_at <= timer):
-                self.chip = ahead.chip
+                self.driver.chip = ahead.chip
                 self._invalidate()
                 self._now_ns = max(self._now_ns, chip_at)
                 self._react(ahead.stop)
@@ -381,9 +169,7 @@ class TMC4210Axis:
         self._read_position()
 
     def _read_position(self) -> None:
-        x = self._spi_read(Reg.X_ACTUAL)
-        self._position = to_int32(self._position + sdiff24(x, self._x_last))
-        self._x_last = x
+        self.driver.read_position()
 
     def _emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
         self._pending.append(AxisEvent(self._now_ns, self.index, kind, active))
@@ -394,12 +180,10 @@ class TMC4210Axis:
         """Whatever the firmware does at a notable instant (it reacts within the same tick)."""
         self._read_position()
         self._check_levels()
-        moving = self._v_actual() != 0
-        switch_stopped = bool(self._spi_read(Reg.INTERRUPT) & STOP_FLAG)
-        if switch_stopped:
-            self._spi_write(Reg.INTERRUPT, STOP_MASK | STOP_FLAG)  # clear it, keep the mask
-        if self._positioning and self._awaiting_arrival and self._rolling_needed():
-            self._feed_target()
+        moving = self.driver.moving()
+        switch_stopped = self.driver.take_switch_stop()
+        if self._positioning and self._awaiting_arrival:
+            self.driver.continue_move(self._target)
         if (stop in (Stop.ARRIVED, Stop.STOPPED) or switch_stopped) and not moving:
             self._standstill_since = self._now_ns
             if not self._positioning and self._rfs is None:
@@ -421,15 +205,8 @@ class TMC4210Axis:
             self._emit(AxisEventKind.CURRENT_CHANGED, False)
         self._check_stall()
 
-    def _v_actual(self) -> int:
-        return signed(self._spi_read(Reg.V_ACTUAL), 12)
-
-    def _read_levels(self) -> tuple[bool, bool, bool]:
-        switches = self._spi_read(Reg.REFERENCE_SWITCHES)
-        return bool(switches & 2), bool(switches & 1), bool(switches & 8)
-
     def _check_levels(self) -> None:
-        levels = self._read_levels()
+        levels = self.driver.levels()
         for kind, old, new in zip(
                 (AxisEventKind.LEFT_SWITCH, AxisEventKind.RIGHT_SWITCH, AxisEventKind.HOME_SWITCH),
                 self._levels, levels, strict=True):
@@ -444,127 +221,25 @@ class TMC4210Axis:
             self._emit(AxisEventKind.CURRENT_CHANGED, True)
         self._errors = 0
 
-    # == unit conversion =======================================================================
-
-    @property
-    def _pps_units(self) -> bool:
-        return self._params[AP.UNIT_MODE] == 1
-
-    def _to_register(self, speed: int) -> int:
-        if self._pps_units:
-            return velocity_register(speed, self._pulse_div, self.clock_hz)
-        return min(abs(speed), V_REGISTER_MAX)
-
-    def _to_speed(self, v: int) -> int:
-        if self._pps_units:
-            return round(step_rate(v, self._pulse_div, self.clock_hz))
-        return v
-
-    def _set_dividers(self, top_speed: int, acceleration: int) -> None:
-        """Choose PULSE_DIV for ``top_speed`` and RAMP_DIV/A_MAX/PMUL/PDIV for the acceleration.
-
-        A running motor keeps its speed across a PULSE_DIV change: the firmware parks the
-        chip in hold mode and rewrites V_ACTUAL on the new scale (dropping the fraction bits).
-        """
-        if self._pps_units:
-            pulse_div = choose_pulse_div(top_speed, self.clock_hz)
-            if pulse_div > self._pulse_div and self._v_actual():
-                # A finer scale mid-move would round the running speed (its fraction bits
-                # are lost in the rescale) and can cost a step of overshoot: a lower limit
-                # runs on the present, coarser scale until the motor is at rest.
-                pulse_div = self._pulse_div
-            if abs(top_speed) > max_step_rate(0, self.clock_hz):
-                log.warning("axis %d: %d pps is beyond the TMC4210 at %d Hz; running at %d pps",
-                            self.index, top_speed, self.clock_hz,
-                            round(max_step_rate(0, self.clock_hz)))
-            ramp_div, a_max = choose_ramp_div(acceleration, pulse_div, self.clock_hz)
-        else:
-            pulse_div, ramp_div = self._pulse_div, self._ramp_div
-            a_max = min(acceleration, V_REGISTER_MAX)
-        if pulse_div != self._pulse_div or ramp_div != self._ramp_div:
-            v_actual = signed(self._spi_read(Reg.V_ACTUAL), 12)
-            mode = self._spi_read(Reg.REF_CONF_RAMP_MODE) & 3
-            if v_actual and pulse_div != self._pulse_div:
-                rescaled = round(v_actual * 2.0 ** (pulse_div - self._pulse_div))
-                rescaled = max(-V_REGISTER_MAX, min(V_REGISTER_MAX, rescaled))
-                self._write_ref_conf(RampMode.HOLD)
-                self._spi_write(Reg.V_ACTUAL, rescaled & 0xFFF)
-                if mode == RampMode.VELOCITY:
-                    v_target = signed(self._spi_read(Reg.V_TARGET), 12)
-                    scaled_target = round(v_target * 2.0 ** (pulse_div - self._pulse_div))
-                    self._spi_write(Reg.V_TARGET, max(-2047, min(2047, scaled_target)) & 0xFFF)
-            self._spi_write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
-            self._write_ref_conf(RampMode(mode))
-            self._pulse_div, self._ramp_div = pulse_div, ramp_div
-        self._spi_write(Reg.A_MAX, a_max)
-        pair = pmul_pdiv(a_max, ramp_div, pulse_div) if a_max else (128, 0)
-        if pair is None:
-            pair = (255, 0) if a_max > 1 else (128, 13)
-        self._spi_write(Reg.PMUL_PDIV, pair[0] << 8 | pair[1])
-        # V_MIN must allow the abrupt stop at the speed the chip arrives with (units.stop_speed).
-        v_min = max(self._to_register(self._params[AP.VSTOP]), stop_speed(a_max, *pair))
-        self._spi_write(Reg.V_MIN, min(v_min, V_REGISTER_MAX))
-
-    def _write_ref_conf(self, mode: RampMode) -> None:
-        conf = mode
-        searching = self._rfs is not None
-        if searching or self._params[AP.LEFT_DISABLE]:
-            conf |= DISABLE_STOP_L
-        if searching or self._params[AP.RIGHT_DISABLE]:
-            conf |= DISABLE_STOP_R
-        if self._params[AP.SOFT_STOP]:
-            conf |= SOFT_STOP
-        self._spi_write(Reg.REF_CONF_RAMP_MODE, conf)
-
-    def _chip_mode(self) -> RampMode:
-        return RampMode(self._spi_read(Reg.REF_CONF_RAMP_MODE) & 3)
-
-    def _apply_limits(self, top_speed: int) -> None:
-        self._set_dividers(self._top_speed(top_speed), self._params[AP.MAX_ACCELERATION])
-        self._spi_write(Reg.V_MAX, self._to_register(top_speed))
-
     # == motion ================================================================================
 
-    def _top_speed(self, requested: int) -> int:
-        """Dividers must cover the requested speed and the speed the motor has right now."""
-        return max(abs(requested), abs(self._actual_speed()))
-
     def _start_velocity(self, speed: int) -> None:
-        self._set_dividers(self._top_speed(speed), self._params[AP.MAX_ACCELERATION])
-        register = self._to_register(speed)
-        self._spi_write(Reg.V_MAX, register)
-        self._spi_write(Reg.V_TARGET, (register if speed >= 0 else -register) & 0xFFF)
-        self._write_ref_conf(RampMode.VELOCITY)
+        self.driver.start_velocity(speed)
         self._positioning = False
         self._awaiting_arrival = False
         self._motion_started()
 
     def _start_positioning(self, target: int, top_speed: int) -> None:
         self._target = target
-        self._set_dividers(self._top_speed(top_speed), self._params[AP.MAX_ACCELERATION])
-        self._spi_write(Reg.V_MAX, self._to_register(top_speed))
+        self.driver.start_positioning(target, top_speed)
         self._positioning = True
         self._awaiting_arrival = True
-        self._feed_target()
-        self._write_ref_conf(RampMode.RAMP)
         self._motion_started()
-        if self._position == self._target and self._v_actual() == 0:
+        if self._position == self._target and not self.driver.moving():
             self._awaiting_arrival = False
             self._standstill_since = self._now_ns
             if self._rfs is None:
                 self._emit(AxisEventKind.TARGET_REACHED)
-
-    def _feed_target(self) -> None:
-        """Write X_TARGET; a move beyond the 24-bit range goes in rolling pieces."""
-        remaining = self._target - self._position
-        if abs(remaining) > ROLLING_SPAN:
-            remaining = ROLLING_SPAN if remaining > 0 else -ROLLING_SPAN
-        self._chip_target = (self._x_last + remaining) & MASK24
-        self._spi_write(Reg.X_TARGET, self._chip_target)
-
-    def _rolling_needed(self) -> bool:
-        return (self._target != to_int32(self._position + sdiff24(self._chip_target, self._x_last))
-                and abs(sdiff24(self._chip_target, self._x_last)) <= ROLLING_REFRESH)
 
     def rotate(self, velocity: int) -> None:
         self._command()
@@ -577,8 +252,7 @@ class TMC4210Axis:
         self._command()
         self._abort_search()
         self._velocity_command = self._params[AP.TARGET_SPEED] = 0
-        self._spi_write(Reg.V_TARGET, 0)
-        self._write_ref_conf(RampMode.VELOCITY)
+        self.driver.ramp_stop()
         self._positioning = False
         self._awaiting_arrival = False
         self._errors = 0
@@ -591,11 +265,8 @@ class TMC4210Axis:
         self._after_command()
 
     def _hard_stop(self) -> None:
-        """Stop within one tick: hold mode, V_ACTUAL := 0, then velocity mode at speed 0."""
-        self._write_ref_conf(RampMode.HOLD)
-        self._spi_write(Reg.V_ACTUAL, 0)
-        self._spi_write(Reg.V_TARGET, 0)
-        self._write_ref_conf(RampMode.VELOCITY)
+        """Stop within one chip tick, at once (switch, stall, deviation, heartbeat)."""
+        self.driver.hard_stop()
         self._positioning = False
         self._awaiting_arrival = False
         self._velocity_command = 0
@@ -635,7 +306,7 @@ class TMC4210Axis:
         self._abort_search()
         self._rfs = ReferenceSearch(plan, inverted, points={})
         self._errors = 0
-        self._write_ref_conf(self._chip_mode())
+        self.driver.configure_stops(searching=True)
         self._rfs_enter()
         self._after_command()
         return 0
@@ -644,7 +315,7 @@ class TMC4210Axis:
         if self._rfs is not None:
             self._rfs = None
             self._rfs_state = 0
-            self._write_ref_conf(self._chip_mode())
+            self.driver.configure_stops(searching=False)
 
     def _search_level(self, switch: str) -> bool:
         left, right, home = self._levels
@@ -722,9 +393,9 @@ class TMC4210Axis:
         self._params[AP.LAST_REFERENCE] = self._position
         self._rfs = None
         self._rfs_state = 0
+        self.driver.configure_stops(searching=False)
         self._set_position(0)
         self._set_encoder(0)
-        self._write_ref_conf(self._chip_mode())
         self._emit(AxisEventKind.REFERENCE_SEARCH_DONE)
 
     # == stallGuard, encoder, current ==========================================================
@@ -736,8 +407,7 @@ class TMC4210Axis:
         return self.board.world.load_at(self._mechanical())
 
     def _actual_speed(self) -> int:
-        v = self._v_actual()
-        return -self._to_speed(-v) if v < 0 else self._to_speed(v)
+        return self.driver.actual_speed()
 
     def _check_stall(self) -> None:
         threshold = self._params[AP.STOP_ON_STALL]
@@ -811,23 +481,15 @@ class TMC4210Axis:
 
     def _update_marks(self) -> None:
         marks = []
-        v = self._v_actual()
-        direction = (v > 0) - (v < 0)
-        if not direction and self._chip_mode() == RampMode.VELOCITY:
-            target = signed(self._spi_read(Reg.V_TARGET), 12)
-            direction = (target > 0) - (target < 0)
-        elif not direction and self._chip_mode() in (RampMode.RAMP, RampMode.SOFT):
-            dx = sdiff24(self._chip_target, self._x_last)
-            direction = (dx > 0) - (dx < 0)
-        for way in ((direction,) if direction else ()):
-            mark = self._deviation_mark(way)
+        direction = self.driver.heading()
+        if direction:
+            mark = self._deviation_mark(direction)
             if mark is not None:
                 marks.append(mark)
         if self._positioning and self._awaiting_arrival:
-            ahead = sdiff24(self._chip_target, self._x_last)
-            if abs(ahead) > ROLLING_REFRESH and self._target != to_int32(self._position + ahead):
-                step = 1 if ahead > 0 else -1
-                marks.append(self.chip.motor_position + ahead - step * ROLLING_REFRESH)
+            mark = self.driver.refill_mark(self._target)
+            if mark is not None:
+                marks.append(mark)
         self.board.firmware_marks = marks
 
     @property
@@ -838,23 +500,10 @@ class TMC4210Axis:
     # == parameters ============================================================================
 
     def _set_position(self, value: int) -> None:
-        """AP 1 write, following the datasheet: never rewrite X_ACTUAL in ramp/soft mode."""
-        mode = self._chip_mode()
-        if mode in (RampMode.RAMP, RampMode.SOFT):
-            v_actual = signed(self._spi_read(Reg.V_ACTUAL), 12)
-            self._spi_write(Reg.V_TARGET, v_actual & 0xFFF)
-            self._write_ref_conf(RampMode.VELOCITY)
-        x = value & MASK24
-        self._spi_write(Reg.X_ACTUAL, x)
-        self._spi_write(Reg.X_TARGET, x)
-        self._x_last = self._chip_target = x
-        self._position = value
-        self._target = value
-        if mode in (RampMode.RAMP, RampMode.SOFT) and self._v_actual() == 0:
-            self._write_ref_conf(RampMode.RAMP)
-        elif mode in (RampMode.RAMP, RampMode.SOFT):
-            self._spi_write(Reg.V_TARGET, 0)  # a move in flight ends with a ramped stop
+        """AP 1 write: the position counts from ``value`` now; a move in flight stops."""
+        if self.driver.set_position(value):
             self._positioning = False
+        self._target = value
         self._awaiting_arrival = False
 
     def get_parameter(self, number: int) -> int:
@@ -870,7 +519,7 @@ class TMC4210Axis:
         if number == AP.POSITION_REACHED:
             return int(self._position == self._target)
         if number in (AP.LEFT_SWITCH, AP.RIGHT_SWITCH, AP.HOME_SWITCH):
-            left, right, home = self._read_levels()
+            left, right, home = self.driver.levels()
             return int({AP.LEFT_SWITCH: left, AP.RIGHT_SWITCH: right, AP.HOME_SWITCH: home}[number])
         if number == AP.LOAD:
             return self._load()
@@ -904,13 +553,10 @@ class TMC4210Axis:
 
     def _parameter_side_effects(self, number: int) -> None:
         if number in (AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.VSTOP, AP.UNIT_MODE):
-            if self._positioning and self._rfs is None:
-                self._apply_limits(self._params[AP.MAX_SPEED])
-            elif self._chip_mode() == RampMode.VELOCITY and self._rfs is None:
-                self._set_dividers(self._top_speed(self._velocity_command),
-                                   self._params[AP.MAX_ACCELERATION])
+            if self._rfs is None:
+                self.driver.limits_changed(self._positioning, self._velocity_command)
         elif number in (AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP):
-            self._write_ref_conf(self._chip_mode())
+            self.driver.configure_stops(searching=self._rfs is not None)
         elif number in (AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY):
             self.board.swap = bool(self._params[AP.SWAP_SWITCHES])
             self.board.invert_left = bool(self._params[AP.LEFT_POLARITY])
@@ -980,10 +626,9 @@ class TMC4210Axis:
         firmware, as on the real module: the firmware only notices through what it reads.
         """
         self._command()
-        answer = self.chip.spi(datagram(address, 0 if value is None else value, read=value is None))
-        self._read_position()
+        answer = self.driver.register_access(address, value)
         self._after_command()
-        return to_int32(answer)
+        return answer
 
     def status(self) -> AxisStatus:
         """A snapshot for telemetry (MQTT bridge, tests); clears nothing."""
@@ -991,7 +636,7 @@ class TMC4210Axis:
         left, right, home = self._levels
         return AxisStatus(
             position=self._position, target=self._target, velocity=self._actual_speed(),
-            mode=_MODE_NAMES[self._chip_mode()],
+            mode=self.driver.mode_name(),
             position_reached=self._position == self._target,
             home_switch=home, left_switch=left, right_switch=right, load=self._load(),
             error_flags=self._errors, current=self.current, standby=self._standby,

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from axes.firmware import TMC4210Axis
 from axes.interface import AxisEvent, AxisEventKind
+from axes.tmc4210_firmware import TMC4210Axis
 from axes.units import acceleration_rate, step_rate
 from axes.world import AxisWorld, LoadZone, Switch
 
