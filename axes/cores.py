@@ -8,12 +8,12 @@ files (docs/architecture.md, "Adding a chip core").
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping
 
 from axes.interface import Axis
 from axes.world import AxisWorld
 from tmcl_spec.parameters import ParamSpec
+from tmcl_spec.registry import resolve
 
 #: Core name -> "module:class" of its firmware layer (an :class:`axes.interface.Axis`).
 CHIP_CORES: dict[str, str] = {
@@ -23,12 +23,7 @@ DEFAULT_CORE = "tmc4210"
 
 
 def axis_class(core: str) -> type[Axis]:
-    try:
-        where = CHIP_CORES[core.lower()]
-    except KeyError:
-        raise ValueError(f"unknown chip core {core!r} (known: {', '.join(CHIP_CORES)})") from None
-    module_name, _, attribute = where.partition(":")
-    return getattr(importlib.import_module(module_name), attribute)
+    return resolve(CHIP_CORES, core, "chip core")
 
 
 def make_axis(core: str, index: int, parameters: Mapping[int, ParamSpec],

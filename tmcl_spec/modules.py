@@ -10,11 +10,11 @@ when asked for.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 from tmcl_spec.parameters import ParamSpec
+from tmcl_spec.registry import resolve
 
 
 @dataclass(frozen=True)
@@ -66,9 +66,4 @@ DEFAULT_MODULE_TYPE = "tmcm-6212"
 
 def module_type(key: str = DEFAULT_MODULE_TYPE) -> ModuleType:
     """The profile called ``key``; ValueError naming the known ones if there is none."""
-    try:
-        where = MODULE_TYPES[key.lower()]
-    except KeyError:
-        raise ValueError(f"unknown module type {key!r} (known: {', '.join(MODULE_TYPES)})") from None
-    module_name, _, attribute = where.partition(":")
-    return getattr(importlib.import_module(module_name), attribute)
+    return resolve(MODULE_TYPES, key, "module type")

@@ -9,8 +9,9 @@ a server is asked to open it.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from tmcl_spec.registry import resolve
 
 if TYPE_CHECKING:
     from tmcl_server.transports.base import Transport
@@ -28,9 +29,4 @@ TRANSPORTS: dict[str, str] = {
 
 
 def transport_class(kind: str) -> type[Transport]:
-    try:
-        where = TRANSPORTS[kind]
-    except KeyError:
-        raise ValueError(f"unknown transport {kind!r} (known: {', '.join(TRANSPORTS)})") from None
-    module_name, _, attribute = where.partition(":")
-    return getattr(importlib.import_module(module_name), attribute)
+    return resolve(TRANSPORTS, kind, "transport")
