@@ -1,7 +1,7 @@
 """One TMC4210 motion controller: its register file behind 32-bit SPI datagrams, and its motion.
 
-The register layout, widths and power-on values follow ``shared/spec/tmc4210.md`` §3; the
-ramp and pulse generators follow its reference model (§4.8): a clk32 counter drives ramp
+The register layout, widths and power-on values follow the TMC4210 datasheet; the
+ramp and pulse generators follow its clocking scheme: a clk32 counter drives ramp
 ticks every ``2**RAMP_DIV`` and pulse ticks every ``2**PULSE_DIV`` clk32 periods, the
 velocity has 8 hidden fraction bits, and an 11-bit phase accumulator turns the integer part
 into steps.  The engine never walks single clk32 ticks: stretches where the velocity cannot

@@ -1,4 +1,4 @@
-"""TMC4210 unit conversions, as the datasheet gives them (spec/tmc4210.md §5).
+"""TMC4210 unit conversions, as the TMC4210 datasheet gives them (its formulas for R, dR and p).
 
 Step rate        R  = f_CLK * V / (2**PULSE_DIV * 2048 * 32)
 Acceleration     dR = f_CLK**2 * A_MAX / 2**(PULSE_DIV + RAMP_DIV + 29)

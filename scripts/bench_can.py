@@ -36,12 +36,12 @@ import can
 
 from tmcl_server.protocol import Request
 from tmcl_spec.commands import Opcode
+from tmcl_spec.parameters import AP
 
 GOAL_PER_S = 4_500
 MODULE_ID = 3
 REPLY_ID = 2
-AP_ACTUAL_POSITION = 1
-REQUEST_DATA = Request(MODULE_ID, Opcode.GAP, AP_ACTUAL_POSITION, 0, 0).encode_can() + b"\x00"
+REQUEST_DATA = Request(MODULE_ID, Opcode.GAP, AP.ACTUAL_POSITION, 0, 0).encode_can() + b"\x00"
 TIME_LIMIT_S = 60.0  # per scenario, whatever --count says
 #: Untimed round trips first: the socketcand server holds a new raw client's first frames
 #: for 20 ms (docs/can.md), which is a connection cost, not a round-trip cost.

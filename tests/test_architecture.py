@@ -80,7 +80,7 @@ def test_no_two_files_import_each_other_directly_or_in_a_loop() -> None:
         path.append(node)
         for nxt in sorted(graph[node]):
             if state.get(nxt) == 1:
-                loop = path[path.index(nxt):] + [nxt]
+                loop = [*path[path.index(nxt):], nxt]
                 pytest.fail("import loop: " + " -> ".join(loop))
             if nxt not in state:
                 walk(nxt)

@@ -17,13 +17,8 @@ from tmcl_server.server import ServerConfig, build_simulation
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.can.bus import ModuleNode, SimulatedCanBus, open_can_bus
 from tmcl_spec.commands import Opcode, Status
-from tmcl_spec.parameters import GP
+from tmcl_spec.parameters import AP, GP
 from tmcl_spec.tmcm6212 import TMCM_6212
-
-AP_TARGET_POSITION = 0
-AP_ACTUAL_POSITION = 1
-AP_ACTUAL_SPEED = 3
-AP_MAX_SPEED = 4
 
 
 class Host:
@@ -75,7 +70,7 @@ def host(bus: SimulatedCanBus) -> Host:
 
 
 def test_request_of_seven_bytes_gets_a_seven_byte_reply_from_gp70(host: Host) -> None:
-    (reply,) = host.command(3, Opcode.GAP, AP_MAX_SPEED, 0)
+    (reply,) = host.command(3, Opcode.GAP, AP.MAX_SPEED, 0)
     assert reply.arbitration_id == 2 and not reply.is_extended_id
     assert reply.dlc == 7
     decoded = decode_can_reply(reply.data)
@@ -83,10 +78,10 @@ def test_request_of_seven_bytes_gets_a_seven_byte_reply_from_gp70(host: Host) ->
 
 
 def test_request_of_eight_bytes_gets_eight_bytes_padded_with_zero(host: Host) -> None:
-    (reply,) = host.command(1, Opcode.SAP, AP_MAX_SPEED, 2, 1234, length=8)
+    (reply,) = host.command(1, Opcode.SAP, AP.MAX_SPEED, 2, 1234, length=8)
     assert reply.dlc == 8 and reply.data[7] == 0
     assert bytes(reply.data[:7]) == bytes([1, Status.OK, Opcode.SAP]) + (1234).to_bytes(4, "big")
-    (read,) = host.command(1, Opcode.GAP, AP_MAX_SPEED, 2, length=8)
+    (read,) = host.command(1, Opcode.GAP, AP.MAX_SPEED, 2, length=8)
     assert decode_can_reply(read.data).value == 1234
 
 
@@ -108,15 +103,15 @@ def test_reply_id_follows_gp70_and_module_byte_the_can_id(host: Host) -> None:
 
 def test_duplicate_id_gives_two_replies_as_on_a_real_bus(host: Host) -> None:
     host.command(5, Opcode.SGP, GP.CAN_SECONDARY_ID, 0, 1)
-    replies = host.command(1, Opcode.GAP, AP_ACTUAL_POSITION, 0)
+    replies = host.command(1, Opcode.GAP, AP.ACTUAL_POSITION, 0)
     assert sorted(r.data[0] for r in replies) == [1, 5]
     host.command(5, Opcode.SGP, GP.CAN_SECONDARY_ID, 0, 0)
-    assert [r.data[0] for r in host.command(1, Opcode.GAP, AP_ACTUAL_POSITION, 0)] == [1]
+    assert [r.data[0] for r in host.command(1, Opcode.GAP, AP.ACTUAL_POSITION, 0)] == [1]
 
 
 def test_foreign_ids_get_silence(bus: SimulatedCanBus, host: Host) -> None:
     for can_id in (0, 2, 4, 7, 0x7FF):
-        assert host.command(can_id, Opcode.GAP, AP_ACTUAL_POSITION, 0) == []
+        assert host.command(can_id, Opcode.GAP, AP.ACTUAL_POSITION, 0) == []
     assert modules_on(bus).stats["foreign"] == 5
 
 
@@ -132,7 +127,7 @@ def test_bad_frames_are_ignored_and_counted(bus: SimulatedCanBus, host: Host, fr
                                             counter: str) -> None:
     assert host.send(frame.pop("can_id"), frame.pop("data"), **frame) == []
     assert modules_on(bus).stats[counter] == 1
-    assert len(host.command(1, Opcode.GAP, AP_ACTUAL_POSITION, 0)) == 1  # still serving
+    assert len(host.command(1, Opcode.GAP, AP.ACTUAL_POSITION, 0)) == 1  # still serving
 
 
 @given(data=st.binary(max_size=8), can_id=st.integers(0, 0x7FF), remote=st.booleans(),
@@ -151,13 +146,13 @@ def test_no_frame_whatsoever_breaks_the_bus(data: bytes, can_id: int, remote: bo
 def test_invalid_command_is_answered_with_its_status(host: Host) -> None:
     (reply,) = host.command(1, 99)
     assert decode_can_reply(reply.data).status == Status.INVALID_COMMAND
-    (reply,) = host.command(1, Opcode.GAP, AP_ACTUAL_POSITION, 9)
+    (reply,) = host.command(1, Opcode.GAP, AP.ACTUAL_POSITION, 9)
     assert decode_can_reply(reply.data).status == Status.INVALID_VALUE
 
 
 def test_every_other_party_hears_every_frame_but_its_own(bus: SimulatedCanBus) -> None:
     alice, bob = Host(bus), Host(bus)
-    alice.command(3, Opcode.GAP, AP_ACTUAL_POSITION, 0)
+    alice.command(3, Opcode.GAP, AP.ACTUAL_POSITION, 0)
     assert [f.arbitration_id for f in alice.heard] == [2]  # the reply only
     assert [f.arbitration_id for f in bob.heard] == [3, 2]  # alice's request and the reply
 
@@ -167,9 +162,9 @@ def test_modules_do_not_take_each_others_replies_for_requests() -> None:
     host = Host(open_can_bus(sim))
     replies = host.command(1, Opcode.ROR, 0, 0, 1000)  # the reply starts with 01 64 01 ...
     assert [r.data[0] for r in replies] == [1]
-    assert sim.module(2).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
+    assert sim.module(2).axis(0).get_parameter(AP.ACTUAL_SPEED) == 0
     sim.advance(0.5)
-    assert sim.module(2).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
+    assert sim.module(2).axis(0).get_parameter(AP.ACTUAL_SPEED) == 0
 
 
 @pytest.mark.parametrize("length", [7, 8])
@@ -185,7 +180,7 @@ def test_target_reached_event_goes_out_on_the_bus(sim: Simulation, host: Host, l
     decoded = decode_can_reply(event.data)
     assert (decoded.module, decoded.status, decoded.opcode, decoded.value) == (
         3, Status.TARGET_REACHED_EVENT, Opcode.TARGET_REACHED_EVENT, 0b10)
-    assert sim.module(3).axis(1).get_parameter(AP_ACTUAL_POSITION) == 2000
+    assert sim.module(3).axis(1).get_parameter(AP.ACTUAL_POSITION) == 2000
 
 
 def test_can_heartbeat_stops_a_moving_axis(sim: Simulation, host: Host) -> None:
@@ -193,13 +188,13 @@ def test_can_heartbeat_stops_a_moving_axis(sim: Simulation, host: Host) -> None:
     host.command(1, Opcode.ROR, 0, 0, 2000)
     host.command(3, Opcode.ROR, 0, 0, 2000)  # no heartbeat set on module 3
     sim.advance(0.08)
-    (speed,) = host.command(1, Opcode.GAP, AP_ACTUAL_SPEED, 0)  # a command: the timer restarts
+    (speed,) = host.command(1, Opcode.GAP, AP.ACTUAL_SPEED, 0)  # a command: the timer restarts
     assert decode_can_reply(speed.data).value > 0
     sim.advance(0.09)
-    assert sim.module(1).axis(0).get_parameter(AP_ACTUAL_SPEED) > 0
+    assert sim.module(1).axis(0).get_parameter(AP.ACTUAL_SPEED) > 0
     sim.advance(0.5)
-    assert sim.module(1).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
-    assert sim.module(3).axis(0).get_parameter(AP_ACTUAL_SPEED) > 0
+    assert sim.module(1).axis(0).get_parameter(AP.ACTUAL_SPEED) == 0
+    assert sim.module(3).axis(0).get_parameter(AP.ACTUAL_SPEED) > 0
 
 
 def test_serial_traffic_does_not_feed_the_can_heartbeat(sim: Simulation, host: Host) -> None:
@@ -207,8 +202,8 @@ def test_serial_traffic_does_not_feed_the_can_heartbeat(sim: Simulation, host: H
     host.command(1, Opcode.ROR, 0, 0, 2000)
     for _ in range(10):
         sim.advance(0.03)
-        sim.handle_serial_frame(Request(1, Opcode.GAP, AP_ACTUAL_SPEED, 0, 0).encode())
-    assert sim.module(1).axis(0).get_parameter(AP_ACTUAL_SPEED) == 0
+        sim.handle_serial_frame(Request(1, Opcode.GAP, AP.ACTUAL_SPEED, 0, 0).encode())
+    assert sim.module(1).axis(0).get_parameter(AP.ACTUAL_SPEED) == 0
 
 
 def test_bus_names_socketcand_can_carry_are_checked() -> None:

@@ -13,10 +13,8 @@ import pytest
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Reply, Request, decode_can_reply
 from tmcl_spec.commands import Opcode, Status
-from tmcl_spec.parameters import GP
+from tmcl_spec.parameters import AP, GP
 
-AP_ACTUAL_SPEED = 3
-AP_MAX_SPEED = 4
 WAIT_S = 5.0  # a fail-safe for a reply that is due, never a pause to hope in
 
 
@@ -114,8 +112,8 @@ def test_three_modules_two_hosts_each_talking_to_its_own(sim: SimulatorThread,
         try:
             for i in range(rounds):
                 module, motor, value = modules[i % len(modules)], i % 6, 1000 + i * 7 + modules[0]
-                host.command(module, Opcode.SAP, AP_MAX_SPEED, motor, value)
-                reply = host.command(module, Opcode.GAP, AP_MAX_SPEED, motor)
+                host.command(module, Opcode.SAP, AP.MAX_SPEED, motor, value)
+                reply = host.command(module, Opcode.GAP, AP.MAX_SPEED, motor)
                 if (reply.module, reply.value) != (module, value):
                     failures.append(f"{module}/{motor}: {reply}")
         except AssertionError as exc:
@@ -155,7 +153,7 @@ def test_foreign_ids_get_silence(sim: SimulatorThread, make_host: Callable[..., 
 @pytest.mark.parametrize("length", [7, 8])
 def test_reply_length_mirrors_the_request(make_host: Callable[..., CanHost], length: int) -> None:
     host = make_host()
-    host.send(1, Opcode.GAP, AP_MAX_SPEED, 0, length=length)
+    host.send(1, Opcode.GAP, AP.MAX_SPEED, 0, length=length)
     frame = host.receive()
     assert frame.dlc == length and frame.arbitration_id == 2
     assert decode_can_reply(frame.data).status == Status.OK
@@ -167,21 +165,21 @@ def test_can_heartbeat_stops_a_moving_axis(sim: SimulatorThread,
     host.command(1, Opcode.SGP, GP.CAN_HEARTBEAT, 0, 100)
     host.command(1, Opcode.ROR, 0, 2, 3000)
     sim.advance(0.05)
-    assert host.command(1, Opcode.GAP, AP_ACTUAL_SPEED, 2).value > 0
+    assert host.command(1, Opcode.GAP, AP.ACTUAL_SPEED, 2).value > 0
     sim.advance(0.5)  # no command for 500 ms: the heartbeat trips after 100
-    assert host.command(1, Opcode.GAP, AP_ACTUAL_SPEED, 2).value == 0
+    assert host.command(1, Opcode.GAP, AP.ACTUAL_SPEED, 2).value == 0
 
 
 def test_a_reconnecting_host_finds_the_state_intact(sim: SimulatorThread,
                                                     make_host: Callable[..., CanHost]) -> None:
     first = make_host()
-    first.command(3, Opcode.SAP, AP_MAX_SPEED, 4, 4321)
+    first.command(3, Opcode.SAP, AP.MAX_SPEED, 4, 4321)
     first.command(3, Opcode.ROR, 0, 1, 800)
     first.close()
     sim.advance(1.0)
     second = make_host()
-    assert second.command(3, Opcode.GAP, AP_MAX_SPEED, 4).value == 4321
-    assert second.command(3, Opcode.GAP, AP_ACTUAL_SPEED, 1).value > 0
+    assert second.command(3, Opcode.GAP, AP.MAX_SPEED, 4).value == 4321
+    assert second.command(3, Opcode.GAP, AP.ACTUAL_SPEED, 1).value > 0
 
 
 def test_bad_frames_junk_and_a_flood_leave_the_bus_serving(
@@ -198,8 +196,8 @@ def test_bad_frames_junk_and_a_flood_leave_the_bus_serving(
             b"< frobnicate > < send 001 2 100 1 >\r\n")
     vandal.sock.sendall((bad_frames + junk) * 300 + b"< " + b"x" * 5000)
     for i in range(20):  # the bus keeps serving, in order, while the flood is handled
-        assert host.command(5, Opcode.SAP, AP_MAX_SPEED, 0, 100 + i).status == Status.OK
-    assert host.command(5, Opcode.GAP, AP_MAX_SPEED, 0).value == 119
+        assert host.command(5, Opcode.SAP, AP.MAX_SPEED, 0, 100 + i).status == Status.OK
+    assert host.command(5, Opcode.GAP, AP.MAX_SPEED, 0).value == 119
     vandal.sock.sendall(b"< echo >")  # the vandal's own connection still works too
     while (element := vandal.element()) != "< echo >":
         assert element.startswith("< error unknown command") or element.startswith("< frame")
