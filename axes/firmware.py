@@ -160,13 +160,15 @@ class AxisFirmware:
 
     def _sync(self) -> None:
         """Bring the chip up to ``_now_ns`` and read the position (before any command)."""
-        until = self.chip.ticks_at(self._now_ns)
-        while self.chip.t < until:
-            stop = self.chip.run(until)
+        chip = self.driver.chip
+        until = chip.ticks_at(self._now_ns)
+        while chip.t < until:
+            stop = chip.run(until)
             if stop is None:
                 break
             self._react(stop)  # only reached if the lookahead was skipped
-        self._read_position()
+            chip = self.driver.chip
+        self.driver.read_position()
 
     def _read_position(self) -> None:
         self.driver.read_position()

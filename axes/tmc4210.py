@@ -246,9 +246,12 @@ class TMC4210:
         return bool(self.int_flags) or (self.pos_comp_flag and self.pos_comp_mask)
 
     def status_byte(self) -> int:
-        ref_r = self._active(self.ref_r) and not self.mot1r
-        return (self.interrupt << 7 | self.cdgw << 6 | ref_r << 5 | 1 << 4
-                | self._active(self.gp_in) << 3 | 1 << 2 | self.left_active << 1
+        """INT, CDGW, RS3 (REF_R unless mot1r), 1, RS1 (GP_IN), 1, RS2 (REF_L), xEQt."""
+        inverted = bool(self.if_config & INV_REF)
+        ref_r = self.ref_r != inverted and not self.smgp & MOT1R
+        interrupt = bool(self.int_flags) or (self.pos_comp_flag and self.pos_comp_mask)
+        return (interrupt << 7 | self.cdgw << 6 | ref_r << 5 | 0x14
+                | (self.gp_in != inverted) << 3 | (self.ref_l != inverted) << 1
                 | (self.x_actual == self.x_target))
 
     # == SPI ===================================================================================
@@ -630,6 +633,10 @@ class TMC4210:
 
     def run(self, until: int) -> Stop | None:
         """Advance to clk32 tick ``until``; return early (self.t < until) at a notable instant."""
+        if self.ramp_next > until and self.t < until and not self.powered_down:
+            # No ramp tick on the way (a look at the position mid-move): the velocity
+            # stays as it is, only pulses happen.
+            return self._pulses(until)
         while self.t < until:
             if self.powered_down:
                 self.t = until

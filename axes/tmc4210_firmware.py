@@ -61,6 +61,8 @@ SMGP_FIRMWARE = MOT1R | (SMGP_POWER_ON & ~0xF00) | 3 << 8
 
 STOP_FLAG = 1 << Irq.STOP
 STOP_MASK = STOP_FLAG << 8
+#: The datagram that reads X_ACTUAL, the one the firmware sends most.
+_READ_X_ACTUAL = datagram(Reg.X_ACTUAL, read=True)
 
 
 class TMC4210Driver:
@@ -112,7 +114,7 @@ class TMC4210Driver:
     # == readings ==============================================================================
 
     def read_position(self) -> int:
-        x = self._read(Reg.X_ACTUAL)
+        x = self.chip.spi(_READ_X_ACTUAL) & MASK24
         self.position = to_int32(self.position + sdiff24(x, self._x_last))
         self._x_last = x
         return self.position

@@ -102,8 +102,10 @@ class ModulePort(Protocol):
     except :meth:`Interpreter.raise_interrupt` and the other event entry points.
     """
 
-    def execute(self, time_ns: int, opcode: int, type_: int, motor: int, value: int) -> tuple[int, int]:
-        """Run one command as a program does; return (status, value) as a reply would."""
+    def execute(self, time_ns: int, opcode: int, type_: int, motor: int,
+                value: int) -> tuple[int, int, bool]:
+        """Run one command as a program does: (status, value) as a reply would have them, and
+        whether the command may have created or moved a module event (the caller re-plans)."""
         ...
 
     def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
@@ -616,24 +618,25 @@ class Interpreter:
     def _module_command(self, op: int, ty: int, motor: int, va: int, t: int) -> int:
         port = self.port
         if op == Opcode.AAP:
-            port.execute(t, Opcode.SAP, ty, motor, self.accumulator)
+            _, _, replan = port.execute(t, Opcode.SAP, ty, motor, self.accumulator)
         elif op == Opcode.AGP:
-            port.execute(t, Opcode.SGP, ty, motor, self.accumulator)
+            _, _, replan = port.execute(t, Opcode.SGP, ty, motor, self.accumulator)
         elif op == Opcode.ACO:
+            replan = False
             if motor != MOTOR_ALL:
-                port.execute(t, Opcode.SCO, ty, motor, self.accumulator)
+                _, _, replan = port.execute(t, Opcode.SCO, ty, motor, self.accumulator)
         else:
-            status, value = port.execute(t, op, ty, motor, va)
+            status, value, replan = port.execute(t, op, ty, motor, va)
             loads = op in _LOADS_ACCUMULATOR and not (op == Opcode.GCO and motor == MOTOR_ALL)
             if status == STATUS_OK and (loads or (op == Opcode.RFS and ty == RfsType.STATUS)):
                 self.accumulator = self.zero_source = wrap32(value)
         self.pc += 1
-        return _YIELD
+        return _YIELD if replan else _CONTINUE
 
 
 # Outcomes of _execute / _execute_other.
 _CONTINUE = 0  # keep going
-_YIELD = 1  # a module command ran: let the caller re-plan events
+_YIELD = 1  # a module command may have moved an event: let the caller re-plan
 _STOPPED = 2  # STOP or end of program
 _WAITING = 3  # a WAIT is in progress
 _INTERRUPTS = 4  # interrupt state changed: check for a dispatch before the next instruction

@@ -42,6 +42,10 @@ log = logging.getLogger(__name__)
 #: Commands that only read: they cannot create or move an internal event.
 READ_ONLY_OPCODES = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO),
                                int(Opcode.GET_FIRMWARE_VERSION)})
+#: Commands that cannot move an event either: coordinates, and global parameters of bank 2
+#: (user variables, plain RAM) for the parameter commands below.
+_SCHEDULE_NEUTRAL = READ_ONLY_OPCODES | {int(Opcode.GCO), int(Opcode.SCO)}
+_GLOBAL_PARAMETER_COMMANDS = frozenset({int(Opcode.SGP), int(Opcode.STGP), int(Opcode.RSGP)})
 #: Bank-0 parameters that decide which frames a module answers.
 ADDRESS_PARAMETERS = frozenset({GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.CAN_ID,
                                 GP.CAN_SECONDARY_ID})
@@ -128,6 +132,11 @@ class TMCLModule:
             for key, value in ee.items("user_variables"):
                 self.globals[2][int(key)] = value
         self.axes: list[Axis] = [self._axis_factory(i) for i in range(self.type.number_of_axes)]
+        #: Each axis's next event, and the axes whose entry must be asked again.
+        self._axis_due: list[int | None] = [None] * len(self.axes)
+        self._stale_axes: set[int] = set(range(len(self.axes)))
+        #: Axes the command in progress touched (they are re-planned if it may reschedule).
+        self._touched: set[int] = set()
         for axis in self.axes:
             axis.advance_to(self.now_ns)
             for key, value in (ee.get("axis_parameters", axis.index) or {}).items():
@@ -227,16 +236,28 @@ class TMCLModule:
                 interface: Interface = Interface.SERIAL) -> tuple[int, Any]:
         """Run a command's handler: (status, reply value or a special result)."""
         opcode = request.opcode
-        if opcode not in READ_ONLY_OPCODES:
-            self._due_stale = True  # the command may start, stop or move an event
         handler = self.handlers.get(opcode)
         if handler is None:
             return _INVALID_COMMAND, request.value
+        touched = self._touched
+        touched.clear()
         try:
             result = handler(request, sink, interface)
         except CommandError as exc:
             return exc.status, request.value
+        finally:
+            if self.may_reschedule(opcode, request.motor):
+                self._stale_axes |= touched  # the command may start, stop or move an event
+                self._due_stale = True
         return _OK, request.value if result is None else result
+
+    @staticmethod
+    def may_reschedule(opcode: int, bank: int) -> bool:
+        """Whether a command can create, move or cancel an internal event (``bank``: the motor
+        field, which is the bank of the global-parameter commands)."""
+        if opcode in _SCHEDULE_NEUTRAL:
+            return False
+        return not (opcode in _GLOBAL_PARAMETER_COMMANDS and bank == 2)
 
     # == time ==================================================================================
     #
@@ -253,9 +274,16 @@ class TMCLModule:
         return program
 
     def _hardware_next_event_ns(self) -> int | None:
-        """Next event of the axes and heartbeats (cached until something may move it)."""
+        """Next event of the axes and heartbeats (cached until something may move it).
+
+        Each axis's next event is cached too: only the axes a command touched are asked again.
+        """
         if self._due_stale:
-            times = [t for t in (axis.next_event_ns() for axis in self.axes) if t is not None]
+            axis_due = self._axis_due
+            for index in self._stale_axes:
+                axis_due[index] = self.axes[index].next_event_ns()
+            self._stale_axes.clear()
+            times = [t for t in axis_due if t is not None]
             times.extend(self._heartbeat_deadlines())
             self._due_ns = min(times) if times else None
             self._due_stale = False
@@ -281,7 +309,8 @@ class TMCLModule:
             self.now_ns = t_ns  # the axes catch up lazily
 
     def invalidate_schedule(self) -> None:
-        """Forget the cached next-event time (the world changed from outside)."""
+        """Forget the cached next-event times (the world changed from outside)."""
+        self._stale_axes.update(range(len(self.axes)))
         self._due_stale = True
 
     def snapshot(self) -> dict[str, Any]:
@@ -310,18 +339,27 @@ class TMCLModule:
     def axis(self, index: int) -> Axis:
         """Axis ``index``, brought up to the module's current time (use this, not ``axes``)."""
         axis = self.axes[index]
+        self._touched.add(index)
         for event in axis.advance_to(self.now_ns):  # none are due: advance_to handled them
             self._on_axis_event(event)
         return axis
 
     def step_to(self, t_ns: int) -> None:
-        """Make ``t_ns`` the present and handle every event due (it must not lie ahead of one)."""
+        """Make ``t_ns`` the present and handle every event due at it (none may lie before)."""
         self.now_ns = t_ns
         self._due_stale = True
-        for axis in self.axes:
-            for event in axis.advance_to(t_ns):
-                self._on_axis_event(event)
+        for index, due in enumerate(self._axis_due):
+            if (due is not None and due <= t_ns) or index in self._stale_axes:
+                self._stale_axes.add(index)
+                for event in self.axes[index].advance_to(t_ns):
+                    self._on_axis_event(event)
         self._check_heartbeats()
+
+    def catch_up(self, t_ns: int) -> None:
+        """Make ``t_ns`` the present, no event lying before it (a program instruction's time):
+        the axes follow lazily when a command touches them."""
+        if t_ns > self.now_ns:
+            self.now_ns = t_ns
 
     def _heartbeat_deadline(self, interface: Interface) -> int | None:
         """When the heartbeat of ``interface`` trips, if it is on and armed."""
@@ -340,6 +378,7 @@ class TMCLModule:
                 self._heartbeat_tripped[interface] = True
                 for index in range(len(self.axes)):
                     self.axis(index).emergency_stop()
+                self._stale_axes.update(range(len(self.axes)))
                 self.emit("heartbeat_timeout", None, interface=interface.value)
 
     def _on_axis_event(self, event: AxisEvent) -> None:
@@ -393,7 +432,8 @@ class TMCLModule:
         if not 0 <= index < len(self.axes):
             raise ValueError(f"axis {index} outside 0..{len(self.axes) - 1} of the {self.type.name}")
         axis = self.axis(index)
-        self._due_stale = True  # switches and load zones decide when the next event is
+        self._stale_axes.add(index)  # switches and load zones decide when the next event is
+        self._due_stale = True
         return axis
 
     def set_switch(self, axis: int, name: str, position: int | None, width: int | None = None,

@@ -58,8 +58,11 @@ class StandaloneHost(Protocol):
     @property
     def host_address(self) -> int: ...
 
-    def step_to(self, t_ns: int) -> None:
-        """Make ``t_ns`` the module's present (an instruction runs at that time)."""
+    def catch_up(self, t_ns: int) -> None:
+        """Make ``t_ns`` the module's present (an instruction's time; no event lies before it)."""
+
+    def may_reschedule(self, opcode: int, bank: int) -> bool:
+        """Whether a command can create, move or cancel an internal event."""
 
     def perform(self, request: Request, sink: ReplySink | None = None,
                 interface: Interface = Interface.SERIAL) -> tuple[int, Any]:
@@ -102,20 +105,20 @@ class ProgramSupport:
 
     # == the interpreter's port ================================================================
 
-    def _sync(self, time_ns: int) -> None:
-        if time_ns > self.module.now_ns:
-            self.module.step_to(time_ns)
-
-    def execute(self, time_ns: int, opcode: int, type_: int, motor: int, value: int) -> tuple[int, int]:
-        self._sync(time_ns)
-        return self.module.perform(Request(self.module.address, opcode, type_, motor, value))
+    def execute(self, time_ns: int, opcode: int, type_: int, motor: int,
+                value: int) -> tuple[int, int, bool]:
+        module = self.module
+        module.catch_up(time_ns)
+        status, result = module.perform(tuple.__new__(
+            Request, (module.address, opcode, type_, motor, value)))  # hot path: no __new__
+        return status, result, module.may_reschedule(opcode, motor)
 
     def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
-        self._sync(time_ns)
+        self.module.catch_up(time_ns)
         return self.module.axis(motor).get_parameter(number)
 
     def reference_search_active(self, time_ns: int, motor: int) -> bool:
-        self._sync(time_ns)
+        self.module.catch_up(time_ns)
         return self.module.axis(motor).reference_search(RfsType.STATUS) != 0
 
     def program_event(self, time_ns: int, kind: str, **data: int) -> None:

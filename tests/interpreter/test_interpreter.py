@@ -27,9 +27,10 @@ class FakePort:
         self.replies: dict[int, int] = {}
         self.events: list[tuple[int, str, dict[str, int]]] = []
 
-    def execute(self, time_ns: int, opcode: int, type_: int, motor: int, value: int) -> tuple[int, int]:
+    def execute(self, time_ns: int, opcode: int, type_: int, motor: int,
+                value: int) -> tuple[int, int, bool]:
         self.commands.append((time_ns, opcode, type_, motor, value))
-        return 100, self.replies.get(opcode, value)
+        return 100, self.replies.get(opcode, value), True
 
     def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
         return self.axis.get((motor, number), 0)

@@ -531,6 +531,7 @@ def scripted_bench() -> tuple[Bench, Callable[[int], ScriptedAxis]]:
     def axis(n: int) -> ScriptedAxis:
         a = module.axis(n)
         assert isinstance(a, ScriptedAxis)
+        module.invalidate_schedule()  # the test is about to script it from outside
         return a
 
     return Bench(module), axis

@@ -1,0 +1,269 @@
+#!/usr/bin/env python3
+"""Direct mode while the module is busy: rate and latency next to an idle module, in one run.
+
+Each scenario starts ``tmcl-server`` (real clock) as its own process, sets the module up over
+TCP (programs are downloaded with 132/133 and started with 129), then:
+
+* measures the server's CPU with no traffic (from /proc) and the program's own progress
+  (user variables the program counts in) over a quiet window,
+* drives one lockstep TCP client sending GAP 1 (the actual position) for ``--seconds``,
+  recording every round trip, and the program's progress meanwhile.
+
+Every rate is reported as a ratio to the idle scenario measured in the same run, so the
+machine's noise cancels out.  Goals (issue 10): p99 <= 2 ms and rate >= 0.7 x idle in every
+row; the realistic program keeps its 1 ms timer at >= 0.98 x 1000 ticks/s also under
+traffic; a tight program costs <= 25 % of a core; the switch-held move costs no CPU;
+255 modules reach >= 0.8 x the rate of one.
+
+    .venv/bin/python scripts/bench_realtime.py [--seconds 3] [--only NAME ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from interpreter.assembler import assemble  # noqa: E402
+from tmcl_server.protocol import Request, decode_reply  # noqa: E402
+from tmcl_spec.commands import Opcode  # noqa: E402
+from tmcl_spec.parameters import AP, GP  # noqa: E402
+
+TICKS_PER_S = os.sysconf("SC_CLK_TCK")
+
+#: Counts loop iterations in user variable 1.
+TIGHT_PROGRAM = """
+Loop:
+    CALC ADD, 1
+    COMP 1000
+    JC LT, Loop
+    GAP 1, 0
+    GGP 1, 2
+    CALC ADD, 1
+    AGP 1, 2
+    CALC LOAD, 0
+    JA Loop
+"""
+
+#: A 1 ms timer counting in user variable 0, target-reached interrupts sending each of six
+#: axes back and forth, and a main loop polling positions (iterations in user variable 1).
+REALISTIC_PROGRAM = """
+    VECT 0, TimerIsr
+    SGP 0, 3, 1
+    EI 0
+""" + "".join(f"""
+    VECT {3 + a}, Reached{a}
+    EI {3 + a}
+    SAP 4, {a}, 200000
+    SAP 5, {a}, 400000
+    MVP ABS, {a}, 20000
+""" for a in range(6)) + """
+    EI 255
+Loop:
+    GAP 1, 0
+    GAP 1, 3
+    GAP 8, 5
+    GGP 1, 2
+    CALC ADD, 1
+    AGP 1, 2
+    JA Loop
+TimerIsr:
+    GGP 0, 2
+    CALC ADD, 1
+    AGP 0, 2
+    RETI
+""" + "".join(f"""
+Reached{a}:
+    GAP 0, {a}
+    CALC MUL, -1
+    AAP 0, {a}
+    RETI
+""" for a in range(6))
+
+SWITCH_WORLD = """
+[[axis]]
+index = 0
+left = { position = 0 }
+"""
+
+
+@dataclass
+class Scenario:
+    name: str
+    describe: str
+    args: list[str] = field(default_factory=list)
+    program: str | None = None
+    setup: list[tuple[int, int, int, int]] = field(default_factory=list)  # opcode, type, motor, value
+    world: str | None = None
+    modules: int = 1
+    #: user variables the program counts in, and what to call their rates
+    counters: dict[int, str] = field(default_factory=dict)
+
+
+SCENARIOS = [
+    Scenario("idle", "idle"),
+    Scenario("rotating", "six axes rotating, no program",
+             setup=[(Opcode.ROR, 0, m, 51200 * (m + 1)) for m in range(6)]),
+    Scenario("tight", "tight CALC/COMP/JC loop with one GAP", program=TIGHT_PROGRAM,
+             counters={1: "loops/s"}),
+    Scenario("realistic", "1 ms timer, target-reached moves on six axes, GAP loop",
+             program=REALISTIC_PROGRAM, counters={0: "timer ticks/s", 1: "loops/s"}),
+    Scenario("switch", "positioning move held at an active limit switch (--speed 10)",
+             args=["--speed", "10"], world=SWITCH_WORLD,
+             setup=[(Opcode.MVP, 0, 0, -1_000_000)]),
+    Scenario("modules255", "255 modules, requests spread over all", modules=255),
+]
+
+
+class Client:
+    def __init__(self, endpoint: str) -> None:
+        host, port = endpoint.rsplit(":", 1)
+        self.sock = socket.create_connection((host, int(port)))
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def request(self, address: int, opcode: int, type_: int = 0, motor: int = 0,
+                value: int = 0) -> tuple[int, int]:
+        self.sock.sendall(Request(address, opcode, type_, motor, value).encode())
+        data = b""
+        while len(data) < 9:
+            chunk = self.sock.recv(9 - len(data))
+            if not chunk:
+                raise ConnectionError("server closed the connection")
+            data += chunk
+        reply = decode_reply(data)
+        return reply.status, reply.value
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICKS_PER_S
+
+
+def start_server(scenario: Scenario, tmp: Path) -> tuple[subprocess.Popen[bytes], str]:
+    ready = tmp / f"{scenario.name}.json"
+    args = [sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0", "--ready-file", str(ready),
+            "--modules", str(scenario.modules), *scenario.args]
+    if scenario.world:
+        world = tmp / f"{scenario.name}.toml"
+        world.write_text(scenario.world)
+        args += ["--world", str(world)]
+    process = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 30
+    while not ready.exists():
+        if process.poll() is not None or time.monotonic() > deadline:
+            raise RuntimeError(f"{scenario.name}: the server did not start")
+        time.sleep(0.01)
+    return process, json.loads(ready.read_text())["tcp"][0]
+
+
+def download(client: Client, source: str) -> None:
+    client.request(1, Opcode.ENTER_DOWNLOAD_MODE)
+    for ins in assemble(source).instructions:
+        client.request(1, ins.opcode, ins.type, ins.motor, ins.value)
+    client.request(1, Opcode.EXIT_DOWNLOAD_MODE)
+    status, _ = client.request(1, Opcode.RUN_APPLICATION, 1, 0, 0)
+    assert status == 100, status
+
+
+def counter_rates(client: Client, counters: dict[int, str], seconds: float,
+                  during=None) -> dict[str, float]:
+    before = {n: client.request(1, Opcode.GGP, n, 2)[1] for n in counters}
+    t0 = time.perf_counter()
+    if during is None:
+        time.sleep(seconds)
+    else:
+        during()
+    elapsed = time.perf_counter() - t0
+    after = {n: client.request(1, Opcode.GGP, n, 2)[1] for n in counters}
+    return {name: (after[n] - before[n]) / elapsed for n, name in counters.items()}
+
+
+def lockstep(endpoint: str, modules: int, seconds: float) -> list[int]:
+    client = Client(endpoint)
+    times: list[int] = []
+    deadline = time.perf_counter() + seconds
+    address = 0
+    while time.perf_counter() < deadline:
+        address = address % modules + 1
+        t0 = time.perf_counter_ns()
+        client.request(address, Opcode.GAP, AP.ACTUAL_POSITION, 0)
+        times.append(time.perf_counter_ns() - t0)
+    client.close()
+    return times
+
+
+def run(scenario: Scenario, seconds: float, tmp: Path) -> dict[str, object]:
+    process, endpoint = start_server(scenario, tmp)
+    try:
+        control = Client(endpoint)
+        for opcode, type_, motor, value in scenario.setup:
+            control.request(1, opcode, type_, motor, value)
+        if scenario.program:
+            download(control, scenario.program)
+        time.sleep(0.3)  # let it settle
+        cpu0 = cpu_seconds(process.pid)
+        quiet = counter_rates(control, scenario.counters, seconds)
+        cpu_quiet = (cpu_seconds(process.pid) - cpu0) / seconds
+        result: dict[str, list[int]] = {}
+
+        def traffic() -> None:
+            result["times"] = lockstep(endpoint, scenario.modules, seconds)
+
+        busy = counter_rates(control, scenario.counters, seconds, traffic)
+        control.request(1, Opcode.SGP, GP.SUPPRESS_REPLY, 0, 0)
+        control.close()
+    finally:
+        process.terminate()
+        process.wait(10)
+    times = sorted(result["times"])
+    return {
+        "rate": len(times) / seconds,
+        "p50_ms": times[len(times) // 2] / 1e6,
+        "p99_ms": times[int(len(times) * 0.99)] / 1e6,
+        "max_ms": times[-1] / 1e6,
+        "cpu_quiet": cpu_quiet,
+        "quiet": quiet,
+        "busy": busy,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=3.0)
+    parser.add_argument("--only", nargs="*", help="scenario names (idle always runs)")
+    args = parser.parse_args()
+    chosen = [s for s in SCENARIOS if not args.only or s.name in args.only or s.name == "idle"]
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for scenario in chosen:
+            print(f"running {scenario.name} ...", file=sys.stderr, flush=True)
+            results[scenario.name] = run(scenario, args.seconds, Path(tmp))
+    idle = results["idle"]["rate"]
+    print(f"{'scenario':<12} {'rate/idle':>9} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "
+          f"{'cpu quiet':>9}  program quiet -> under traffic")
+    for scenario in chosen:
+        r = results[scenario.name]
+        progress = "; ".join(f"{name} {r['quiet'][name]:,.0f} -> {r['busy'][name]:,.0f}"
+                             for name in scenario.counters.values())
+        print(f"{scenario.name:<12} {r['rate'] / idle:>9.2f} {r['p50_ms']:>8.3f} "
+              f"{r['p99_ms']:>8.3f} {r['max_ms']:>8.1f} {r['cpu_quiet']:>8.0%}  {progress}")
+    print(f"(idle: {idle:,.0f} requests/s, one lockstep TCP client, GAP 1; "
+          f"{args.seconds:g} s per window; {statistics.mean([1]):.0f} run)")
+
+
+if __name__ == "__main__":
+    main()
