@@ -127,7 +127,7 @@ class TMC262:
         self.smarten = 0
         self.sgcsconf = 0
         self.drvconf = 0
-        self.mscnt = 0  # unwrapped microstep-table position, 1/256 microsteps
+        self._mscnt = 0  # unwrapped microstep-table position, 1/256 microsteps
         self.sg = 0
         self.measured = False
         self._se = 0
@@ -224,6 +224,7 @@ class TMC262:
         """The coolStep current scale: CS without coolStep (SEMIN = 0), else what it adapted to."""
         if self.semin == 0:
             return self.cs
+        self.observe()
         return max(self._se_floor(), min(self.cs, self._se))
 
     @property
@@ -274,7 +275,7 @@ class TMC262:
         flags = self.flags()
         match self.rdsel:
             case ReadSelect.MSTEP:
-                high = self.mscnt & 0x3FF
+                high = self._mscnt & 0x3FF
             case ReadSelect.SG:
                 high = self.sg
             case ReadSelect.SG_SE:
@@ -284,6 +285,12 @@ class TMC262:
         return high << 10 | int(flags)
 
     # == the motor =============================================================================
+
+    @property
+    def mscnt(self) -> int:
+        """The microstep-table position (1/256 microsteps, unwrapped; MSTEP is its low 10 bits)."""
+        self.observe()
+        return self._mscnt
 
     def stallguard(self) -> int:
         """The stallGuard2 value SG (0..1023) as the driver would report it now."""
@@ -316,9 +323,9 @@ class TMC262:
             return
         self._seen_steps = steps
         unit = self._step_units()
-        start = self.mscnt
+        start = self._mscnt
         end = start + delta * unit
-        self.mscnt = end
+        self._mscnt = end
         grid = PERIOD_UNITS if self.sfilt else FULLSTEP_UNITS
         if delta > 0:
             boundary = end - end % grid
