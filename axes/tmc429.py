@@ -24,9 +24,9 @@ Design
 * Looking ahead: ``motor.clone()`` copies the whole chip (the twin's other motors are
   snapshots) and returns the twin's motor; running it moves nothing in the real chip.
   Nothing a motor does while running touches chip-level state, so ``motor.adopt(twin)``
-  can install the twin motor (with its driver) in the live chip and return it; it refuses a
-  twin that is stale (a global register, or this motor's registers, were written since the
-  clone, or the twin was written to).
+  can copy the twin's state (and its driver's) into the live motor; it refuses a twin that
+  is stale (a global register, or this motor's registers, were written since the clone, or
+  the twin was written to, or it is behind the live motor).
 * The driver chain (``en_sd = 0``, the power-on mode) is materialised only when the host can
   see it: a cover datagram is sent at once (the chain is idle at frame granularity) and
   configures the drivers; the read-back registers capture the drivers' answers at a cover
@@ -204,23 +204,29 @@ class TMC429Motor(MotorEngine):
         return self.chip.clone().motors[self.index]
 
     def adopt(self, twin: TMC429Motor) -> TMC429Motor:
-        """Install a lookahead twin (made by :meth:`clone` of this motor) in the live chip.
+        """Continue with the state a lookahead twin (made by :meth:`clone`) reached.
 
-        Returns the twin, which is from now on this motor of the live chip.  Raises
-        :class:`StaleTwin` if the chip's global registers or this motor's registers were
-        written since the clone, or if the twin was written to.
+        The twin's motor state (and its driver's) is copied into this live motor, so every
+        reference to the motor and its driver stays valid; returns ``self``.  Raises
+        :class:`StaleTwin` if the chip's global registers or RAM, or this motor's registers,
+        were written since the clone, if the twin was written to, or if it is behind.
         """
         chip = self.chip
-        if chip.motors[self.index] is not self:
-            raise StaleTwin("adopt() must be called on the live motor")
         origin = twin.chip
-        if (twin.index != self.index or origin.revision != origin._origin_revision
-                or origin._origin_revision != chip.revision or twin.writes != twin._origin_writes
-                or twin._origin_writes != self.writes or origin._origin_chip is not chip):
+        if (twin.index != self.index or origin._origin_chip is not chip
+                or origin.revision != origin._origin_revision or origin._origin_revision != chip.revision
+                or twin.writes != twin._origin_writes or twin._origin_writes != self.writes
+                or twin.t < self.t):
             raise StaleTwin(f"motor {self.index}: the chip changed since the lookahead was cloned")
-        twin.chip = chip
-        chip.motors[self.index] = twin
-        return twin
+        driver = self.driver
+        state = dict(twin.__dict__)
+        state["chip"] = chip
+        state["driver"] = driver
+        self.__dict__.update(state)
+        if driver is not None and twin.driver is not None:
+            driver.__dict__.update(twin.driver.__dict__)
+            driver.sense = self
+        return self
 
     def _clone_into(self, chip: TMC429) -> TMC429Motor:
         twin = copy.copy(self)
@@ -321,7 +327,7 @@ class TMC429:
         self.power_on()
 
     def motor(self, index: int) -> TMC429Motor:
-        """The live motor 0..2 (after ``adopt`` a new object: ask again rather than keep one)."""
+        """Motor 0..2: the ChipModel of one axis (the same object for the chip's lifetime)."""
         return self.motors[index]
 
     # == power-on ==============================================================================

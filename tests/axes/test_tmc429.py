@@ -317,8 +317,10 @@ def test_lookahead_clone_and_adopt() -> None:
     assert twin.run(10**7) is Stop.ARRIVED
     assert (live.t, live.x_actual, chip.motor(0).t) == (0, 0, 0)  # nothing moved in the chip
     chip.motor(0).write(MotorReg.X_TARGET, 7)  # another motor's registers: no matter
+    driver_before = live.driver
     adopted = live.adopt(twin)
-    assert chip.motor(1) is adopted and adopted.chip is chip
+    assert adopted is live is chip.motor(1) and live.chip is chip and live.driver is driver_before
+    assert live.t == twin.t
     assert chip.read(motor_address(1, MotorReg.X_ACTUAL)) == 5000
     assert status(chip) & 0x0C == 0x04  # RS2 clear, xEQt2 set, seen through the live chip
 
@@ -331,7 +333,11 @@ def test_lookahead_clone_and_adopt() -> None:
     with pytest.raises(StaleTwin):
         adopted.adopt(stale)
     with pytest.raises(StaleTwin):
-        live.adopt(adopted.clone())  # `live` is no longer the chip's motor 1
+        chip.motor(0).adopt(adopted.clone())  # another motor's twin
+    old = adopted.clone()
+    adopted.run(adopted.t + 1000)
+    with pytest.raises(StaleTwin):
+        adopted.adopt(old)  # behind the live motor: adopting would go back in time
 
 
 # == motion against the tick-by-tick reference, three motors at once ===========================
