@@ -224,6 +224,29 @@ def test_inv_ref_on_one_write_acts_on_every_motor() -> None:
     assert [m.int_flags for m in chip.motors] == [1 << Irq.STOP] * 3
 
 
+def test_latch_on_motor_ones_right_switch_in_the_two_one_zero_layout() -> None:
+    chip = step_dir_chip()
+    chip.write(GlobalReg.SMGP, MOT1R)
+    motor = chip.motor(0)
+    configure(motor, v_max=1000, a_max=100, pulse_div=0, ramp_div=0, mode=RampMode.VELOCITY)
+    motor.write(MotorReg.REF_CONF_RAMP_MODE, RampMode.VELOCITY | 1 << 11 | 1 << 9)  # ref_RnL, no stop
+    motor.write(MotorReg.X_LATCHED, 0)  # arm
+    motor.write(MotorReg.V_TARGET, 500)
+    motor.run(30_000)
+    position = motor.x_actual
+    chip.motor(2).set_pins(True, True)  # motor 3's switches: not wired in this layout
+    assert motor.read(MotorReg.REF_CONF_RAMP_MODE) >> 16 & 1  # still armed
+    motor.set_pins(False, True)  # motor 1's right switch (REF3)
+    assert motor.read(MotorReg.X_LATCHED) == position and motor.v > 0
+    assert not motor.read(MotorReg.REF_CONF_RAMP_MODE) >> 16 & 1
+
+
+def test_time_conversions_are_the_chips() -> None:
+    motor = TMC429(clock_hz=32_000_000).motor(2)
+    assert motor.ticks_at(1_000_000_000) == 1_000_000  # clk32 at 32 MHz: 1 MHz
+    assert motor.ns_at(3) == 3000
+
+
 # == interrupts, position compare, power-down ==================================================
 
 
