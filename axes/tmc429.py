@@ -33,6 +33,8 @@ Design
   datagram, or at the first frame after a re-arm while a chain motor moves or
   ``continuous_update`` is set.  The datagram's bits come from the RAM configuration words
   and the microstep sequencer of each motor, exactly as §5 and §6 describe.
+* In Step/Dir mode (``en_sd = 1``, how the TMCL modules run it) a motor's driver is reached
+  by the microcontroller directly: ``chip.motor(i).driver.spi(frame)`` (20-bit TMC262 frames).
 """
 
 from __future__ import annotations
