@@ -1,14 +1,10 @@
 """One TMC4210 motion controller: its register file behind 32-bit SPI datagrams, and its motion.
 
-The register layout, widths and power-on values follow the TMC4210 datasheet; the
-ramp and pulse generators follow its clocking scheme: a clk32 counter drives ramp
-ticks every ``2**RAMP_DIV`` and pulse ticks every ``2**PULSE_DIV`` clk32 periods, the
-velocity has 8 hidden fraction bits, and an 11-bit phase accumulator turns the integer part
-into steps.  The engine never walks single clk32 ticks: stretches where the velocity cannot
-change are computed in closed form, and ramps run one *ramp tick* per loop iteration, with
-the pulses in between counted arithmetically.  Either way the chip lands on exactly the
-positions, at exactly the clk32 ticks, that a tick-by-tick run of the reference model gives
-(``tests/test_tmc4210.py`` checks this against a literal tick-by-tick implementation).
+The register layout, widths and power-on values follow the TMC4210 datasheet.  The
+TMC4210 is one motor of the TMC42x family: the axis registers, switches, interrupts and the
+ramp and pulse generators are :class:`axes.tmc42x.MotorEngine` (shared with the TMC429);
+this class adds the global registers, the status byte and the SPI interface, and is the
+motor at the same time (one chip, one motor, one object).
 
 The chip knows nothing about seconds: time is a clk32 tick count.  Its pins (REF_L, REF_R,
 GP_IN) are driven by a :class:`Board`, which also names the motor positions at which the
@@ -19,26 +15,39 @@ from __future__ import annotations
 
 import copy
 from enum import IntEnum
-from math import isqrt
 
 from axes.core import Board, Stop
+from axes.tmc42x import (
+    DEFAULT_CLOCK_HZ,
+    DISABLE_STOP_L,
+    DISABLE_STOP_R,
+    DISTANCE_LIMIT,
+    HALF24,
+    LATCH_PENDING,
+    MASK24,
+    REF_RNL,
+    SOFT_STOP,
+    Irq,
+    MotorEngine,
+    RampMode,
+    datagram,
+    floor_sum,
+    sdiff24,
+    signed,
+)
 
-MASK24 = 0xFFFFFF
-HALF24 = 1 << 23
-#: The deceleration ramp is internally limited to 2**19 steps (datasheet).
-DISTANCE_LIMIT = 1 << 19
+__all__ = [
+    "DEFAULT_CLOCK_HZ", "DISABLE_STOP_L", "DISABLE_STOP_R", "DISTANCE_LIMIT", "EN_SD", "HALF24",
+    "IF_CONFIG_MASK", "INV_REF", "LATCH_PENDING", "MASK24", "MOT1R", "PLAIN_REGISTERS",
+    "POS_COMP_SEL", "REF_RNL", "SDO_INT", "SMGP_MASK", "SMGP_POWER_ON", "SOFT_STOP", "TMC4210",
+    "TYPE_VERSION", "Board", "Irq", "RampMode", "Reg", "Stop", "datagram", "floor_sum", "sdiff24",
+    "signed",
+]
+
 TYPE_VERSION = 0x429101
 SMGP_POWER_ON = 0x000F00
 SMGP_MASK = 0x31FFFF
 IF_CONFIG_MASK = 0x1FF
-DEFAULT_CLOCK_HZ = 16_000_000
-
-
-class RampMode(IntEnum):
-    RAMP = 0
-    SOFT = 1
-    VELOCITY = 2
-    HOLD = 3
 
 
 class Reg(IntEnum):
@@ -86,25 +95,7 @@ PLAIN_REGISTERS: dict[int, tuple[str, int]] = {
     Reg.POS_COMP: ("pos_comp", MASK24),
 }
 
-
-class Irq(IntEnum):
-    """Interrupt flag bits (INTERRUPT register bits 7..0; the mask is the same, shifted by 8)."""
-
-    POS_END = 0
-    REF_WRONG = 1
-    REF_MISS = 2
-    STOP = 3
-    STOP_LEFT_LOW = 4
-    STOP_RIGHT_LOW = 5
-    STOP_LEFT_HIGH = 6
-    STOP_RIGHT_HIGH = 7
-
-
-# Bits of the REF_CONF / RAMP_MODE register and IF_CONFIGURATION.
-DISABLE_STOP_L = 1 << 8
-DISABLE_STOP_R = 1 << 9
-SOFT_STOP = 1 << 10
-REF_RNL = 1 << 11
+# Bits of IF_CONFIGURATION and SMGP.
 INV_REF = 1 << 0
 SDO_INT = 1 << 1
 EN_SD = 1 << 5
@@ -112,77 +103,19 @@ POS_COMP_SEL = 3 << 6
 MOT1R = 1 << 21
 
 
-
-def sdiff24(a: int, b: int) -> int:
-    """``a - b`` as a signed 24-bit difference (the chip's direction rule)."""
-    return ((a - b + HALF24) & MASK24) - HALF24
-
-
-def signed(value: int, bits: int) -> int:
-    sign = 1 << (bits - 1)
-    value &= (1 << bits) - 1
-    return value - (sign << 1) if value & sign else value
-
-
-def floor_sum(n: int, m: int, a: int, b: int) -> int:
-    """Sum of (a*i + b) // m for i in 0..n-1 (a, b >= 0), in O(log) steps."""
-    total = 0
-    while True:
-        if a >= m:
-            total += (n - 1) * n // 2 * (a // m)
-            a %= m
-        if b >= m:
-            total += n * (b // m)
-            b %= m
-        y_max = a * n + b
-        if y_max < m:
-            return total
-        n, b, m, a = y_max // m, y_max % m, a, m
-
-
-def datagram(address: int, data: int = 0, read: bool = False) -> int:
-    """Build a 32-bit host datagram for a 7-bit register (or RAM) address."""
-    return (address & 0x7F) << 25 | int(read) << 24 | (data & MASK24)
-
-
-class TMC4210:
+class TMC4210(MotorEngine):
     """The chip.  Host access is :meth:`spi`; the world drives pins through the board."""
 
+    a_threshold_mask = 0x777FFF
+
     def __init__(self, clock_hz: int = DEFAULT_CLOCK_HZ, board: Board | None = None) -> None:
-        if clock_hz <= 0:
-            raise ValueError("clock frequency must be positive")
-        self.clock_hz = clock_hz
-        self.board = board
-        self.t = 0  # clk32 ticks fully processed
-        self.motor_position = 0  # steps that reached the STEP pin (en_sd = 1), unwrapped
+        super().__init__(clock_hz, board)
         self.power_on()
 
     # == power-on ==============================================================================
 
     def power_on(self) -> None:
         """Every register bit 0 except STPDIV = 15 (datasheet)."""
-        self.x_target = 0
-        self.x_actual = 0
-        self.v_min = 0
-        self.v_max = 0
-        self.v_target = 0  # signed 12-bit register
-        self.v = 0  # signed internal velocity in 1/256 velocity units
-        self.a_max = 0
-        self.a_actual = 0
-        self.a_threshold = 0
-        self.pmul = 128
-        self.pdiv = 0
-        self.ref_conf = 0  # bits 11..8 of the register, as stored (mode kept apart)
-        self.mode = RampMode.RAMP
-        self.latch_pending = False
-        self.int_mask = 0
-        self.int_flags = 0
-        self.pulse_div = 0
-        self.ramp_div = 0
-        self.usrs = 0
-        self.dx_ref_tolerance = 0
-        self.x_latched = 0
-        self.ustep_count = 0
         self.if_config = 0
         self.pos_comp = 0
         self.pos_comp_mask = False
@@ -192,14 +125,8 @@ class TMC4210:
         self.ram = [0] * 64
         self.cdgw = False
         self.powered_down = False
-        self.acc = 0
-        self.ramp_next = self.t + 1
-        self.ref_l = self.ref_r = self.gp_in = False  # electrical pin levels
-        self._refresh_pins()
-
-    def at_rest(self) -> bool:
-        """Stopped, and no ramp tick will start the motor again."""
-        return self.v == 0 and self._steady_steps() == -1
+        self._wire()
+        self.reset_motor()
 
     def clone(self) -> TMC4210:
         """An independent copy (for looking ahead without disturbing this chip)."""
@@ -208,51 +135,33 @@ class TMC4210:
         twin.legacy = list(self.legacy)
         return twin
 
-    # == time ==================================================================================
-
-    def ticks_at(self, t_ns: int) -> int:
-        """clk32 ticks that have happened by simulated time ``t_ns``."""
-        return t_ns * self.clock_hz // 32_000_000_000
-
-    def ns_at(self, ticks: int) -> int:
-        """The simulated time (ns, rounded up) of clk32 tick ``ticks``."""
-        return -(-ticks * 32_000_000_000 // self.clock_hz)
+    def adopt(self, twin: TMC4210) -> TMC4210:
+        """Continue with the state a clone reached (one chip, one motor: the clone itself)."""
+        return twin
 
     # == derived state =========================================================================
 
     @property
-    def v_actual(self) -> int:
-        """V_ACTUAL: the integer part of the velocity, truncated toward zero."""
-        return (self.v >> 8) if self.v >= 0 else -((-self.v) >> 8)
-
-    @property
     def mot1r(self) -> bool:
         return bool(self.smgp & MOT1R)
-
-    def _active(self, level: bool) -> bool:
-        return level != bool(self.if_config & INV_REF)
-
-    @property
-    def left_active(self) -> bool:
-        return self._active(self.ref_l)
-
-    @property
-    def right_active(self) -> bool:
-        """The axis's right switch: REF_R, wired to the axis only with mot1r = 1."""
-        return self.mot1r and self._active(self.ref_r)
 
     @property
     def interrupt(self) -> bool:
         return bool(self.int_flags) or (self.pos_comp_flag and self.pos_comp_mask)
 
     def status_byte(self) -> int:
-        """INT, CDGW, RS3 (REF_R unless mot1r), 1, RS1 (GP_IN), 1, RS2 (REF_L), xEQt."""
-        inverted = bool(self.if_config & INV_REF)
-        ref_r = self.ref_r != inverted and not self.smgp & MOT1R
+        """INT, CDGW, RS3 (REF_R unless mot1r), 1, RS1 (GP_IN), 1, RS2 (left), xEQt."""
+        inv_ref = self.inv_ref  # in line: the firmware sends a datagram per position read
+        ref_r = self.ref_r != inv_ref and not self.smgp & MOT1R
         interrupt = bool(self.int_flags) or (self.pos_comp_flag and self.pos_comp_mask)
-        return (interrupt << 7 | self.cdgw << 6 | ref_r << 5 | 0x14
-                | (self.gp_in != inverted) << 3 | (self.ref_l != inverted) << 1
-                | (self.x_actual == self.x_target))
+        return (interrupt << 7 | self.cdgw << 6 | ref_r << 5 | 0x14 | (self.gp_in != inv_ref) << 3
+                | self.left_active << 1 | (self.x_actual == self.x_target))
+
+    def _wire(self) -> None:
+        """Tell the motor engine what the global registers mean for it."""
+        self.rewire(steps_out=bool(self.if_config & EN_SD), inv_ref=bool(self.if_config & INV_REF),
+                    right_wired=self.mot1r,
+                    pos_comp_on=self.pos_comp_mask and not self.if_config & POS_COMP_SEL)
 
     # == SPI ===================================================================================
 
@@ -293,32 +202,17 @@ class TMC4210:
         self.spi(datagram(reg, data))
 
     def _read(self, address: int) -> int:
-        if address >> 4 in (1, 2):
+        if address < 0x10:
+            return self.read_motor(address)
+        if address < 0x30:
             return 0  # the TMC429's hidden axes: not part of the TMC4210 contract
-        plain = PLAIN_REGISTERS.get(address)
-        if plain is not None:
-            return getattr(self, plain[0])
         match address:
-            case Reg.V_TARGET:
-                return self.v_target & 0xFFF
-            case Reg.V_ACTUAL:
-                return self.v_actual & 0xFFF
-            case Reg.A_ACTUAL:
-                return self.a_actual & 0xFFF
-            case Reg.PMUL_PDIV:
-                return self.pmul << 8 | self.pdiv
-            case Reg.REF_CONF_RAMP_MODE:
-                return self.latch_pending << 16 | self.ref_conf | self.mode
-            case Reg.INTERRUPT:
-                return self.int_mask << 8 | self.int_flags
-            case Reg.DIVIDERS:
-                return self.pulse_div << 12 | self.ramp_div << 8 | self.usrs
-            case Reg.X_LATCHED:
-                return self.x_latched
             case Reg.DATAGRAM_LOW | Reg.DATAGRAM_HIGH | Reg.COVER_POS_LEN | Reg.COVER_DATAGRAM:
                 return self.legacy[address - Reg.DATAGRAM_LOW]
             case Reg.IF_CONFIGURATION:
                 return self.if_config
+            case Reg.POS_COMP:
+                return self.pos_comp
             case Reg.POS_COMP_INT:
                 return self.pos_comp_mask << 8 | self.pos_comp_flag
             case Reg.TYPE_VERSION:
@@ -332,547 +226,28 @@ class TMC4210:
         return 0
 
     def _write(self, address: int, data: int) -> None:
-        if address >> 4 in (1, 2):
+        if address < 0x10:
+            self.write_motor(address, data)
             return
-        plain = PLAIN_REGISTERS.get(address)
-        if plain is not None:
-            setattr(self, plain[0], data & plain[1])
+        if address < 0x30:
             return
         match address:
-            case Reg.V_TARGET:
-                self.v_target = signed(data, 12)
-            case Reg.V_ACTUAL:
-                if self.mode == RampMode.HOLD:
-                    self.v = signed(data, 12) << 8
-            case Reg.PMUL_PDIV:
-                self.pmul = (data >> 8 & 0xFF) | 0x80
-                self.pdiv = data & 0xF
-            case Reg.REF_CONF_RAMP_MODE:
-                self.ref_conf = data & 0xF00
-                self.mode = RampMode(data & 3)
-            case Reg.INTERRUPT:
-                self.int_mask = data >> 8 & 0xFF
-                self.int_flags &= ~data & 0xFF
-                self.int_flags &= self.int_mask
-            case Reg.DIVIDERS:
-                self.pulse_div = data >> 12 & 0xF
-                self.ramp_div = data >> 8 & 0xF
-                self.usrs = data & 7
-                ramp = 1 << self.ramp_div
-                self.ramp_next = (self.t // ramp + 1) * ramp
-            case Reg.X_LATCHED:
-                self.latch_pending = True
             case Reg.DATAGRAM_LOW | Reg.DATAGRAM_HIGH | Reg.COVER_POS_LEN | Reg.COVER_DATAGRAM:
                 self.legacy[address - Reg.DATAGRAM_LOW] = data
                 if address != Reg.COVER_POS_LEN:
                     self.cdgw = True  # visible in the next frame's status, then the chain is done
             case Reg.IF_CONFIGURATION:
-                before = self._levels()
                 self.if_config = data & IF_CONFIG_MASK
-                self._level_changes(before)
+                self._wire()
+            case Reg.POS_COMP:
+                self.pos_comp = data & MASK24
             case Reg.POS_COMP_INT:
                 self.pos_comp_mask = bool(data >> 8 & 1)
                 if data & 1 or not self.pos_comp_mask:
                     self.pos_comp_flag = False
+                self.pos_comp_on = self.pos_comp_mask and not self.if_config & POS_COMP_SEL
             case Reg.POWER_DOWN:
                 self.powered_down = True
             case Reg.SMGP:
-                before = self._levels()
                 self.smgp = data & SMGP_MASK
-                self._level_changes(before)
-
-    # == pins, switches, interrupts ============================================================
-
-    def _raise(self, irq: Irq) -> None:
-        if self.int_mask >> irq & 1:
-            self.int_flags |= 1 << irq
-
-    def _levels(self) -> tuple[bool, bool]:
-        return self.left_active, self.right_active
-
-    def _refresh_pins(self) -> None:
-        if self.board is not None:
-            self.ref_l, self.ref_r, self.gp_in = self.board.pins(self.motor_position)
-
-    def set_pins(self, ref_l: bool, ref_r: bool, gp_in: bool) -> None:
-        """Drive the input pins (electrical levels); edges act at once."""
-        before = self._levels()
-        self.ref_l, self.ref_r, self.gp_in = ref_l, ref_r, gp_in
-        self._level_changes(before)
-
-    def _level_changes(self, before: tuple[bool, bool]) -> None:
-        left, right = self._levels()
-        reference_edge = False
-        ref_is_right = bool(self.ref_conf & REF_RNL)
-        if left != before[0]:
-            self._raise(Irq.STOP_LEFT_HIGH if left else Irq.STOP_LEFT_LOW)
-            reference_edge |= not ref_is_right
-        if right != before[1]:
-            self._raise(Irq.STOP_RIGHT_HIGH if right else Irq.STOP_RIGHT_LOW)
-            reference_edge |= ref_is_right
-        if reference_edge:
-            if self.latch_pending and self.v_actual != 0:
-                self.x_latched = self.x_actual
-                self.latch_pending = False
-            active = right if ref_is_right else left
-            if active and abs(signed(self.x_actual, 24)) >= self.dx_ref_tolerance:
-                self._raise(Irq.REF_WRONG)
-        # A hard switch stop acts on the pulse generator at once.
-        direction = (self.v > 0) - (self.v < 0)
-        if direction and self._switch_blocks(direction) and not self.ref_conf & SOFT_STOP:
-            self.v = 0
-            self._raise(Irq.STOP)
-
-    def _switch_blocks(self, direction: int) -> bool:
-        """True if the stop switch in ``direction`` is active, enabled and outside the window."""
-        if direction < 0:
-            blocked = self.left_active and not self.ref_conf & DISABLE_STOP_L
-        else:
-            blocked = self.right_active and not self.ref_conf & DISABLE_STOP_R
-        return blocked and abs(signed(self.x_actual, 24)) >= self.dx_ref_tolerance
-
-    # == ramp generator ========================================================================
-
-    def _curve(self, distance: int) -> int:
-        """Target speed magnitude from the remaining distance (ramp: sqrt law, soft: linear)."""
-        d = distance if distance < DISTANCE_LIMIT else DISTANCE_LIMIT
-        if self.mode == RampMode.RAMP:
-            return isqrt((self.pmul * d << 8) >> self.pdiv)
-        return (self.pmul * d) >> (3 + self.pdiv)
-
-    def _ramp_target(self) -> tuple[int, bool]:
-        """(target velocity, hard switch stop) that a ramp tick would use now."""
-        mode = self.mode
-        if mode == RampMode.HOLD:
-            vt = 0
-        elif mode == RampMode.VELOCITY:
-            vt = max(-self.v_max, min(self.v_max, self.v_target))
-        else:
-            dx = sdiff24(self.x_target, self.x_actual)
-            if dx == 0:
-                vt = 0
-            else:
-                mag = min(max(self._curve(abs(dx)), self.v_min), self.v_max)
-                vt = mag if dx > 0 else -mag
-        v = self.v
-        direction = (v > 0) - (v < 0) or (vt > 0) - (vt < 0)
-        if direction and self._switch_blocks(direction):
-            vt = max(vt, 0) if direction < 0 else min(vt, 0)
-            return vt, mode == RampMode.HOLD or not self.ref_conf & SOFT_STOP
-        return vt, False
-
-    def _ramp_tick(self) -> None:
-        vt, hard = self._ramp_target()
-        if self.mode in (RampMode.RAMP, RampMode.SOFT):
-            self.v_target = vt
-        v_old = v = self.v
-        if hard:
-            if v:
-                self._raise(Irq.STOP)
-            v = 0
-        if self.mode != RampMode.HOLD:
-            target = vt << 8
-            if v < target:
-                v = min(v + self.a_max, target)
-            elif v > target:
-                v = max(v - self.a_max, target)
-        self.v = v
-        self.a_actual = max(-2048, min(2047, v - v_old))
-
-    def _steady_steps(self) -> int | None:
-        """If ramp ticks cannot change the velocity for a while, how many steps that lasts.
-
-        Returns None if not steady, -1 for "as long as nothing else changes", else the number of
-        further steps after which the ramp generator must be consulted again.
-        """
-        vt, hard = self._ramp_target()
-        v = self.v
-        if hard and v:
-            return None
-        if self.mode == RampMode.HOLD:
-            window = v and self.dx_ref_tolerance and (self.left_active or self.right_active)
-            return None if window else -1
-        if v != vt << 8:
-            return None
-        if v and self.dx_ref_tolerance and (self.left_active or self.right_active):
-            return None  # crossing the tolerance window may change the switch stop
-        if self.mode == RampMode.VELOCITY:
-            return -1
-        dx = sdiff24(self.x_target, self.x_actual)
-        if dx == 0:
-            return -1 if v == 0 else None
-        if (dx > 0) != (v > 0):
-            return None
-        d = abs(dx)
-        mag = abs(vt)
-        if mag == self.v_max:
-            low = self._distance_for(self.v_max)
-            if low is None:
-                return None
-        elif mag == self.v_min:
-            low = 1  # the curve only falls as the distance shrinks: V_MIN holds to the target
-        elif d >= DISTANCE_LIMIT:
-            low = DISTANCE_LIMIT
-        else:
-            return None
-        return d - low + 1 if d >= low else None
-
-    def _distance_for(self, speed: int) -> int | None:
-        """Smallest distance whose curve value reaches ``speed`` (None if none below the limit)."""
-        if self.mode == RampMode.RAMP:
-            low = -(-(speed * speed << self.pdiv) // (self.pmul << 8))
-        else:
-            low = -(-(speed << (3 + self.pdiv)) // self.pmul)
-        low = max(low, 1)
-        return low if low <= DISTANCE_LIMIT else None
-
-    # == pulse generator =======================================================================
-
-    def _apply_steps(self, count: int, direction: int) -> None:
-        delta = count * direction
-        self.x_actual = (self.x_actual + delta) & MASK24
-        if self.if_config & EN_SD:
-            self.motor_position += delta
-        increment = 1 << (6 - min(self.usrs, 6))
-        self.ustep_count = (self.ustep_count + delta * increment) & 0xFF
-
-    def _stop_distance(self, direction: int) -> tuple[int | None, int | None]:
-        """Steps to the nearest position where the pulse generator must look closer.
-
-        Returns (nearest of all, distance to the next board mark).
-        """
-        best: int | None = None
-        if self.mode in (RampMode.RAMP, RampMode.SOFT):
-            d = sdiff24(self.x_target, self.x_actual) * direction
-            if d > 0:
-                best = d
-        if self.int_mask >> Irq.REF_MISS & 1:
-            d = sdiff24(0, self.x_actual) * direction
-            if d > 0 and (best is None or d < best):
-                best = d
-        if self.pos_comp_mask and not self.if_config & POS_COMP_SEL:
-            d = sdiff24(self.pos_comp, self.x_actual) * direction
-            if d > 0 and (best is None or d < best):
-                best = d
-        mark_distance = None
-        if self.board is not None and self.if_config & EN_SD:
-            mark = self.board.next_mark(self.motor_position, direction)
-            if mark is not None:
-                mark_distance = (mark - self.motor_position) * direction
-                if mark_distance > 0 and (best is None or mark_distance < best):
-                    best = mark_distance
-        return best, mark_distance
-
-    def _arrived_here(self) -> None:
-        """Per-step checks at a position the pulse generator stopped at."""
-        if self.x_actual == 0 and not (self.right_active if self.ref_conf & REF_RNL
-                                        else self.left_active):
-            self._raise(Irq.REF_MISS)
-        if self.pos_comp_mask and not self.if_config & POS_COMP_SEL and self.x_actual == self.pos_comp:
-            self.pos_comp_flag = True
-
-    def _pulses(self, t_end: int, max_steps: int | None = None) -> Stop | None:
-        """Process the pulse ticks in (t, t_end] with the current velocity.
-
-        Returns early (with ``self.t`` at the pulse tick concerned) when the motor arrives at
-        its target, reaches a board mark, or has made ``max_steps`` steps (returns None then
-        too, with ``self.t`` short of ``t_end``).
-        """
-        period = 1 << self.pulse_div
-        first = (self.t // period + 1) * period
-        if first > t_end:
-            self.t = t_end
-            return None
-        ticks = (t_end - first) // period + 1
-        used = 0
-        positioning = self.mode in (RampMode.RAMP, RampMode.SOFT)
-        while True:
-            if used >= ticks:
-                self.t = t_end
-                return None
-            vi = abs(self.v) >> 8
-            if positioning and vi <= self.v_min and self.x_actual == self.x_target:
-                if self.v:
-                    self.v = 0
-                    self.t = first + used * period
-                    self._raise(Irq.POS_END)
-                    return Stop.ARRIVED
-                self.t = t_end
-                return None
-            if vi == 0:
-                self.t = t_end
-                return None
-            direction = 1 if self.v > 0 else -1
-            remaining = ticks - used
-            total = (self.acc + vi * remaining) >> 11
-            limit, mark_distance = self._stop_distance(direction)
-            if max_steps is not None and (limit is None or max_steps < limit):
-                limit = max_steps
-            if limit is None or limit > total:
-                self._apply_steps(total, direction)
-                self.acc += vi * remaining - (total << 11)
-                self.t = t_end
-                if max_steps is not None:
-                    max_steps -= total
-                return None
-            k = ((limit << 11) - self.acc + vi - 1) // vi  # pulse ticks until step number `limit`
-            self._apply_steps(limit, direction)
-            self.acc += vi * k - (limit << 11)
-            used += k
-            self.t = first + (used - 1) * period
-            self._arrived_here()
-            if limit == mark_distance and self.board is not None:
-                self.set_pins(*self.board.pins(self.motor_position))
-                return Stop.MARK
-            if max_steps is not None:
-                max_steps -= limit
-                if max_steps == 0:
-                    return None
-
-    # == the engine ============================================================================
-
-    def run(self, until: int) -> Stop | None:
-        """Advance to clk32 tick ``until``; return early (self.t < until) at a notable instant."""
-        if self.ramp_next > until and self.t < until and not self.powered_down:
-            # No ramp tick on the way (a look at the position mid-move): the velocity
-            # stays as it is, only pulses happen.
-            return self._pulses(until)
-        while self.t < until:
-            if self.powered_down:
-                self.t = until
-                ramp = 1 << self.ramp_div
-                self.ramp_next = (until // ramp + 1) * ramp
-                return None
-            steady = self._steady_steps()
-            if steady is not None:
-                moving = self.v != 0
-                # What each skipped ramp tick would have written (constant while steady).
-                vt_steady = self._ramp_target()[0]
-                stop = self._pulses(until) if steady < 0 else self._pulses(until, steady)
-                ramp = 1 << self.ramp_div
-                if self.ramp_next <= self.t:
-                    self.a_actual = 0
-                    if self.mode in (RampMode.RAMP, RampMode.SOFT):
-                        self.v_target = vt_steady
-                self.ramp_next = (self.t // ramp + 1) * ramp
-                if stop is not None:
-                    return stop
-                if moving and self.v == 0:
-                    return Stop.STOPPED
-                continue
-            nr = self.ramp_next
-            if nr > until:
-                stop = self._pulses(until)
-                if stop is not None:
-                    return stop
-                return None
-            if self.t < nr - 1:
-                stop = self._pulses(nr - 1)
-                if stop is not None:
-                    return stop
-            if self._can_fast() and nr + (1 << self.ramp_div) - 1 <= until:
-                stop = self._fast(until)
-            else:
-                stop = self._slow_tick(nr)
-            if stop is not None:
-                return stop
-        return None
-
-    def _can_fast(self) -> bool:
-        return (self.mode != RampMode.HOLD and self.ramp_div >= self.pulse_div
-                and not (self.left_active or self.right_active))
-
-    def _fast(self, until: int) -> Stop | None:
-        """Ramp ticks one per iteration with their pulses counted in bulk (no switches active).
-
-        Entered with ``self.t == ramp_next - 1``.  Leaves as soon as a tick would bring the
-        motor to a position of interest, the velocity becomes steady or changes sign, or the
-        next whole ramp period would pass ``until``; the general path then takes over.
-        """
-        rd = self.ramp_div
-        period = 1 << rd
-        per_ramp = period >> self.pulse_div
-        nr = self.ramp_next
-        v = self.v
-        acc = self.acc
-        a_max = self.a_max
-        v_max = self.v_max
-        v_min = self.v_min
-        mode = self.mode
-        positioning = mode != RampMode.VELOCITY
-        x = self.x_actual
-        x_target = self.x_target
-        k_mul = self.pmul << 8
-        pdiv = self.pdiv
-        soft_shift = 3 + pdiv
-        pmul = self.pmul
-        vt_fixed = 0
-        if positioning:
-            dx = sdiff24(x_target, x)
-            if dx == 0:
-                return self._slow_tick(nr)
-            direction = 1 if dx > 0 else -1
-            d = abs(dx)
-        else:
-            vt_fixed = max(-v_max, min(v_max, self.v_target))
-            direction = (v > 0) - (v < 0) or (vt_fixed > 0) - (vt_fixed < 0)
-            if direction == 0:
-                return self._slow_tick(nr)
-            d = 0
-        if v * direction < 0:
-            return self._slow_tick(nr)
-        room, _ = self._stop_distance(direction)
-        if room is None:
-            room = 1 << 62
-        w = v * direction  # speed along the direction of travel, 1/256 units, >= 0
-        walked = 0
-        applied = 0
-        a_step = 0
-        vt_reg = self.v_target
-        last = until - period + 1
-        is_ramp = mode == RampMode.RAMP
-        batch = self._linear_batch(w, acc, d, room, (last - nr) // period + 1, per_ramp,
-                                   positioning, vt_fixed * direction if not positioning else 0)
-        if batch is not None:
-            ticks, w, acc, steps, vt_reg_mag = batch
-            room -= steps
-            d -= steps
-            walked += steps
-            applied += ticks
-            nr += ticks * period
-            a_step = a_max if positioning or vt_fixed * direction << 8 > w else -a_max
-            if positioning:
-                vt_reg = vt_reg_mag * direction
-        while nr <= last:
-            if positioning:
-                dd = d if d < DISTANCE_LIMIT else DISTANCE_LIMIT
-                mag = isqrt((k_mul * dd) >> pdiv) if is_ramp else (pmul * dd) >> soft_shift
-                if mag < v_min:
-                    mag = v_min
-                if mag > v_max:
-                    mag = v_max
-                target = mag << 8
-                if w == target and (mag in (v_max, v_min) or d >= DISTANCE_LIMIT):
-                    break  # steady: the closed-form path takes over
-            else:
-                target = vt_fixed * direction << 8
-                if target < 0:
-                    if w < a_max:
-                        break  # this tick crosses zero: the general path does it
-                    target = 0  # reversing: down towards zero here
-                if w == target:
-                    break  # steady: the closed-form path takes over
-            if w < target:
-                nw = w + a_max
-                if nw > target:
-                    nw = target
-            else:
-                nw = w - a_max
-                if nw < target:
-                    nw = target
-            vi = nw >> 8
-            total = acc + vi * per_ramp
-            steps = total >> 11
-            if steps >= room:
-                break
-            a_step = nw - w
-            w = nw
-            acc = total & 2047
-            room -= steps
-            d -= steps
-            walked += steps
-            applied += 1
-            nr += period
-            if positioning:
-                vt_reg = mag * direction
-            if w == 0:
-                break
-        if applied:
-            self.v = w * direction
-            self.acc = acc
-            self.a_actual = max(-2048, min(2047, a_step * direction))
-            self.v_target = vt_reg
-            self._apply_steps(walked, direction)
-            self.ramp_next = nr
-            if w == 0 and self._ramp_target()[0] == 0:
-                self.t = nr - period
-                return Stop.STOPPED
-            self.t = nr - 1
-            return None
-        if self._steady_steps() is not None:
-            return None
-        return self._slow_tick(nr)
-
-    def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int, per_ramp: int,
-                      positioning: bool, fixed_target: int
-                      ) -> tuple[int, int, int, int, int | None] | None:
-        """Many ramp ticks of full-A_MAX slew at once (floor sums instead of a loop).
-
-        ``w`` is the speed along the direction of travel (1/256 units).  In velocity mode the
-        target is fixed; in ramp/soft mode it is the curve, and the batch ends before the tick
-        at which the curve would limit the acceleration.  Returns (ticks, speed, accumulator,
-        steps, last target magnitude or None) or None if fewer than 16 ticks qualify.
-        """
-        a_max = self.a_max
-        if a_max == 0:
-            return None
-        if positioning:
-            cap = self.v_max << 8
-            if w + a_max > cap:
-                return None
-            ticks = min(max_ticks, (cap - w) // a_max)
-            rising = True
-        else:
-            target = max(0, fixed_target << 8)  # a reversal decelerates to zero first
-            rising = target > w
-            ticks = min(max_ticks, (target - w) // a_max if rising else (w - target) // a_max)
-        if ticks < 16:
-            return None
-
-        def after(k: int) -> tuple[int, int]:
-            """(steps, accumulator) after k full-slew ticks."""
-            if rising:
-                speeds = floor_sum(k, 256, a_max, w + a_max)
-            else:
-                speeds = floor_sum(k, 256, a_max, w - k * a_max)
-            total = acc + per_ramp * speeds
-            return total >> 11, total & 2047
-
-        def fits(k: int) -> bool:
-            steps, _ = after(k)
-            if steps >= room:
-                return False
-            if positioning:
-                before, _ = after(k - 1)  # distance at the start of tick k
-                mag = min(max(self._curve(d - before), self.v_min), self.v_max)
-                return mag << 8 >= w + k * a_max
-            return True
-
-        if not fits(ticks):
-            low, high = 0, ticks  # fits(low) holds (vacuously for 0), fits(high) does not
-            while high - low > 1:
-                mid = (low + high) // 2
-                if fits(mid):
-                    low = mid
-                else:
-                    high = mid
-            ticks = low
-        if ticks < 16:
-            return None
-        steps, new_acc = after(ticks)
-        speed = w + ticks * a_max if rising else w - ticks * a_max
-        last_mag = None
-        if positioning:
-            before, _ = after(ticks - 1)
-            last_mag = min(max(self._curve(d - before), self.v_min), self.v_max)
-        return ticks, speed, new_acc, steps, last_mag
-
-    def _slow_tick(self, nr: int) -> Stop | None:
-        """One ramp tick the plain way (its pulses follow in the caller's next round)."""
-        moving = self.v != 0
-        self._ramp_tick()
-        self.ramp_next = nr + (1 << self.ramp_div)
-        if moving and self.v == 0 and self._ramp_target()[0] == 0:
-            self.t = nr
-            return Stop.STOPPED
-        return None
+                self._wire()

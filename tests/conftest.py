@@ -56,6 +56,20 @@ class Bench:
         self.simulation.advance(seconds)
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--soak", action="store_true", default=False,
+                     help="also run the long soak/fuzz tests (marked @pytest.mark.soak)")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if config.getoption("--soak"):
+        return
+    skip = pytest.mark.skip(reason="soak test: run with --soak")
+    for item in items:
+        if "soak" in item.keywords:
+            item.add_marker(skip)
+
+
 @pytest.fixture
 def bench(tmp_path) -> Bench:
     return Bench(TMCM6212(1, Eeprom(tmp_path / "module-1")))
