@@ -1,0 +1,402 @@
+"""TMCL frames as readable text: ``SAP 4 MaxPositioningSpeed m0 = 51200 → 100 OK``.
+
+One decoder for the server's trace (``tmcl-server --trace``), the ``tmcl`` tool's replies and
+``tmcl decode`` (a hex dump or a capture file pasted from a user's logs).  It knows the wire
+layouts (serial 9-byte frames, CAN payloads, the 136 version string, the 134 legacy read-back)
+and names parameters from the module type's tables (:mod:`tmcl_spec.names`); it imports no
+transport library and nothing of the running server.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from tmcl_server.protocol import FRAME_LENGTH, Reply, Request, checksum
+from tmcl_spec.commands import OPERANDS, TYPE_SYMBOLS, ApplicationStatus, Opcode, Status
+from tmcl_spec.modules import MODULE_TYPES, ModuleType, module_type
+from tmcl_spec.names import ParameterNames, names_of
+from tmcl_spec.numbers import to_int32
+
+_AXIS_PARAMETER_COMMANDS = frozenset({Opcode.SAP, Opcode.GAP, Opcode.STAP, Opcode.RSAP, Opcode.AAP})
+_GLOBAL_PARAMETER_COMMANDS = frozenset({Opcode.SGP, Opcode.GGP, Opcode.STGP, Opcode.RSGP, Opcode.AGP})
+#: Commands whose request value is written (shown as ``= value``).
+_WRITES = frozenset({Opcode.SAP, Opcode.SGP, Opcode.SIO, Opcode.SCO, Opcode.WRITE_MC})
+#: Commands whose reply value is a reading (shown after the status).
+_READS = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO, Opcode.GCO, Opcode.CCO, Opcode.READ_MC,
+                    Opcode.READ_MC_PYTRINAMIC, Opcode.GET_APPLICATION_STATUS})
+_COORDINATE_COMMANDS = frozenset({Opcode.SCO, Opcode.GCO, Opcode.CCO, Opcode.ACO})
+_STATUS_NAMES = {int(s): s.name for s in Status}
+_OPCODE_NAMES = {int(o): o.name for o in Opcode}
+_MODE_NAMES = {int(m): m.name for m in ApplicationStatus} | {4: "DOWNLOAD"}
+
+
+def status_name(status: int) -> str:
+    return _STATUS_NAMES.get(status, "UNKNOWN")
+
+
+def opcode_name(opcode: int) -> str:
+    return _OPCODE_NAMES.get(opcode, f"opcode {opcode}")
+
+
+class Vocabulary:
+    """A module type's names, prepared for decoding (parameter names, banks)."""
+
+    def __init__(self, kind: ModuleType | str | None = None) -> None:
+        self.type = module_type() if kind is None else (
+            module_type(kind) if isinstance(kind, str) else kind)
+        self.axis: ParameterNames = names_of(self.type.axis_parameters)
+        self.banks: dict[int, ParameterNames] = {
+            bank: names_of(table) for bank, table in self.type.global_parameters.items()}
+
+    def parameter_name(self, opcode: int, number: int, bank: int) -> str | None:
+        if opcode in _AXIS_PARAMETER_COMMANDS:
+            return self.axis.name(number)
+        names = self.banks.get(bank)
+        return names.name(number) if names is not None else None
+
+
+_VOCABULARIES: dict[int, Vocabulary] = {}
+
+
+def vocabulary(kind: ModuleType | None = None) -> Vocabulary:
+    """The (cached) vocabulary of a module type (the default type when None)."""
+    kind = kind or module_type()
+    found = _VOCABULARIES.get(id(kind))
+    if found is None or found.type is not kind:
+        found = _VOCABULARIES[id(kind)] = Vocabulary(kind)
+    return found
+
+
+def module_type_by_number(number: int) -> ModuleType | None:
+    """The profile whose command 136 module number is ``number`` (e.g. 6212), if any."""
+    for key in MODULE_TYPES:
+        kind = module_type(key)
+        if kind.module_number == number:
+            return kind
+    return None
+
+
+# -- requests ---------------------------------------------------------------------------------
+
+def _symbol(opcode: int, type_: int) -> str:
+    symbols = TYPE_SYMBOLS.get(opcode)  # type: ignore[call-overload]
+    if symbols is not None:
+        try:
+            return symbols(type_).name
+        except ValueError:
+            pass
+    return str(type_)
+
+
+def describe_request(opcode: int, type_: int, motor: int, value: int,
+                     words: Vocabulary | None = None) -> str:
+    """A command as text, e.g. ``SAP 4 MaxPositioningSpeed m0 = 51200``, ``MVP ABS m0 51200``."""
+    words = words or vocabulary()
+    if opcode in _AXIS_PARAMETER_COMMANDS or opcode in _GLOBAL_PARAMETER_COMMANDS:
+        name = words.parameter_name(opcode, type_, motor)
+        where = f"m{motor}" if opcode in _AXIS_PARAMETER_COMMANDS else f"b{motor}"
+        text = f"{_OPCODE_NAMES[opcode]} {type_}{' ' + name if name else ''} {where}"
+        return f"{text} = {value}" if opcode in _WRITES else text
+    if opcode == Opcode.SIO:
+        return f"SIO {type_} b{motor} = {value}"
+    if opcode == Opcode.GIO:
+        return f"GIO {type_} b{motor}"
+    if opcode in _COORDINATE_COMMANDS:
+        return f"{_OPCODE_NAMES[opcode]} {type_} m{motor}" + (
+            f" = {value}" if opcode in _WRITES else "")
+    try:
+        known = Opcode(opcode)
+    except ValueError:
+        return f"opcode {opcode} type {type_} motor {motor} value {value}"
+    if known in OPERANDS:
+        parts = [known.name]
+        for spec in OPERANDS[known]:
+            if spec.slot == "type":
+                parts.append(_symbol(opcode, type_))
+            elif spec.slot == "motor":
+                parts.append(f"m{motor}")
+            else:
+                parts.append(str(value))
+        return " ".join(parts)
+    return _describe_control(known, type_, motor, value)
+
+
+def _describe_control(opcode: Opcode, type_: int, motor: int, value: int) -> str:
+    name = opcode.name
+    if opcode == Opcode.RUN_APPLICATION:
+        return f"{name} from {value}" if type_ == 1 else f"{name} (continue)"
+    if opcode in (Opcode.ENTER_DOWNLOAD_MODE, Opcode.READ_PROGRAM_MEMORY):
+        return f"{name} at {value}"
+    if opcode in (Opcode.GET_APPLICATION_STATUS, Opcode.GET_FIRMWARE_VERSION):
+        return f"{name} type {type_}"
+    if opcode == Opcode.RESTORE_FACTORY_SETTINGS:
+        return f"{name} {value}"
+    if opcode == Opcode.TARGET_REACHED_EVENT:
+        return f"{name} {'every move' if type_ == 1 else 'next move'} axes {_axes(value)}"
+    if opcode in (Opcode.WRITE_MC, Opcode.READ_MC, Opcode.READ_MC_PYTRINAMIC):
+        return f"{name} register {type_:#04x} m{motor}" + (
+            f" = {value}" if opcode == Opcode.WRITE_MC else "")
+    return name
+
+
+def _axes(mask: int) -> str:
+    bits = [str(i) for i in range(32) if mask >> i & 1]
+    return ",".join(bits) if bits else "none"
+
+
+# -- replies ----------------------------------------------------------------------------------
+
+def describe_value(opcode: int, type_: int, value: int) -> str | None:
+    """The reply value of a reading command, as text (None: the value only echoes)."""
+    if opcode == Opcode.GET_FIRMWARE_VERSION and type_ == 1:
+        value &= 0xFFFF_FFFF
+        return f"{value} ({value >> 16} V{value >> 8 & 0xFF}.{value & 0xFF:02d})"
+    if opcode == Opcode.GET_APPLICATION_STATUS and type_ in (0, 1):
+        mode = _MODE_NAMES.get(value >> 24 & 0xFF, str(value >> 24 & 0xFF))
+        pointer = "download address" if type_ == 0 else "pc"
+        waiting = ", waiting" if value >> 16 & 0xFF else ""
+        return f"{value} ({mode}, {pointer} {value & 0xFFFF}{waiting})"
+    if opcode in _READS or (opcode == Opcode.RFS and type_ == 2):
+        return str(value)
+    return None
+
+
+def describe_reply(reply: Reply, request: Request | None = None) -> str:
+    """``→ 100 OK``, with the value of a reading (``→ 100 OK = 51200``) or of a 138 event."""
+    text = f"→ {reply.status} {status_name(reply.status)}"
+    if reply.status == Status.TARGET_REACHED_EVENT:
+        return f"{text} axes {_axes(reply.value)}"
+    if reply.status not in (Status.OK, Status.LOADED):
+        return text
+    type_ = request.type if request is not None else 0
+    shown = describe_value(reply.opcode, type_, to_int32(reply.value))
+    return f"{text} = {shown}" if shown is not None else text
+
+
+def describe_version_string(data: bytes) -> str:
+    """Command 136 type 0: ``[host]`` + 8 ASCII characters, no checksum."""
+    return f'→ "{data[1:FRAME_LENGTH].decode("ascii", "replace")}"'
+
+
+def describe_program_record(data: bytes, address: int | None = None,
+                            words: Vocabulary | None = None) -> str:
+    """Command 134: ``[host][opcode][type][motor][value x4][checksum]`` (a stored command)."""
+    value = to_int32(int.from_bytes(data[4:8], "big"))
+    where = f"@{address}: " if address is not None else ""
+    if data[1] == 0:
+        return f"→ {where}(empty)"
+    return f"→ {where}{describe_request(data[1], data[2], data[3], value, words)}"
+
+
+def is_version_string(data: bytes) -> bool:
+    text = data[1:FRAME_LENGTH]
+    return len(text) == 8 and all(0x20 <= b < 0x7F for b in text)
+
+
+# -- hex dumps and capture files --------------------------------------------------------------
+
+@dataclass
+class Frame:
+    """Bytes as captured: a serial stream chunk, or one CAN frame (``can_id`` set)."""
+
+    data: bytes
+    can_id: int | None = None
+
+
+@dataclass
+class Decoded:
+    """One decoded frame: what it is and what it says."""
+
+    kind: str  # request, reply, event, version, program, bad-checksum, incomplete
+    data: bytes
+    text: str
+    can_id: int | None = None
+    fields: dict[str, Any] = field(default_factory=dict)
+
+    def line(self) -> str:
+        where = f"id {self.can_id:03x}  " if self.can_id is not None else ""
+        return f"{where}{self.data.hex(' '):<26}  {self.kind:<8} {self.text}"
+
+    def as_json(self) -> str:
+        body: dict[str, Any] = {"kind": self.kind, "bytes": self.data.hex(), "text": self.text}
+        if self.can_id is not None:
+            body["can_id"] = self.can_id
+        body.update(self.fields)
+        return json.dumps(body)
+
+
+_CANDUMP = re.compile(r"^\s*\S+\s+([0-9A-Fa-f]{3,8})\s+\[(\d+)\]\s*((?:[0-9A-Fa-f]{2}\s*)*)")
+_CANDUMP_LOG = re.compile(r"(?:^|\s)\S+\s+([0-9A-Fa-f]{3,8})#([0-9A-Fa-f]*)\s*$")
+_HEX_PAIR = re.compile(r"[0-9A-Fa-f]{2}")
+_HEX_RUN = re.compile(r"(?:[0-9A-Fa-f]{2})+")
+
+
+def parse_hex(text: str) -> bytes:
+    """Bytes from hex text: ``01 06 04 ...``, ``0x01,0x06``, ``010604...``.
+
+    When a line has two-digit tokens, only those count (offsets and timestamps of hexdump-like
+    logs are skipped); otherwise runs of hex digits are split into bytes.
+    """
+    out = bytearray()
+    for line in text.splitlines():
+        tokens = [t.removeprefix("0x").removeprefix("0X")
+                  for t in re.split(r"[\s,;]+", line.strip()) if t]
+        pairs = [t for t in tokens if _HEX_PAIR.fullmatch(t)]
+        chosen = pairs if pairs else [t for t in tokens if _HEX_RUN.fullmatch(t)]
+        for token in chosen:
+            out += bytes.fromhex(token)
+    return bytes(out)
+
+
+def parse_capture(text: str) -> list[Frame]:
+    """Frames from a capture: candump lines (``can0 001 [7] 06 ..`` or ``can0 001#06..``) and
+    hex dumps (a serial byte stream, cut into frames in order)."""
+    frames: list[Frame] = []
+    stream: list[str] = []
+    for line in text.splitlines():
+        match = _CANDUMP.match(line)
+        if match:
+            frames.append(Frame(bytes.fromhex("".join(match.group(3).split()))[:int(match.group(2))],
+                                int(match.group(1), 16)))
+            continue
+        match = _CANDUMP_LOG.search(line)
+        if match:
+            frames.append(Frame(bytes.fromhex(match.group(2)), int(match.group(1), 16)))
+            continue
+        line = line.split("//")[0].split("#")[0]
+        if line.strip():
+            stream.append(line)
+    if stream:
+        frames.insert(0, Frame(parse_hex("\n".join(stream))))
+    return frames
+
+
+class Conversation:
+    """Decodes frames in order, pairing each reply with the request before it.
+
+    A dump does not say which frames are requests: a frame is taken as the reply to the
+    previous request when its layout fits (checksum, a status code, the same opcode; the 136
+    string; the 134 record), as a 138 event when it carries status 128, else as a request.
+    """
+
+    def __init__(self, words: Vocabulary | None = None, replies_only: bool = False) -> None:
+        self.words = words or vocabulary()
+        self.replies_only = replies_only
+        self._pending: Request | None = None
+        #: A request with a wrong checksum: the module answers it with status 1, opcode 0.
+        self._bad_checksum: Request | None = None
+
+    def decode(self, frames: Iterable[Frame]) -> Iterator[Decoded]:
+        for frame in frames:
+            if frame.can_id is None:
+                yield from self._serial(frame.data)
+            else:
+                yield self._can(frame.can_id, frame.data)
+
+    # -- serial ------------------------------------------------------------------------------
+
+    def _serial(self, data: bytes) -> Iterator[Decoded]:
+        whole = len(data) - len(data) % FRAME_LENGTH
+        for start in range(0, whole, FRAME_LENGTH):
+            yield self._serial_frame(data[start:start + FRAME_LENGTH])
+        if whole < len(data):
+            yield Decoded("incomplete", data[whole:],
+                          f"{len(data) - whole} bytes left over (a torn frame)")
+
+    def _serial_frame(self, frame: bytes) -> Decoded:
+        valid = checksum(frame[:8]) == frame[8]
+        value = to_int32(int.from_bytes(frame[4:8], "big"))
+        pending = self._pending
+        if pending is not None or self._bad_checksum is not None or self.replies_only:
+            special = self._special_reply(frame, valid, pending)
+            if special is not None:
+                return special
+            if valid and frame[2] in _STATUS_NAMES and self._answers(frame[2], frame[3], pending):
+                if frame[2] == Status.WRONG_CHECKSUM:
+                    pending = self._bad_checksum
+                self._pending = self._bad_checksum = None
+                reply = Reply(frame[0], frame[1], frame[2], frame[3], value)
+                return self._reply("reply", frame, reply, pending,
+                                   f"module {reply.module} → host {reply.host}")
+        if valid and frame[2] == Status.TARGET_REACHED_EVENT and frame[3] == Opcode.TARGET_REACHED_EVENT:
+            reply = Reply(frame[0], frame[1], frame[2], frame[3], value)
+            return self._reply("event", frame, reply, None, f"module {reply.module} → host {reply.host}")
+        request = Request(frame[0], frame[1], frame[2], frame[3], value)
+        text = f"to {request.address}: {self._request_text(request)}"
+        if not valid:
+            self._pending, self._bad_checksum = None, request
+            return Decoded("bad-checksum", frame, f"{text} (checksum {frame[8]:#04x}, should be "
+                           f"{checksum(frame[:8]):#04x}: the module answers status 1)",
+                           fields=_request_fields(request))
+        self._pending, self._bad_checksum = request, None
+        return Decoded("request", frame, text, fields=_request_fields(request))
+
+    def _answers(self, status: int, opcode: int, pending: Request | None) -> bool:
+        """Whether a reply with this status and opcode can answer what was asked."""
+        if status == Status.WRONG_CHECKSUM:
+            return opcode == 0 and (self._bad_checksum is not None or self.replies_only)
+        return (pending is None and self.replies_only) or (pending is not None and opcode == pending.opcode)
+
+    def _special_reply(self, frame: bytes, valid: bool, pending: Request | None) -> Decoded | None:
+        if pending is None:
+            return None
+        if pending.opcode == Opcode.GET_FIRMWARE_VERSION and pending.type == 0 and is_version_string(frame):
+            self._pending = None
+            return Decoded("version", frame, f"module → host {frame[0]}: {describe_version_string(frame)}",
+                           fields={"version": frame[1:9].decode("ascii")})
+        if pending.opcode == Opcode.READ_PROGRAM_MEMORY and valid and not (
+                frame[2] in _STATUS_NAMES and frame[3] == Opcode.READ_PROGRAM_MEMORY):
+            self._pending = None
+            return Decoded("program", frame, f"module → host {frame[0]}: "
+                           + describe_program_record(frame, pending.value, self.words))
+        return None
+
+    def _reply(self, kind: str, data: bytes, reply: Reply, request: Request | None,
+               who: str, can_id: int | None = None) -> Decoded:
+        subject = self._request_text(request) if request is not None else opcode_name(reply.opcode)
+        fields = {"status": reply.status, "status_name": status_name(reply.status),
+                  "opcode": reply.opcode, "value": to_int32(reply.value), "module": reply.module}
+        return Decoded(kind, data, f"{who}: {subject} {describe_reply(reply, request)}", can_id, fields)
+
+    def _request_text(self, request: Request) -> str:
+        return describe_request(request.opcode, request.type, request.motor, request.value, self.words)
+
+    # -- CAN ---------------------------------------------------------------------------------
+
+    def _can(self, can_id: int, data: bytes) -> Decoded:
+        pending = self._pending
+        if len(data) >= 7:
+            value = to_int32(int.from_bytes(data[3:7], "big"))
+            if pending is not None and pending.opcode == Opcode.GET_FIRMWARE_VERSION and pending.type == 0 \
+                    and is_version_string(b"\0" + data[:8]) and len(data) == 8:
+                self._pending = None
+                return Decoded("version", data, f"module → id {can_id:03x}: "
+                               f'→ "{data[:8].decode("ascii")}"', can_id)
+            fits = data[1] in _STATUS_NAMES and (
+                (pending is not None and data[2] == pending.opcode) or self.replies_only)
+            if fits or (data[1] == Status.TARGET_REACHED_EVENT and data[2] == Opcode.TARGET_REACHED_EVENT):
+                self._pending = None if fits else pending
+                reply = Reply(0, data[0], data[1], data[2], value)
+                return self._reply("reply" if fits else "event", data, reply, pending if fits else None,
+                                   f"module {data[0]} → id {can_id:03x}", can_id)
+            opcode, type_, motor = data[0], data[1], data[2]
+            value = to_int32(int.from_bytes(data[3:7], "big"))
+            request = Request(can_id, opcode, type_, motor, value)
+            self._pending = request
+            return Decoded("request", data, f"to id {can_id:03x}: {self._request_text(request)}", can_id,
+                           _request_fields(request))
+        return Decoded("incomplete", data, f"{len(data)} data bytes: not a TMCL frame", can_id)
+
+
+def _request_fields(request: Request) -> dict[str, Any]:
+    return {"address": request.address, "opcode": request.opcode, "mnemonic": opcode_name(request.opcode),
+            "type": request.type, "motor": request.motor, "value": request.value}
+
+
+def decode_text(text: str, words: Vocabulary | None = None, replies_only: bool = False) -> list[Decoded]:
+    """Everything in a pasted dump or capture file, decoded in order."""
+    return list(Conversation(words, replies_only).decode(parse_capture(text)))
