@@ -4,8 +4,11 @@
 Runs, in one go and on the same machine:
 * a bare asyncio server that only echoes 9-byte frames (the ceiling of Python on loopback),
 * ``tmcl-server`` (TCP and a pty), each in its own process,
+* ``tmcl-server --trace FILE`` (text, and ``--trace-format jsonl``): the same with the
+  telegram trace on, writing two lines per request to a file,
 and measures, for 1 and 16 lockstep TCP clients and for one pty client, requests per second
-and p50/p99 round-trip latency.  Every figure is the median of ``--repeat`` runs.
+and p50/p99 round-trip latency.  Every figure is the median of ``--repeat`` runs.  The traced
+rates are reported as a ratio to the untraced one measured in the same run (goal >= 80%).
 
     .venv/bin/python scripts/bench_wire.py [--seconds 2] [--repeat 3]
 """
@@ -138,11 +141,12 @@ def start_echo() -> tuple[subprocess.Popen, str]:
     return proc, f"127.0.0.1:{port}"
 
 
-def start_simulator(tmp: Path) -> tuple[subprocess.Popen, dict[str, list[str]]]:
-    ready = tmp / "ready.json"
+def start_simulator(tmp: Path, *extra: str, name: str = "plain"
+                    ) -> tuple[subprocess.Popen, dict[str, list[str]]]:
+    ready = tmp / f"ready-{name}.json"
     proc = subprocess.Popen([sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0",
-                             "--pty", str(tmp / "ttyBENCH"), "--ready-file", str(ready)],
-                            stdout=subprocess.DEVNULL)
+                             "--pty", str(tmp / f"ttyBENCH-{name}"), "--ready-file", str(ready),
+                             *extra], stdout=subprocess.DEVNULL)
     deadline = time.monotonic() + 20
     while not ready.exists():
         if time.monotonic() > deadline:
@@ -160,11 +164,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmpdir:
         echo, echo_endpoint = start_echo()
         ECHO_ENDPOINT[0] = echo_endpoint
-        sim, endpoints = start_simulator(Path(tmpdir))
+        tmp = Path(tmpdir)
+        sim, endpoints = start_simulator(tmp)
+        traced, traced_endpoints = start_simulator(tmp, "--trace", str(tmp / "trace.txt"),
+                                                   name="traced")
+        jsonl, jsonl_endpoints = start_simulator(tmp, "--trace", str(tmp / "trace.jsonl"),
+                                                 "--trace-format", "jsonl", name="jsonl")
         try:
             cases = (
                 ("echo  tcp  1 client ", lockstep_tcp, echo_endpoint, 1),
                 ("sim   tcp  1 client ", lockstep_tcp, endpoints["tcp"][0], 1),
+                ("trace tcp  1 client ", lockstep_tcp, traced_endpoints["tcp"][0], 1),
+                ("jsonl tcp  1 client ", lockstep_tcp, jsonl_endpoints["tcp"][0], 1),
                 ("echo  tcp 16 clients", lockstep_tcp, echo_endpoint, 16),
                 ("sim   tcp 16 clients", lockstep_tcp, endpoints["tcp"][0], 16),
                 ("sim   pty  1 client ", lockstep_pty, endpoints["pty"][0], 1),
@@ -178,14 +189,20 @@ def main() -> None:
                 for label, target, endpoint, clients in cases:
                     runs[label].append(measure(target, endpoint, clients, args.seconds))
             rows = [(label, median_of(r)) for label, r in runs.items()]
+            # p50 latency is steadier than the rate on a shared machine: report both
+            latency_ratios = [statistics.median(s["p50_us"] / t["p50_us"] for s, t in
+                                                zip(runs["sim   tcp  1 client "], runs[label], strict=True))
+                              for label in ("trace tcp  1 client ", "jsonl tcp  1 client ")]
             ratios = [statistics.median(s["rate"] / e["rate"] for s, e in
                                         zip(runs[sim_label], runs[echo_label], strict=True))
                       for sim_label, echo_label in (
                           ("sim   tcp  1 client ", "echo  tcp  1 client "),
                           ("sim   tcp 16 clients", "echo  tcp 16 clients"),
-                          ("sim   tcp  pytrinamic", "echo  tcp  pytrinamic"))]
+                          ("sim   tcp  pytrinamic", "echo  tcp  pytrinamic"),
+                          ("trace tcp  1 client ", "sim   tcp  1 client "),
+                          ("jsonl tcp  1 client ", "sim   tcp  1 client "))]
         finally:
-            for proc in (echo, sim):
+            for proc in (echo, sim, traced, jsonl):
                 proc.terminate()
                 proc.wait(10)
 
@@ -194,9 +211,12 @@ def main() -> None:
     print(f"{'':22} {'req/s':>9} {'p50 us':>8} {'p99 us':>8}")
     for label, r in rows:
         print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f}")
-    one, many, pytri = ratios
+    one, many, pytri, text_trace, jsonl_trace = ratios
     print(f"ratio sim/echo (median of paired runs): 1 raw client {one:.0%}, 16 raw clients "
           f"{many:.0%}, 1 pytrinamic client {pytri:.0%} (goal: 1 client >= 80%)")
+    print(f"ratio traced/untraced, 1 raw client: --trace text {text_trace:.0%}, "
+          f"jsonl {jsonl_trace:.0%} (goal >= 80%); by p50 latency: text {latency_ratios[0]:.0%}, "
+          f"jsonl {latency_ratios[1]:.0%}")
 
 
 if __name__ == "__main__":

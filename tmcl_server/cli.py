@@ -67,6 +67,25 @@ def build_parser() -> argparse.ArgumentParser:
                              "(docs/world.md); default: free axes, open switches")
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
+    watch = parser.add_argument_group("watching (see README: trace, recorder)")
+    watch.add_argument("--trace", nargs="?", const="-", metavar="FILE",
+                       help="log every request, reply, event and dropped frame, decoded "
+                            "(to stderr, or to FILE)")
+    watch.add_argument("--trace-format", choices=["text", "jsonl"], default="text",
+                       help="trace lines as text (default) or one JSON object each")
+    watch.add_argument("--record", metavar="FILE",
+                       help="record position, velocity, acceleration, current, switches and "
+                            "events of the axes to FILE (.csv or .jsonl)")
+    watch.add_argument("--record-resolution", type=float, default=0.01, metavar="SECONDS",
+                       help="simulated time between two samples (default 0.01)")
+    watch.add_argument("--record-axes", metavar="LIST",
+                       help="axes to record, e.g. 0,1 (default: all)")
+    parser.add_argument("--clock", choices=["real", "lockstep"], default="real",
+                        help="real: simulated time follows the wall clock (x --speed); "
+                             "lockstep: it moves only by --request-time per request")
+    parser.add_argument("--request-time", type=float, default=0.001, metavar="SECONDS",
+                        help="with --clock lockstep: simulated time each request takes "
+                             "(default 0.001)")
     parser.add_argument("--log-level", default="WARNING",
                         choices=["DEBUG", "INFO", "WARNING", "ERROR"])
     return parser
@@ -106,10 +125,22 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         can_bus_name = check_bus_name(args.can_bus) if args.can_bus else DEFAULT_BUS_NAME
     except ValueError as exc:
         raise SystemExit(f"tmcl-server: --can-bus: {exc}") from None
+    if args.record_resolution <= 0:
+        raise SystemExit("tmcl-server: --record-resolution must be positive")
+    if args.request_time < 0:
+        raise SystemExit("tmcl-server: --request-time cannot be negative")
+    try:
+        record_axes = ([int(a) for a in args.record_axes.split(",") if a.strip()]
+                       if args.record_axes else None)
+    except ValueError:
+        raise SystemExit(f"tmcl-server: --record-axes: bad list {args.record_axes!r}") from None
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
-                        clock="real", speed=args.speed, ready_file=args.ready_file,
+                        clock=args.clock, speed=args.speed, ready_file=args.ready_file,
                         mqtt_rate=args.mqtt_rate, can_bus_name=can_bus_name, world=args.world,
-                        module_type=args.module_type, axis_core=args.axis_core)
+                        module_type=args.module_type, axis_core=args.axis_core,
+                        request_time=args.request_time, trace=args.trace,
+                        trace_format=args.trace_format, record=args.record,
+                        record_resolution=args.record_resolution, record_axes=record_axes)
 
 
 async def run(config: ServerConfig) -> None:

@@ -12,13 +12,15 @@ import time
 
 from tmcl_spec.numbers import NS_PER_S, seconds_to_ns
 
-__all__ = ["Clock", "RealClock", "VirtualClock", "seconds_to_ns"]
+__all__ = ["Clock", "LockstepClock", "RealClock", "VirtualClock", "seconds_to_ns"]
 
 
 class Clock:
     """Base class: ``now_ns()`` is the current simulated time."""
 
     virtual = False
+    #: Simulated time each request takes before it runs (only a lockstep clock charges it).
+    request_ns = 0
 
     def now_ns(self) -> int:
         raise NotImplementedError
@@ -63,3 +65,19 @@ class VirtualClock(Clock):
 
     def wall_seconds(self, sim_ns: int) -> float:
         return 0.0
+
+
+class LockstepClock(VirtualClock):
+    """A virtual clock that the host moves by what it does (``clock="lockstep"``).
+
+    Every request a module executes first lets ``request_ns`` of simulated time pass (its
+    time on the wire), and the pytest plugin turns a host thread's ``time.sleep(s)`` into
+    ``advance(s)``: unchanged poll-and-sleep host code finishes at once and sees the same
+    replies on every run, whatever the machine's load (README, "Host tests that poll").
+    """
+
+    def __init__(self, request_ns: int = 1_000_000, start_ns: int = 0) -> None:
+        super().__init__(start_ns)
+        if request_ns < 0:
+            raise ValueError("the time a request takes cannot be negative")
+        self.request_ns = request_ns

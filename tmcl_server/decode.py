@@ -167,13 +167,18 @@ def describe_value(opcode: int, type_: int, value: int) -> str | None:
 
 def describe_reply(reply: Reply, request: Request | None = None) -> str:
     """``→ 100 OK``, with the value of a reading (``→ 100 OK = 51200``) or of a 138 event."""
-    text = f"→ {reply.status} {status_name(reply.status)}"
-    if reply.status == Status.TARGET_REACHED_EVENT:
-        return f"{text} axes {_axes(reply.value)}"
-    if reply.status not in (Status.OK, Status.LOADED):
+    return describe_outcome(reply.status, reply.opcode, request.type if request is not None else 0,
+                            reply.value)
+
+
+def describe_outcome(status: int, opcode: int, type_: int, value: int) -> str:
+    """A reply's status, and its value when the command reads one (``type_`` is the request's)."""
+    text = f"→ {status} {status_name(status)}"
+    if status == Status.TARGET_REACHED_EVENT:
+        return f"{text} axes {_axes(value)}"
+    if status not in (Status.OK, Status.LOADED):
         return text
-    type_ = request.type if request is not None else 0
-    shown = describe_value(reply.opcode, type_, to_int32(reply.value))
+    shown = describe_value(opcode, type_, to_int32(value))
     return f"{text} = {shown}" if shown is not None else text
 
 

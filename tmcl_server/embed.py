@@ -15,14 +15,18 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from dataclasses import fields
 from typing import Any, TypeVar
 
 from tmcl_server.module import TMCLModule
+from tmcl_server.record import DEFAULT_RESOLUTION_S, Recorder, Recording
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.simulation import Simulation
 
 T = TypeVar("T")
+#: Keywords that set a ServerConfig field rather than name an endpoint kind.
+_CONFIG_FIELDS = frozenset(f.name for f in fields(ServerConfig)) - {"endpoints"}
 
 
 class SimulatorThread:
@@ -52,7 +56,10 @@ class SimulatorThread:
         if can_bus is not None:  # the bus's name (a one-element list, as the ready file has it)
             config.can_bus_name = can_bus if isinstance(can_bus, str) else can_bus[0]
         for kind, arguments in endpoints.items():
-            config.endpoints[kind] = list(arguments)
+            if kind in _CONFIG_FIELDS:  # any other ServerConfig setting (trace=..., record=...)
+                setattr(config, kind, arguments)
+            else:
+                config.endpoints[kind] = list(arguments)
         self.config = config
         self.server: Server | None = None
         self.endpoints: dict[str, list[str]] = {}
@@ -130,6 +137,15 @@ class SimulatorThread:
                       resolution: float = 0.001) -> bool:
         """Advance until ``condition()`` (run on the loop thread) holds; False on timeout."""
         return self.call(self.simulation.advance_until, condition, timeout, resolution)
+
+    def record(self, resolution: float = DEFAULT_RESOLUTION_S, axes: Iterable[int] | None = None,
+               modules: Iterable[int] | None = None) -> Recording:
+        """Start recording the axes every ``resolution`` simulated seconds (record.py).
+
+        ``rows`` fill as time passes; ``stop()`` or the end of a ``with`` block ends it.
+        """
+        recorder = self.call(lambda: Recorder(self.simulation, resolution, modules, axes).start())
+        return Recording(recorder, self.call)
 
     @property
     def tcp(self) -> str:

@@ -150,9 +150,14 @@ class FrameAssembler:
         """Number of bytes of an incomplete frame held back."""
         return len(self.buffer)
 
+    def expired(self, now_ns: int) -> bool:
+        """Whether the partial frame held back is older than the pause and will be dropped."""
+        last = self.last_byte_ns
+        return bool(self.buffer) and last is not None and now_ns - last > self.gap_ns
+
     def feed(self, data: bytes, now_ns: int) -> Iterator[bytes]:
         buffer = self.buffer
-        if buffer and self.last_byte_ns is not None and now_ns - self.last_byte_ns > self.gap_ns:
+        if self.expired(now_ns):
             buffer.clear()
         self.last_byte_ns = now_ns
         if not buffer and len(data) == FRAME_LENGTH:

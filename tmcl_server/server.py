@@ -17,9 +17,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from axes.world import World, load_world
-from tmcl_server.clock import Clock, RealClock, VirtualClock
+from tmcl_server.clock import Clock, LockstepClock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCLModule
+from tmcl_server.observe import Observers
 from tmcl_server.program import REAL_CLOCK_MAX_LAG_NS
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports import transport_class
@@ -27,6 +28,7 @@ from tmcl_server.transports.base import Transport
 from tmcl_server.transports.can import DEFAULT_BUS_NAME
 from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ
 from tmcl_spec.modules import DEFAULT_MODULE_TYPE, module_type
+from tmcl_spec.numbers import seconds_to_ns
 
 if TYPE_CHECKING:
     from tmcl_server.transports.can.bus import SimulatedCanBus
@@ -57,10 +59,21 @@ class ServerConfig:
     module_type: str = DEFAULT_MODULE_TYPE
     #: The chip core of the axes (axes.cores.CHIP_CORES); None: the module type's own.
     axis_core: str | None = None
+    #: clock "lockstep": simulated seconds each request takes (tmcl_server.clock.LockstepClock).
+    request_time: float = 0.001
+    #: Telegram trace: a file, "-" for stderr, None for none; "text" or "jsonl" (trace.py).
+    trace: str | None = None
+    trace_format: str = "text"
+    #: Record the axes to a .csv or .jsonl file every record_resolution simulated seconds.
+    record: str | None = None
+    record_resolution: float = 0.01
+    record_axes: list[int] | None = None
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
             return VirtualClock()
+        if self.clock == "lockstep":
+            return LockstepClock(seconds_to_ns(self.request_time))
         if self.clock == "real":
             return RealClock(self.speed)
         raise ValueError(f"unknown clock {self.clock!r}")
@@ -103,6 +116,8 @@ class Server:
         self.config = config or ServerConfig()
         self.simulation = simulation or build_simulation(self.config)
         self._can_bus: SimulatedCanBus | None = None
+        #: The trace and the recorder, when the configuration asks for them.
+        self.observers = Observers(self.simulation, self.config)
         self.transports: list[Transport] = []
         self.endpoints: dict[str, list[str]] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -133,6 +148,7 @@ class Server:
         self._loop = asyncio.get_running_loop()
         self.simulation.on_change = self._reschedule
         try:
+            self.observers.start(self._loop)
             for kind, arguments in self.config.endpoints.items():
                 cls = transport_class(kind)
                 for argument in arguments:
@@ -159,6 +175,7 @@ class Server:
             except Exception:  # keep closing the others
                 log.exception("closing %s failed", transport.kind)
         self.transports.clear()
+        self.observers.close()
         if self.config.ready_file:
             Path(self.config.ready_file).unlink(missing_ok=True)
         self._stopped.set()

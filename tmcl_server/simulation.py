@@ -8,11 +8,16 @@ Transports hand it frames and get replies back; tests and the embedding API move
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
 
 from tmcl_server.clock import Clock, VirtualClock, seconds_to_ns
 from tmcl_server.dispatch import Interface, ReplySink
 from tmcl_server.module import READ_ONLY_OPCODES, TMCLModule
 from tmcl_server.protocol import AnyReply, ChecksumError, Request, decode_request
+
+if TYPE_CHECKING:
+    from tmcl_server.record import Recorder
+    from tmcl_server.trace import Tracer
 
 Routed = tuple["TMCLModule", AnyReply]
 
@@ -25,6 +30,12 @@ class Simulation:
         #: timer when a command created an earlier event.
         self.on_change: Callable[[], None] | None = None
         self._serial_map: dict[int, list[TMCLModule]] | None = None
+        #: The telegram trace (tmcl_server/trace.py); None: tracing off, and it costs nothing.
+        self.tracer: Tracer | None = None
+        #: Samples the axes on the way whenever time moves (tmcl_server/record.py); or None.
+        self.recorder: Recorder | None = None
+        #: A lockstep clock's time per request (0 for the others): see _execute.
+        self._request_ns = clock.request_ns
         for module in self.modules:
             module.on_address_change = self._forget_addresses
             module.advance_to(clock.now_ns())
@@ -45,6 +56,8 @@ class Simulation:
     def sync(self) -> None:
         """Bring every module up to the clock's current time."""
         t = self.clock.now_ns()
+        if self.recorder is not None:  # it steps the modules to each sample instant up to t
+            self.recorder.catch_up(t)
         for module in self.modules:
             due = module.next_event_ns()
             # Also when the module is up to date but a command left an event due now.
@@ -121,12 +134,17 @@ class Simulation:
             serial_map = self._serial_map = self._build_serial_map()
         targets = serial_map.get(frame[0])
         if not targets:
+            if self.tracer is not None:
+                self.tracer.foreign(frame, sink)
             return []
         self.sync()
         try:
             request = decode_request(frame)
         except ChecksumError:
-            return [(m, m.checksum_error_reply()) for m in targets]
+            routed: list[Routed] = [(m, m.checksum_error_reply()) for m in targets]
+            if self.tracer is not None:
+                self.tracer.bad_checksum(frame, sink, routed)
+            return routed
         return self._execute(targets, request, Interface.SERIAL, sink)
 
     def handle_can_request(self, request: Request, sink: ReplySink | None = None) -> list[Routed]:
@@ -151,11 +169,18 @@ class Simulation:
 
     def _execute(self, targets: list[TMCLModule], request: Request, interface: Interface,
                  sink: ReplySink | None) -> list[Routed]:
+        if self._request_ns:  # a lockstep clock: the telegram's time on the wire passes first
+            self.advance_to_ns(self.clock.now_ns() + self._request_ns)
+        tracer = self.tracer
+        if tracer is not None:
+            sink = tracer.requested(request, interface, targets, sink)
         routed: list[Routed] = []
         for module in targets:
             reply = module.execute(request, interface, sink)
             if reply is not None:
                 routed.append((module, reply))
+        if tracer is not None:
+            tracer.replied(request, interface, targets, routed, sink)
         if request.opcode not in READ_ONLY_OPCODES:
             self._changed()
         return routed

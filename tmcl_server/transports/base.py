@@ -65,11 +65,13 @@ class StreamSession:
     the sink for replies that arrive later (command 138 events).
     """
 
-    __slots__ = ("_assembler", "_loop", "_write", "closed", "simulation")
+    __slots__ = ("_assembler", "_loop", "_write", "closed", "endpoint", "simulation")
 
     def __init__(self, simulation: Simulation, write: Callable[[bytes], None],
-                 loop: asyncio.AbstractEventLoop) -> None:
+                 loop: asyncio.AbstractEventLoop, endpoint: str = "") -> None:
         self.simulation = simulation
+        #: How the trace names this stream (``tcp 127.0.0.1:40512``, ``pty /tmp/ttyTMCL0``).
+        self.endpoint = endpoint
         self._write = write
         self._loop = loop
         self._assembler = FrameAssembler()
@@ -82,6 +84,8 @@ class StreamSession:
             assembler.last_byte_ns = now
             frames: Iterable[bytes] = (data,)
         else:
+            if self.simulation.tracer is not None:  # a torn frame may be about to be dropped
+                self.simulation.tracer.torn_frame(self.endpoint, assembler, now)
             frames = assembler.feed(data, now)
         for frame in frames:
             for module, reply in self.simulation.handle_serial_frame(frame, self):

@@ -58,7 +58,7 @@ class PtyTransport(Transport):
 
     def _make_session(self, loop: asyncio.AbstractEventLoop) -> ByteSession:
         """What speaks on the port: 9-byte TMCL here, SLCAN in the CAN adapter (slcan.py)."""
-        return StreamSession(self.simulation, self._write, loop)
+        return StreamSession(self.simulation, self._write, loop, f"pty {self.link}")
 
     def _on_readable(self) -> None:
         assert self._master is not None and self._session is not None

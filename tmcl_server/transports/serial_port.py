@@ -45,7 +45,8 @@ class SerialPortTransport(Transport):
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
         self._port = serial.serial_for_url(self.device, baudrate=self.baudrate, timeout=0)
-        self._session = StreamSession(self.simulation, self._port.write, loop)
+        self._session = StreamSession(self.simulation, self._port.write, loop,
+                                      f"serial {self.device}")
         try:
             fd = self._port.fileno()
         except (AttributeError, NotImplementedError, OSError, ValueError):

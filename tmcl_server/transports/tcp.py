@@ -60,8 +60,9 @@ class _TcpProtocol(asyncio.Protocol):
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
         disable_nagle(transport)
-        self._session = StreamSession(self._simulation, transport.write,
-                                      asyncio.get_running_loop())
+        peer = transport.get_extra_info("peername")
+        self._session = StreamSession(self._simulation, transport.write, asyncio.get_running_loop(),
+                                      f"tcp {peer[0]}:{peer[1]}" if peer else "tcp")
         self._connections.add(self)
 
     def data_received(self, data: bytes) -> None:

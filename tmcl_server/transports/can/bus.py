@@ -31,6 +31,10 @@ log = logging.getLogger(__name__)
 
 #: Data lengths of a TMCL request: 7, or 8 when the host appends a pad byte (pytrinamic does).
 REQUEST_LENGTHS = (CAN_PAYLOAD_LENGTH, CAN_PAYLOAD_LENGTH + 1)
+#: Why a frame is ignored, by its counter in ModuleNode.stats (the trace says this).
+_IGNORED = {"error_frames": "an error frame", "remote": "a remote frame",
+            "extended": "an extended (29-bit) id", "foreign": "no module has this CAN id",
+            "bad_length": "not 7 or 8 data bytes"}
 #: GP 70 factory default, used when no module claims a 138 event (its CAN id changed since).
 DEFAULT_REPLY_ID = BANK0_PARAMETERS[GP.CAN_REPLY_ID].default
 
@@ -114,6 +118,11 @@ class _EventSink:
     def send_unsolicited(self, reply: Reply) -> None:
         self.node.send_event(reply, self.length)
 
+    @property
+    def endpoint(self) -> str:
+        """How the trace names the requests that came this way."""
+        return f"can {self.node.bus.name}"
+
 
 class ModuleNode:
     """The simulator's modules on the bus: each one acts on frames with its CAN id (GP 71/83).
@@ -138,26 +147,28 @@ class ModuleNode:
 
     def _handle(self, frame: can.Message) -> None:
         if frame.is_error_frame:
-            self.stats["error_frames"] += 1
-            return
+            return self._ignore(frame, "error_frames")
         if frame.is_remote_frame:
-            self.stats["remote"] += 1
-            return
+            return self._ignore(frame, "remote")
         if frame.is_extended_id:
-            self.stats["extended"] += 1
-            return
+            return self._ignore(frame, "extended")
         can_id = frame.arbitration_id
         if not any(module.accepts_can(can_id) for module in self.simulation.modules):
-            self.stats["foreign"] += 1
-            return
+            return self._ignore(frame, "foreign")
         length = len(frame.data)
         if frame.is_fd or length not in REQUEST_LENGTHS:
-            self.stats["bad_length"] += 1
-            return
+            return self._ignore(frame, "bad_length")
         self.stats["requests"] += 1
         request = decode_can_request(can_id, frame.data)
         for module, reply in self.simulation.handle_can_request(request, self._sinks[length]):
             self._send(module.can_reply_id, can_reply_data(reply, length))
+
+    def _ignore(self, frame: can.Message, reason: str) -> None:
+        """A frame the modules do not act on: counted, and traced when the trace is on."""
+        self.stats[reason] += 1
+        if self.simulation.tracer is not None:
+            self.simulation.tracer.can_ignored(self.bus.name, frame.arbitration_id,
+                                               bytes(frame.data), _IGNORED[reason])
 
     def send_event(self, reply: Reply, length: int) -> None:
         """A 138 event: the module is found by its CAN id, which the reply carries."""

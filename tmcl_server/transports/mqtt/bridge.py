@@ -116,6 +116,7 @@ class _ReplyRoute:
         self._topic = topic
         self._correlation = correlation
         self._as_json = as_json
+        self.endpoint = "mqtt"
 
     def send(self, reply: Any) -> None:
         payload = (json.dumps(reply_to_json(reply)).encode() if self._as_json
@@ -301,6 +302,7 @@ class MqttBridge(Transport):
         topic = response_topic or f"{feed.base}/reply"
         as_json = payload[:1] == b"{" or len(payload) != FRAME_LENGTH
         route = _ReplyRoute(self, topic, correlation, as_json)
+        route.endpoint = f"mqtt {feed.base}/request"  # how the trace names it
         if as_json:
             try:
                 request = request_from_json(payload, feed.module.address)

@@ -1,0 +1,293 @@
+"""The recorder: what the axes did, sampled on simulated time at a chosen resolution.
+
+A :class:`Recorder` attached to a simulation is called by :meth:`Simulation.sync` before the
+modules are brought up to the clock's time: it steps them to every sample instant on the way
+(``module.advance_to(instant)``), reads each recorded axis and writes a :class:`Sample`.
+Stepping to an instant only splits the simulation's stride in two; the axes are exact at any
+instant, so event times do not move (tests/tmcl_server/test_record.py checks it).  On the
+virtual clock the samples are therefore exact; on a real clock they are exact too, only
+computed when the simulation next catches up (a request, an internal event, or the
+recorder's own wake-up).
+
+Each sample holds position, velocity (AP 3 units), acceleration (the velocity's difference
+quotient over the last sample interval), motor current, target, position-reached and the
+three switch levels.  Module events (target reached, switches, stall, interrupts, program
+start/stop) are kept as :class:`Mark` rows.  ``tmcl-server --record FILE`` writes both to a
+CSV or JSONL file (by extension); ``SimulatorThread.record()`` keeps them for a test.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TextIO
+
+from tmcl_spec.numbers import NS_PER_S, seconds_to_ns
+
+if TYPE_CHECKING:
+    from tmcl_server.module import ModuleEvent, TMCLModule
+    from tmcl_server.simulation import Simulation
+
+#: Default sample interval (seconds of simulated time).
+DEFAULT_RESOLUTION_S = 0.01
+
+
+@dataclass(frozen=True, slots=True)
+class Sample:
+    """One axis at one instant of simulated time."""
+
+    t: float  # simulated seconds
+    module: int  # the module's address (slot)
+    axis: int
+    position: int
+    velocity: int
+    acceleration: float  # velocity units per second, over the last sample interval
+    current: int
+    target: int
+    reached: int
+    left: int
+    right: int
+    home: int
+
+
+@dataclass(frozen=True, slots=True)
+class Mark:
+    """A module event at the instant it happened."""
+
+    t: float
+    module: int
+    axis: int | None
+    event: str
+    data: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def detail(self) -> str:
+        return " ".join(f"{k}={v}" for k, v in self.data.items() if v is not None)
+
+
+SAMPLE_FIELDS = tuple(f.name for f in fields(Sample))
+#: CSV columns: a sample fills the sample fields, an event row t/module/axis/event/detail.
+CSV_COLUMNS = (*SAMPLE_FIELDS, "event", "detail")
+
+
+class Recorder:
+    """Samples chosen axes of chosen modules every ``resolution`` seconds of simulated time."""
+
+    def __init__(self, simulation: Simulation, resolution: float = DEFAULT_RESOLUTION_S,
+                 modules: Iterable[int] | None = None, axes: Iterable[int] | None = None,
+                 on_sample: Callable[[Sample], None] | None = None,
+                 on_mark: Callable[[Mark], None] | None = None, keep: bool = True) -> None:
+        if resolution <= 0:
+            raise ValueError("the recording resolution must be positive")
+        self.simulation = simulation
+        self.step_ns = max(1, seconds_to_ns(resolution))
+        wanted = None if modules is None else set(modules)
+        self.modules = [m for m in simulation.modules if wanted is None or m.slot in wanted]
+        if not self.modules:
+            raise ValueError(f"no module with address {sorted(wanted or ())} to record")
+        self.axes = list(axes) if axes is not None else None
+        for module in self.modules:
+            for index in self._axes_of(module):
+                if not 0 <= index < len(module.axes):
+                    raise ValueError(f"module {module.slot} has no axis {index}")
+        self.on_sample = on_sample
+        self.on_mark = on_mark
+        self.keep = keep
+        self.rows: list[Sample] = []
+        self.marks: list[Mark] = []
+        self.next_ns = simulation.now_ns
+        self._last_velocity: dict[tuple[int, int], int] = {}
+        self._listeners: list[tuple[TMCLModule, Callable[[ModuleEvent], None]]] = []
+
+    def _axes_of(self, module: TMCLModule) -> list[int]:
+        return self.axes if self.axes is not None else list(range(len(module.axes)))
+
+    # -- attaching ----------------------------------------------------------------------------
+
+    def start(self) -> Recorder:
+        if self.simulation.recorder is not None:
+            raise RuntimeError("a recorder is already running on this simulation")
+        self.next_ns = self.simulation.now_ns
+        for module in self.modules:
+            listener = self._listener(module)
+            module.listeners.append(listener)
+            self._listeners.append((module, listener))
+        self.simulation.recorder = self
+        self.catch_up(self.simulation.now_ns)  # the first sample, at the start
+        return self
+
+    def stop(self) -> list[Sample]:
+        """Record up to the present, detach, and return the samples."""
+        if self.simulation.recorder is self:
+            self.simulation.sync()
+            self.simulation.recorder = None
+        for module, listener in self._listeners:
+            if listener in module.listeners:
+                module.listeners.remove(listener)
+        self._listeners.clear()
+        return self.rows
+
+    def _listener(self, module: TMCLModule) -> Callable[[ModuleEvent], None]:
+        def on_event(event: ModuleEvent) -> None:
+            if event.axis is not None and self.axes is not None and event.axis not in self.axes:
+                return
+            mark = Mark(event.time_ns / NS_PER_S, module.slot, event.axis, event.kind,
+                        {k: v for k, v in event.data.items() if v is not None})
+            if self.keep:
+                self.marks.append(mark)
+            if self.on_mark is not None:
+                self.on_mark(mark)
+        return on_event
+
+    # -- sampling -----------------------------------------------------------------------------
+
+    def catch_up(self, t_ns: int) -> None:
+        """Take every sample due up to ``t_ns``, stepping the modules to each instant."""
+        while self.next_ns <= t_ns:
+            instant = self.next_ns
+            for module in self.simulation.modules:
+                due = module.next_event_ns()
+                if module.now_ns < instant or (due is not None and due <= instant):
+                    module.advance_to(instant)
+            for module in self.modules:
+                self._sample(module, instant)
+            self.next_ns = instant + self.step_ns
+
+    def _sample(self, module: TMCLModule, instant: int) -> None:
+        t = instant / NS_PER_S
+        dt = self.step_ns / NS_PER_S
+        for index in self._axes_of(module):
+            status = module.axis(index).status()
+            key = (module.slot, index)
+            previous = self._last_velocity.get(key)
+            self._last_velocity[key] = status.velocity
+            sample = Sample(
+                t, module.slot, index, status.position, status.velocity,
+                0.0 if previous is None else (status.velocity - previous) / dt,
+                status.current, status.target, int(status.position_reached),
+                int(status.left_switch), int(status.right_switch), int(status.home_switch))
+            if self.keep:
+                self.rows.append(sample)
+            if self.on_sample is not None:
+                self.on_sample(sample)
+
+
+class Recording:
+    """What ``SimulatorThread.record()`` returns: a recorder seen from the test's thread.
+
+    ``rows`` and ``marks`` fill as simulated time passes; :meth:`stop` (or leaving the
+    ``with`` block) records up to the present and detaches.
+    """
+
+    def __init__(self, recorder: Recorder, call: Callable[..., Any]) -> None:
+        self._recorder = recorder
+        self._call = call
+
+    @property
+    def rows(self) -> list[Sample]:
+        return self._recorder.rows
+
+    @property
+    def marks(self) -> list[Mark]:
+        return self._recorder.marks
+
+    def stop(self) -> list[Sample]:
+        return self._call(self._recorder.stop)
+
+    def __enter__(self) -> Recording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def axis(self, axis: int, module: int | None = None) -> list[Sample]:
+        """The samples of one axis (of one module, when several are recorded)."""
+        return [r for r in self.rows if r.axis == axis and (module is None or r.module == module)]
+
+    def events(self, kind: str | None = None, axis: int | None = None) -> list[Mark]:
+        return [m for m in self.marks
+                if (kind is None or m.event == kind) and (axis is None or m.axis == axis)]
+
+
+# -- files ------------------------------------------------------------------------------------
+
+def file_format(path: str | Path) -> str:
+    """``csv`` or ``jsonl``, by the file's extension."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".csv":
+        return "csv"
+    if suffix in (".jsonl", ".json", ".ndjson"):
+        return "jsonl"
+    raise ValueError(f"record file {path}: use a .csv or .jsonl extension")
+
+
+class RecordWriter:
+    """Writes samples and marks to an open text file as they come."""
+
+    def __init__(self, stream: TextIO, fmt: str) -> None:
+        self.stream = stream
+        self.fmt = fmt
+        self._csv = None
+        if fmt == "csv":
+            self._csv = csv.writer(stream, lineterminator="\n")
+            self._csv.writerow(CSV_COLUMNS)
+
+    def sample(self, sample: Sample) -> None:
+        if self._csv is not None:
+            self._csv.writerow((*(getattr(sample, name) for name in SAMPLE_FIELDS), "", ""))
+        else:
+            self.stream.write(json.dumps(asdict(sample), separators=(",", ":")) + "\n")
+
+    def mark(self, mark: Mark) -> None:
+        if self._csv is not None:
+            self._csv.writerow((mark.t, mark.module, "" if mark.axis is None else mark.axis,
+                                *([""] * (len(SAMPLE_FIELDS) - 3)), mark.event, mark.detail))
+        else:
+            body: dict[str, Any] = {"t": mark.t, "module": mark.module, "axis": mark.axis,
+                                    "event": mark.event, **mark.data}
+            self.stream.write(json.dumps(body, separators=(",", ":")) + "\n")
+
+
+def read_record(path: str | Path) -> tuple[list[Sample], list[Mark]]:
+    """Samples and marks back from a file written by ``--record`` (CSV or JSONL)."""
+    samples: list[Sample] = []
+    marks: list[Mark] = []
+    with open(path, newline="") as stream:
+        for row in _rows(stream, file_format(path)):
+            if row.get("event"):
+                axis = row.get("axis")
+                data = row.get("data") or {}
+                marks.append(Mark(float(row["t"]), int(row["module"]),
+                                  None if axis in (None, "") else int(axis), str(row["event"]), data))
+            else:
+                samples.append(Sample(**{name: _number(row[name]) for name in SAMPLE_FIELDS}))
+    return samples, marks
+
+
+def _rows(stream: TextIO, fmt: str) -> Iterator[dict[str, Any]]:
+    if fmt == "csv":
+        for row in csv.DictReader(stream):
+            detail = row.pop("detail", "") or ""
+            parsed: dict[str, Any] = dict(row)
+            parsed["data"] = dict(part.split("=", 1) for part in detail.split() if "=" in part)
+            yield parsed
+        return
+    for line in stream:
+        if line.strip():
+            body = json.loads(line)
+            if "event" in body:
+                extra = {k: v for k, v in body.items() if k not in ("t", "module", "axis", "event")}
+                body["data"] = extra
+            yield body
+
+
+def _number(text: Any) -> Any:
+    if isinstance(text, int | float):
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        return float(text)
