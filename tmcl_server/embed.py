@@ -101,6 +101,10 @@ class SimulatorThread:
             self._thread.join(timeout=30)
         self._thread = None
 
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
     def __enter__(self) -> SimulatorThread:
         return self.start()
 

@@ -110,13 +110,14 @@ class Recorder:
     def start(self) -> Recorder:
         if self.simulation.recorder is not None:
             raise RuntimeError("a recorder is already running on this simulation")
-        self.next_ns = self.simulation.now_ns
+        now = self.simulation.now_ns
+        self.next_ns = -(-now // self.step_ns) * self.step_ns  # instants are multiples of the step
         for module in self.modules:
             listener = self._listener(module)
             module.listeners.append(listener)
             self._listeners.append((module, listener))
         self.simulation.recorder = self
-        self.catch_up(self.simulation.now_ns)  # the first sample, at the start
+        self.catch_up(now)  # the first sample, if the start is an instant
         return self
 
     def stop(self) -> list[Sample]:

@@ -153,7 +153,9 @@ class Tracer:
                   sink: ReplySink | None) -> ReplySink | None:
         """A request is about to run on ``targets``; returns the sink the modules should keep."""
         endpoint = self._endpoint(sink, interface, request.address)
-        self._stash = (self._request_line, self._wall(), self._now(), endpoint, request,
+        # the modules' time: they were brought up to the clock when the request arrived
+        now = targets[0].now_ns if targets else self._now()
+        self._stash = (self._request_line, self._wall(), now, endpoint, request,
                        targets[0].type if targets else None, interface)
         if sink is not None and request.opcode == Opcode.TARGET_REACHED_EVENT:
             return _TracedSink(self, sink, endpoint)  # the module keeps it for the events

@@ -1,4 +1,5 @@
-"""``tmcl-upload``: download a TMCL program into a module (simulated or real) and run it.
+"""Download a TMCL program into a module (simulated or real) and run it: the clients and the
+sequence behind ``tmcl program upload`` (and its alias ``tmcl-upload``, tmcl_server/tool/).
 
     tmcl-upload prog.tmc --tcp 127.0.0.1:2323 --verify --run
     tmcl-upload prog.bin --serial /tmp/ttyTMCL0:115200
@@ -13,14 +14,12 @@ optionally 134 read-back and 131/129.
 
 from __future__ import annotations
 
-import argparse
 import socket
-import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
-from interpreter.assembler import AssemblyError, assemble_file
+from interpreter.assembler import assemble_file
 from interpreter.isa import Instruction, decode_program
 from tmcl_server.protocol import FRAME_LENGTH, Request, decode_reply
 from tmcl_server.transports.serial_port import parse_serial_spec
@@ -151,50 +150,3 @@ def load_program(path: Path, include: Sequence[Path] = ()) -> list[Instruction]:
     if path.suffix.lower() == ".bin":
         return decode_program(path.read_bytes())
     return assemble_file(path, include).instructions
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tmcl-upload", description=__doc__.splitlines()[0])
-    parser.add_argument("program", type=Path, help=".tmc source or .bin binary")
-    where = parser.add_mutually_exclusive_group(required=True)
-    where.add_argument("--tcp", metavar="HOST:PORT", help="raw TMCL over TCP (the simulator)")
-    where.add_argument("--serial", metavar="DEVICE[:BAUD]", help="raw TMCL over a serial port or pty")
-    where.add_argument("--connection", metavar="ARGS",
-                       help='pytrinamic ConnectionManager arguments, e.g. "--interface kvaser_tmcl"')
-    parser.add_argument("--address", type=int, default=1, help="module address / CAN id (default 1)")
-    parser.add_argument("--start", type=int, default=0, help="program address to download to")
-    parser.add_argument("-I", "--include", action="append", type=Path, default=[], metavar="DIR")
-    parser.add_argument("--verify", action="store_true", help="read the program back (command 134)")
-    parser.add_argument("--run", action="store_true", help="reset and start the program afterwards")
-    parser.add_argument("--timeout", type=float, default=2.0, help="reply timeout in seconds")
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        instructions = load_program(args.program, args.include)
-        if args.tcp:
-            client: Client = StreamClient.tcp(args.tcp, args.address, args.timeout)
-        elif args.serial:
-            client = StreamClient.serial(args.serial, args.address, args.timeout)
-        else:
-            client = PytrinamicClient(args.connection, args.address)
-        try:
-            upload(client, instructions, args.start, args.verify, args.run)
-        finally:
-            client.close()
-    except AssemblyError as exc:
-        print(exc, file=sys.stderr)
-        return 1
-    except (OSError, ValueError, UploadError) as exc:
-        print(f"tmcl-upload: {exc}", file=sys.stderr)
-        return 1
-    done = ", verified" if args.verify else ""
-    print(f"{args.program}: {len(instructions)} commands at {args.start}{done}"
-          f"{', running' if args.run else ''}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -13,7 +13,7 @@ from interpreter.disassembler import disassemble
 from interpreter.isa import Instruction
 from interpreter.machine import wrap32
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.upload import main as tmcl_upload
+from tmcl_server.tool import upload_alias as tmcl_upload
 
 PROGRAM = """\
 #include TMCLParam.tmc
