@@ -163,9 +163,9 @@ class Tracer:
 
     def _unstash(self) -> None:
         """Something happens while a request runs: its line goes first."""
-        if self._stash is not None:
-            self._note(self._stash)
-            self._stash = None
+        stash, self._stash = self._stash, None
+        if stash is not None:
+            self._note(stash)
 
     def replied(self, request: Request, interface: Interface, targets: list[TMCLModule],
                 routed: list[Routed], sink: ReplySink | None) -> None:

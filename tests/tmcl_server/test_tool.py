@@ -168,3 +168,19 @@ def test_console_scripts_as_processes(server: ServerProcess, tmp_path: Path) -> 
     refused = subprocess.run([BIN / "tmcl", "--tcp", tcp, "send", "SAP", "4", "0", "-1"],
                              capture_output=True, text=True, timeout=30)
     assert refused.returncode == 1 and refused.stdout.strip().endswith("→ 4 INVALID_VALUE")
+
+
+def test_progress_bar_draws_only_on_a_terminal() -> None:
+    import io
+
+    from tmcl_server.tool.progress import Progress
+
+    quiet = io.StringIO()
+    with Progress("upload", 4, stream=quiet) as bar:  # StringIO is no terminal
+        bar.advance(4)
+    assert quiet.getvalue() == ""
+    shown = io.StringIO()
+    with Progress("upload", 4, stream=shown, enabled=True) as bar:
+        bar.advance(4)
+    assert "upload [##############################] 4/4" in shown.getvalue()
+    assert shown.getvalue().endswith("\r\x1b[K")  # the line is cleared at the end

@@ -7,18 +7,23 @@ ids; then the trace file is read back.
 
 from __future__ import annotations
 
+import asyncio
 import io
 import json
 import time
 from pathlib import Path
 
+import aiomqtt
 import can
+import pytest
 from pytrinamic.connections import ConnectionManager
 
 from tests.conftest import RawClient
+from tests.helpers.mosquitto import MOSQUITTO, Broker
 from tests.tmcl_server.test_cli import ServerProcess
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_can_reply
+from tmcl_server.server import ServerConfig
 from tmcl_server.trace import Tracer
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.parameters import AP, GP
@@ -77,6 +82,7 @@ def test_trace_of_pytrinamic_over_tcp_and_pty_and_of_frames_nobody_answers(tmp_p
     assert any("(wrong checksum) → 1 WRONG_CHECKSUM" in line for line in replies)
     assert any("SGP 255 SuppressReply b0 = 1: reply suppressed by GP 255" in line
                for line in _lines(trace, " noreply "))
+    assert sum("SGP 255 SuppressReply b0 = 1" in line for line in requests) == 1  # once, not twice
     assert any(line.endswith("GGP 255 SuppressReply b0 → 100 OK = 1") for line in replies)
 
 
@@ -157,3 +163,28 @@ def test_trace_shows_program_start_stop_interrupts_and_138_events(tmcl_sim_facto
     assert any(e == "TARGET_REACHED_EVENT → 128 TARGET_REACHED_EVENT axes 1" for e in events)
     assert any(line.endswith("MVP ABS m1 100 → 100 OK") for line in lines)
     assert any(line.endswith("VECT 0 6 → 101 LOADED") for line in lines)  # stored while downloading
+
+
+@pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed")
+def test_trace_names_the_mqtt_topic_a_request_came_on(tmp_path: Path) -> None:
+    broker = Broker(tmp_path)
+    trace = tmp_path / "trace.txt"
+    sim = SimulatorThread(ServerConfig(clock="virtual", trace=str(trace),
+                                       endpoints={"mqtt": [f"{broker.url}/rig"]})).start()
+    try:
+        async def ask() -> bytes:
+            async with aiomqtt.Client("127.0.0.1", broker.port) as client:
+                await client.subscribe("rig/1/reply", qos=1)
+                request = Request(1, Opcode.GAP, AP.MAX_SPEED, 2, 0).encode()
+                await client.publish("rig/1/request", request, qos=1)
+                async for message in client.messages:
+                    return bytes(message.payload)  # type: ignore[arg-type]
+            raise AssertionError("no reply")
+
+        assert len(asyncio.run(asyncio.wait_for(ask(), WAIT_S))) == 9
+    finally:
+        sim.stop()
+        broker.stop()
+    replies = _lines(trace, " reply ")
+    assert any(" mqtt rig/1/request " in line
+               and line.endswith("GAP 4 MaxPositioningSpeed m2 → 100 OK = 51200") for line in replies)

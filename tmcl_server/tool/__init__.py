@@ -156,6 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("--size", default="10x6", metavar="WxH", help="inches (default 10x6)")
     plot.add_argument("--dpi", type=int, default=100, help="pixels per inch (default 100)")
     plot.add_argument("--title")
+    plot.add_argument("--all", dest="whole", action="store_true",
+                      help="the whole recording (default: from shortly before the first motion "
+                           "to shortly after the last)")
     return parser
 
 

@@ -485,7 +485,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
     axes = [int(a) for a in args.axes.split(",")] if args.axes else None
     try:
         shown = plot_file(args.record, args.output, axes=axes, size=size, dpi=args.dpi,  # type: ignore[arg-type]
-                          title=args.title)
+                          title=args.title, whole=args.whole)
     except PlotError as exc:
         raise BadInput(str(exc)) from None
     _out(f"{args.output}: {len(shown)} axes ({', '.join(shown)})")

@@ -8,6 +8,7 @@ imported only here, through its object API (no pyplot state, no display needed).
 
 from __future__ import annotations
 
+import itertools
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -37,8 +38,12 @@ class PlotError(ValueError):
 
 def plot_file(record: Path, output: Path, axes: Sequence[int] | None = None,
               size: tuple[float, float] = (10.0, 6.0), dpi: int = 100,
-              title: str | None = None) -> list[str]:
-    """Draw ``record`` into ``output`` (PNG, SVG or PDF by extension); the axes drawn."""
+              title: str | None = None, whole: bool = False) -> list[str]:
+    """Draw ``record`` into ``output`` (PNG, SVG or PDF by extension); the axes drawn.
+
+    Unless ``whole``, the time line is cut to where something moved (plus a margin): a
+    recording on a real clock is mostly the host getting ready.
+    """
     try:
         samples, marks = read_record(record)
     except (OSError, ValueError, KeyError) as exc:
@@ -58,6 +63,11 @@ def plot_file(record: Path, output: Path, axes: Sequence[int] | None = None,
     if not chosen:
         raise PlotError(f"{record}: none of the axes {list(axes or [])} was recorded")
     several_modules = len({module for module, _ in series}) > 1
+    if not whole:
+        start, end = _active_span([series[key] for key in chosen])
+        for key in chosen:
+            series[key] = [s for s in series[key] if start <= s.t <= end]
+        marks = [m for m in marks if start <= m.t <= end]
 
     figure = Figure(figsize=size, dpi=dpi, layout="constrained")
     FigureCanvasAgg(figure)
@@ -82,7 +92,7 @@ def plot_file(record: Path, output: Path, axes: Sequence[int] | None = None,
         for panel in (position, velocity):
             panel.grid(True, alpha=0.3)
             panel.tick_params(labelsize=7)
-        position.legend(loc="upper left", fontsize=7, ncols=4)
+        position.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, borderaxespad=0)
     grid[-1].set_xlabel("simulated time (s)", fontsize=8)
     figure.suptitle(title or f"{record.name}", fontsize=10)
     try:
@@ -90,6 +100,22 @@ def plot_file(record: Path, output: Path, axes: Sequence[int] | None = None,
     except (OSError, ValueError) as exc:
         raise PlotError(f"{output}: {exc}") from None
     return names
+
+
+def _active_span(all_rows: list[list[Sample]]) -> tuple[float, float]:
+    """From shortly before the first change of any axis to shortly after the last one."""
+    first, last = float("inf"), float("-inf")
+    for rows in all_rows:
+        for previous, sample in itertools.pairwise(rows):
+            if (previous.position, previous.velocity, previous.left, previous.right, previous.home) != (
+                    sample.position, sample.velocity, sample.left, sample.right, sample.home):
+                first, last = min(first, previous.t), max(last, sample.t)
+    begin = min(rows[0].t for rows in all_rows)
+    end = max(rows[-1].t for rows in all_rows)
+    if first > last:  # nothing moved: show it all
+        return begin, end
+    margin = max(0.1 * (last - first), 0.05)
+    return max(begin, first - margin), min(end, last + margin)
 
 
 def _choose(series: dict[tuple[int, int], list[Sample]], axes: Sequence[int] | None) -> list[tuple[int, int]]:
