@@ -7,13 +7,17 @@ on, so tracing off costs nothing measurable.  Each line carries the wall time, t
 time, the endpoint (``tcp 127.0.0.1:40512``, ``pty /tmp/ttyTMCL0``, ``can can0 id 001``,
 ``mqtt tmcl/1/request``), the module address and the decoded text::
 
-    14:03:07.512034   0.000000  tcp 127.0.0.1:40512  #1  req    SAP 4 MaxPositioningSpeed m0 = 51200
-    14:03:07.512061   0.000000  tcp 127.0.0.1:40512  #1  reply  SAP 4 MaxPositioningSpeed m0 = 51200 → 100 OK
+    01:01:02.084549   1.261011  tcp 127.0.0.1:40522  #1  cmd   SAP 4 MaxPositioningSpeed m0 = 51200 → 100 OK
+    01:01:03.709114   2.885626  tcp 127.0.0.1:40562  #7  drop  no module has address 7: no reply
+
+(columns narrowed here).  A request and its one reply share a ``cmd`` line; ``req`` and
+``reply`` lines stand apart when something came between or several modules answered.
 
 ``--trace-format jsonl`` writes the same as one JSON object per line, with the fields split
 out.  Cost on the wire: while a request runs the tracer only notes what happened (a tuple of
-numbers); the lines are decoded and written in batches, at most 50 ms later, after the replies
-have gone out, so the host does not wait for them (scripts/bench_wire.py measures it).
+numbers and references); decoding and writing happen in batches at most 50 ms later, one
+timer, one pass and one write per batch, so a request pays a few microseconds and the host
+does not wait for the file (scripts/bench_wire.py measures it).
 """
 
 from __future__ import annotations
@@ -49,9 +53,10 @@ if TYPE_CHECKING:
 FORMATS = ("text", "jsonl")
 #: What a frame's endpoint is called when the transport gives it no name.
 UNNAMED = "-"
-#: With an event loop, lines are written in batches: at most this late (wall seconds) ...
+#: With an event loop, happenings are decoded and written in batches: at most this late
+#: (wall seconds) ...
 FLUSH_DELAY_S = 0.05
-#: ... or when this many happenings wait.
+#: ... or when this many wait.
 MAX_PENDING = 512
 
 _json_string = json.encoder.encode_basestring  # type: ignore[attr-defined]
@@ -73,6 +78,13 @@ def _request_text(opcode: int, type_: int, motor: int, value: int, words: Vocabu
 
 
 _outcome_text = functools.lru_cache(maxsize=4096)(describe_outcome)
+
+
+@functools.lru_cache(maxsize=4096)
+def _exchange_text(request: Request, status: int, opcode: int, value: int, words: Vocabulary) -> str:
+    """``SAP 4 MaxPositioningSpeed m0 = 51200 → 100 OK``: a poll loop repeats these."""
+    return (f"{_request_text(request.opcode, request.type, request.motor, request.value, words)} "
+            f"{_outcome_text(status, opcode, request.type, value)}")
 
 
 def _json_value(value: Any) -> str:
@@ -121,11 +133,13 @@ class Tracer:
         self._stash: tuple[Any, ...] | None = None
         self._second = -1
         self._second_text = ""
+        #: "endpoint  #address kind " column text, padded once per combination
+        self._pads: dict[tuple[str, int, str], str] = {}
 
     # -- attaching ----------------------------------------------------------------------------
 
     def attach(self, simulation: Simulation, loop: asyncio.AbstractEventLoop | None = None) -> Tracer:
-        """Trace ``simulation``; with a ``loop``, lines are written in batches (FLUSH_DELAY_S)."""
+        """Trace ``simulation``; with a ``loop``, lines are decoded and written in batches."""
         self._simulation = simulation
         self._loop = loop
         simulation.tracer = self
@@ -152,7 +166,10 @@ class Tracer:
     def requested(self, request: Request, interface: Interface, targets: list[TMCLModule],
                   sink: ReplySink | None) -> ReplySink | None:
         """A request is about to run on ``targets``; returns the sink the modules should keep."""
-        endpoint = self._endpoint(sink, interface, request.address)
+        if interface is Interface.SERIAL:
+            endpoint = getattr(sink, "endpoint", None) or UNNAMED
+        else:
+            endpoint = self._endpoint(sink, interface, request.address)
         # the modules' time: they were brought up to the clock when the request arrived
         now = targets[0].now_ns if targets else self._now()
         self._stash = (self._request_line, self._wall(), now, endpoint, request,
@@ -169,22 +186,25 @@ class Tracer:
 
     def replied(self, request: Request, interface: Interface, targets: list[TMCLModule],
                 routed: list[Routed], sink: ReplySink | None) -> None:
-        """A request ran: one line per reply, and why a target sent none."""
+        """A request ran: one line for it and its reply, or one per reply and why a target sent none."""
         stash = self._stash
+        if stash is not None and len(routed) == 1 and len(targets) == 1:  # the usual case
+            self._stash = None
+            module, reply = routed[0]
+            self._note((self._exchange, stash[1], stash[2], stash[3], request, stash[5], interface,
+                        module.address, reply, (f" reply id {module.can_reply_id:03x}"
+                                                if interface is Interface.CAN else module.reply_delay_s)))
+            return
         if stash is None:  # noted already (an event came between)
             wall, now, endpoint = self._wall(), self._now(), self._endpoint(sink, interface, request.address)
         else:
             wall, now, endpoint = stash[1], stash[2], stash[3]
+        self._unstash()
         for module, reply in routed:
             extra = (f" reply id {module.can_reply_id:03x}" if interface is Interface.CAN else
                      module.reply_delay_s)
-            reply_note = (endpoint, module.address, module.type, request, reply, extra)
-            if self._stash is not None:  # the usual case: one note for request and reply
-                request_note, self._stash = self._stash[3:], None
-                self._note((self._exchange, wall, now, request_note, reply_note))
-            else:
-                self._note((self._reply_line, wall, now, *reply_note))
-        self._unstash()
+            self._note((self._reply_line, wall, now, endpoint, module.address, module.type, request,
+                        reply, extra))
         if len(routed) != len(targets):
             answered = {id(module) for module, _ in routed}
             for module in targets:
@@ -248,8 +268,34 @@ class Tracer:
 
     # -- formatting (after the reply went out) ------------------------------------------------
 
-    def _exchange(self, request_note: tuple[Any, ...], reply_note: tuple[Any, ...]) -> list[_Line]:
-        return self._request_line(*request_note) + self._reply_line(*reply_note)
+    def _exchange(self, endpoint: str, request: Request, kind: Any, interface: Interface, address: int,
+                  reply: AnyReply, extra: str | float) -> list[_Line]:
+        """The usual case, a request and its one reply: one ``cmd`` line for both."""
+        if type(reply) is Reply and not (interface is Interface.SERIAL and extra):  # kept lean
+            words = vocabulary(kind)
+            text = _exchange_text(request, reply.status, reply.opcode, reply.value, words)
+            if extra:  # CAN: the reply's id
+                endpoint += extra  # type: ignore[operator]
+            if not self.jsonl:
+                return [("cmd", endpoint, address, text, None)]
+            if interface is Interface.CAN:
+                sent, answered = request.encode_can(), reply.encode_can()
+            else:
+                sent, answered = request.encode(), reply.encode()
+            name = words.parameter_name(request.opcode, request.type, request.motor)
+            parameter = f',"parameter":"{name}"' if name else ""  # names are plain identifiers
+            members = (f',"opcode":{request.opcode},"type":{request.type},"motor":{request.motor},'
+                       f'"value":{request.value},"bytes":"{sent.hex()}"{parameter},'
+                       f'"status":{reply.status},"status_name":"{status_name(reply.status)}",'
+                       f'"reply_value":{to_int32(reply.value)},"reply_bytes":"{answered.hex()}"')
+            return [("cmd", endpoint, address, text, members)]
+        (_, _, _, _, request_fields), = self._request_line(endpoint, request, kind, interface)
+        (_, endpoint, address, text, reply_fields), = self._reply_line(endpoint, address, kind, request,
+                                                                        reply, extra)
+        if request_fields is not None and reply_fields is not None:
+            reply_fields.pop("opcode", None)  # the request's
+            request_fields.update(reply_fields)
+        return [("cmd", endpoint, address, text, request_fields)]
 
     def _request_line(self, endpoint: str, request: Request, kind: Any,
                       interface: Interface) -> list[_Line]:
@@ -275,7 +321,7 @@ class Tracer:
                 text = describe_version_string(data)
             else:
                 text = describe_program_record(data, request.value, words)
-            fields = {"bytes": data.hex()} if self.jsonl else None
+            fields = {"reply_bytes": data.hex()} if self.jsonl else None
         else:
             text = _outcome_text(reply.status, reply.opcode, request.type, reply.value)
             fields = self._reply_fields(reply) if self.jsonl else None
@@ -305,8 +351,8 @@ class Tracer:
 
     @staticmethod
     def _reply_fields(reply: Reply) -> dict[str, Any]:
-        return {"status": reply.status, "status_name": status_name(reply.status),
-                "opcode": reply.opcode, "value": to_int32(reply.value), "bytes": reply.encode().hex()}
+        return {"status": reply.status, "status_name": status_name(reply.status), "opcode": reply.opcode,
+                "reply_value": to_int32(reply.value), "reply_bytes": reply.encode().hex()}
 
     @staticmethod
     def _endpoint(sink: object, interface: Interface, address: int) -> str:
@@ -326,7 +372,9 @@ class Tracer:
             for kind, endpoint, address, text, fields in lines:
                 body = (f'{head}"endpoint":{_json_string(endpoint)},"module":{address},"kind":"{kind}",'
                         f'"text":{_json_string(text)}')
-                if fields:
+                if type(fields) is str:  # members already in JSON (the usual exchange)
+                    body += fields
+                elif fields:
                     body += "".join([f',"{key}":{_json_value(value)}' for key, value in fields.items()])
                 out.append(body + "}")
             return "\n".join(out)
@@ -334,9 +382,18 @@ class Tracer:
         if second != self._second:
             self._second = second
             self._second_text = time.strftime("%H:%M:%S", time.localtime(second))
-        head = f"{self._second_text}.{int((wall - second) * 1e6):06d} {sim_ns / NS_PER_S:12.6f}  "
-        return "\n".join([f"{head}{endpoint:<22}  #{address:<3} {kind:<7} {text}"
-                          for kind, endpoint, address, text, _ in lines])
+        head = (f"{self._second_text}.{int((wall - second) * 1e6):06d} "
+                f"{sim_ns // NS_PER_S:5d}.{sim_ns // 1000 % 1_000_000:06d}  ")
+        pads = self._pads
+        out = []
+        for kind, endpoint, address, text, _ in lines:
+            where = pads.get((endpoint, address, kind))
+            if where is None:
+                if len(pads) > 4096:  # a long-running server sees many client ports come and go
+                    pads.clear()
+                where = pads[(endpoint, address, kind)] = f"{endpoint:<22}  #{address:<3} {kind:<7} "
+            out.append(head + where + text)
+        return "\n".join(out)
 
     # -- writing ------------------------------------------------------------------------------
 
@@ -344,15 +401,17 @@ class Tracer:
         if self._stash is not None:  # something happens while a request runs: the request first
             self._notes.append(self._stash)
             self._stash = None
-        self._notes.append(note)
-        if self._loop is None or len(self._notes) >= MAX_PENDING:
+        notes = self._notes
+        notes.append(note)
+        if self._loop is None or len(notes) >= MAX_PENDING:
             self.flush()
         elif not self._flush_scheduled:
             self._flush_scheduled = True
             self._loop.call_later(FLUSH_DELAY_S, self.flush)
 
     def flush(self) -> None:
-        """Decode and write every noted happening (a loop calls this FLUSH_DELAY_S after the first)."""
+        """Decode and write everything noted so far (a loop calls this FLUSH_DELAY_S after the
+        first note of a batch: one timer, one decoding pass and one write per batch)."""
         self._flush_scheduled = False
         if not self._notes:
             return

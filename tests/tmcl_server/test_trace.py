@@ -64,15 +64,15 @@ def test_trace_of_pytrinamic_over_tcp_and_pty_and_of_frames_nobody_answers(tmp_p
     finally:
         code, _, err = server.stop()
     assert code == 0, err
-    requests = _lines(trace, " req ")
+    commands = _lines(trace, " cmd ")  # a request and its reply, on one line
+    requests = _lines(trace, " req ")  # a request whose reply has a line of its own, or none
     replies = _lines(trace, " reply ")
-    assert any("SAP 4 MaxPositioningSpeed m0 = 51200" in line for line in requests)
-    assert any(line.endswith("SAP 4 MaxPositioningSpeed m0 = 51200 → 100 OK") for line in replies)
-    assert any(line.endswith("GAP 4 MaxPositioningSpeed m0 → 100 OK = 51200") for line in replies)
-    assert any(line.endswith('GET_FIRMWARE_VERSION type 0 → "6212V105"') for line in replies)
-    pty_lines = [line for line in replies if f"pty {link}" in line]
+    assert any(line.endswith("SAP 4 MaxPositioningSpeed m0 = 51200 → 100 OK") for line in commands)
+    assert any(line.endswith("GAP 4 MaxPositioningSpeed m0 → 100 OK = 51200") for line in commands)
+    assert any(line.endswith('GET_FIRMWARE_VERSION type 0 → "6212V105"') for line in commands)
+    pty_lines = [line for line in commands if f"pty {link}" in line]
     assert any(line.endswith("GGP 66 SerialAddress b0 → 100 OK = 1") for line in pty_lines)
-    tcp_lines = [line for line in requests + replies if " tcp 127.0.0.1:" in line]
+    tcp_lines = [line for line in commands if " tcp 127.0.0.1:" in line]
     assert tcp_lines and all(line.split()[0].count(":") == 2 for line in tcp_lines)  # wall time
     drops = _lines(trace, " drop ")
     assert drops and all(f" tcp 127.0.0.1:{host_port} " in line for line in drops)  # the host's end
@@ -83,7 +83,7 @@ def test_trace_of_pytrinamic_over_tcp_and_pty_and_of_frames_nobody_answers(tmp_p
     assert any("SGP 255 SuppressReply b0 = 1: reply suppressed by GP 255" in line
                for line in _lines(trace, " noreply "))
     assert sum("SGP 255 SuppressReply b0 = 1" in line for line in requests) == 1  # once, not twice
-    assert any(line.endswith("GGP 255 SuppressReply b0 → 100 OK = 1") for line in replies)
+    assert any(line.endswith("GGP 255 SuppressReply b0 → 100 OK = 1") for line in commands)
 
 
 def test_trace_names_can_ids_and_reports_two_modules_on_one_id(tmp_path: Path) -> None:
@@ -120,7 +120,10 @@ def test_trace_names_can_ids_and_reports_two_modules_on_one_id(tmp_path: Path) -
     gap_replies = [r for r in records if r["kind"] == "reply" and r.get("opcode") == Opcode.GAP]
     assert {r["module"] for r in gap_replies} == {1, 2}
     assert {r["endpoint"] for r in gap_replies} == {"can can0 id 001 reply id 002"}
-    assert all(r["status_name"] == "OK" and r["value"] == 51200 for r in gap_replies)
+    assert all(r["status_name"] == "OK" and r["reply_value"] == 51200 for r in gap_replies)
+    sgp = [r for r in records if r["kind"] == "cmd" and r["opcode"] == Opcode.SGP]  # one module: one line
+    assert sgp and sgp[0]["endpoint"] == "can can0 id 002 reply id 002" and sgp[0]["status"] == 100
+    assert sgp[0]["reply_bytes"] == "026409000000" + "01"  # the CAN payload: id, status, opcode, value
     warnings = [r for r in records if r["kind"] == "warn"]  # GAP and GGP, both to CAN id 1
     assert len(warnings) == 2 and all("2 modules answered CAN id 1" in w["text"] for w in warnings)
     stray, = [r for r in records if r["kind"] == "drop"]
@@ -185,6 +188,6 @@ def test_trace_names_the_mqtt_topic_a_request_came_on(tmp_path: Path) -> None:
     finally:
         sim.stop()
         broker.stop()
-    replies = _lines(trace, " reply ")
+    replies = _lines(trace, " cmd ")
     assert any(" mqtt rig/1/request " in line
                and line.endswith("GAP 4 MaxPositioningSpeed m2 → 100 OK = 51200") for line in replies)
