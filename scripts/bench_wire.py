@@ -181,6 +181,7 @@ def main() -> None:
                 ("sim   pty  1 client ", lockstep_pty, endpoints["pty"][0], 1),
                 ("echo  tcp  pytrinamic", lockstep_pytrinamic, echo_endpoint, 1),
                 ("sim   tcp  pytrinamic", lockstep_pytrinamic, endpoints["tcp"][0], 1),
+                ("trace tcp  pytrinamic", lockstep_pytrinamic, traced_endpoints["tcp"][0], 1),
             )
             # Interleave the cases (echo, sim, echo, sim, ...) so that drifting background
             # load hits both sides of every ratio alike.
@@ -200,7 +201,8 @@ def main() -> None:
                           ("sim   tcp 16 clients", "echo  tcp 16 clients"),
                           ("sim   tcp  pytrinamic", "echo  tcp  pytrinamic"),
                           ("trace tcp  1 client ", "sim   tcp  1 client "),
-                          ("jsonl tcp  1 client ", "sim   tcp  1 client "))]
+                          ("jsonl tcp  1 client ", "sim   tcp  1 client "),
+                          ("trace tcp  pytrinamic", "sim   tcp  pytrinamic"))]
         finally:
             for proc in (echo, sim, traced, jsonl):
                 proc.terminate()
@@ -211,12 +213,12 @@ def main() -> None:
     print(f"{'':22} {'req/s':>9} {'p50 us':>8} {'p99 us':>8}")
     for label, r in rows:
         print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f}")
-    one, many, pytri, text_trace, jsonl_trace = ratios
+    one, many, pytri, text_trace, jsonl_trace, pytrinamic_trace = ratios
     print(f"ratio sim/echo (median of paired runs): 1 raw client {one:.0%}, 16 raw clients "
           f"{many:.0%}, 1 pytrinamic client {pytri:.0%} (goal: 1 client >= 80%)")
     print(f"ratio traced/untraced, 1 raw client: --trace text {text_trace:.0%}, "
           f"jsonl {jsonl_trace:.0%} (goal >= 80%); by p50 latency: text {latency_ratios[0]:.0%}, "
-          f"jsonl {latency_ratios[1]:.0%}")
+          f"jsonl {latency_ratios[1]:.0%}; 1 pytrinamic client, --trace text: {pytrinamic_trace:.0%}")
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from tmcl_server.clock import RealClock, VirtualClock
+    from tmcl_server.clock import LockstepClock, RealClock, VirtualClock
     from tmcl_server.embed import SimulatorThread
     from tmcl_server.module import TMCM6212, TMCLModule
     from tmcl_server.server import Server, ServerConfig
@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 
 #: Public name -> the module that defines it.
 _EXPORTS = {
+    "LockstepClock": "tmcl_server.clock",
     "RealClock": "tmcl_server.clock",
     "VirtualClock": "tmcl_server.clock",
     "SimulatorThread": "tmcl_server.embed",
@@ -37,6 +38,7 @@ _EXPORTS = {
 
 __all__ = [
     "TMCM6212",
+    "LockstepClock",
     "RealClock",
     "Server",
     "ServerConfig",

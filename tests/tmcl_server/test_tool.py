@@ -184,3 +184,14 @@ def test_progress_bar_draws_only_on_a_terminal() -> None:
         bar.advance(4)
     assert "upload [##############################] 4/4" in shown.getvalue()
     assert shown.getvalue().endswith("\r\x1b[K")  # the line is cleared at the end
+
+
+def test_watch_on_a_terminal_redraws_a_live_table(server: ServerProcess, capsys,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    code, out, _ = run(capsys, "--tcp", server.endpoints["tcp"][0], "watch", "MaxCurrent",
+                       "--axes", "0", "--rate", "50", "--count", "2")
+    assert code == 0
+    first, second = out.split("\x1b[2F")  # the second sample moves up over the two lines
+    assert "0.MaxCurrent" in first and first.count("128") == 1
+    assert second.startswith("t = ") and "\x1b[K" in second
