@@ -175,19 +175,25 @@ def test_trace_names_the_mqtt_topic_a_request_came_on(tmp_path: Path) -> None:
     sim = SimulatorThread(ServerConfig(clock="virtual", trace=str(trace),
                                        endpoints={"mqtt": [f"{broker.url}/rig"]})).start()
     try:
-        async def ask() -> bytes:
+        async def ask() -> list[bytes]:
             async with aiomqtt.Client("127.0.0.1", broker.port) as client:
                 await client.subscribe("rig/1/reply", qos=1)
                 request = Request(1, Opcode.GAP, AP.MAX_SPEED, 2, 0).encode()
                 await client.publish("rig/1/request", request, qos=1)
+                await client.publish("rig/1/request", request[:8] + b"\0", qos=1)  # wrong checksum
+                replies = []
                 async for message in client.messages:
-                    return bytes(message.payload)  # type: ignore[arg-type]
+                    replies.append(bytes(message.payload))  # type: ignore[arg-type]
+                    if len(replies) == 2:
+                        return replies
             raise AssertionError("no reply")
 
-        assert len(asyncio.run(asyncio.wait_for(ask(), WAIT_S))) == 9
+        assert [reply[2] for reply in asyncio.run(asyncio.wait_for(ask(), WAIT_S))] == [100, 1]
     finally:
         sim.stop()
         broker.stop()
     replies = _lines(trace, " cmd ")
     assert any(" mqtt rig/1/request " in line
                and line.endswith("GAP 4 MaxPositioningSpeed m2 → 100 OK = 51200") for line in replies)
+    assert any(" mqtt rig/1/request " in line and line.endswith("(wrong checksum) → 1 WRONG_CHECKSUM")
+               for line in _lines(trace, " reply "))

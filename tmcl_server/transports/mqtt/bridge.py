@@ -314,7 +314,10 @@ class MqttBridge(Transport):
             try:
                 request = decode_request(payload)
             except ChecksumError:
-                route.send(feed.module.checksum_error_reply())
+                reply = feed.module.checksum_error_reply()
+                if self.simulation.tracer is not None:
+                    self.simulation.tracer.bad_checksum(payload, route, [(feed.module, reply)])
+                route.send(reply)
                 return
         for _, reply in self.simulation.execute_on([feed.module], request, Interface.SERIAL,
                                                    route):
