@@ -103,13 +103,21 @@ class SimulatorThread:
     # -- access from the calling thread -------------------------------------------------------
 
     def call(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
-        """Run ``fn`` on the simulator's loop thread and return its result."""
+        """Run ``fn`` on the simulator's loop thread and return its result.
+
+        ``fn`` may change modules (inputs, switches, programs): their next events are asked
+        again afterwards, so the server's timer follows.
+        """
         assert self._loop is not None, "simulator not started"
         if threading.current_thread() is self._thread:  # already there (nested call)
             return fn(*args, **kwargs)
 
         async def run() -> T:
-            return fn(*args, **kwargs)
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                if self.server is not None:
+                    self.server.simulation.notify_changed()
 
         return asyncio.run_coroutine_threadsafe(run(), self._loop).result(timeout=60)
 

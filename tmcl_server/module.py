@@ -355,6 +355,12 @@ class TMCLModule:
                     self._on_axis_event(event)
         self._check_heartbeats()
 
+    def skip_program_to(self, t_ns: int) -> None:
+        """The program lost the race against a real clock: it resumes at ``t_ns`` without
+        running what lies before (docs/scheduling.md); the axes still get every event."""
+        self.program.interpreter.skip_to(t_ns)
+        self.advance_to(t_ns)
+
     def catch_up(self, t_ns: int) -> None:
         """Make ``t_ns`` the present, no event lying before it (a program instruction's time):
         the axes follow lazily when a command touches them."""

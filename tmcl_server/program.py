@@ -27,8 +27,6 @@ from tmcl_spec.commands import CodeProtection, ErrorFlag, Opcode, RfsType, Statu
 from tmcl_spec.parameters import GP
 
 EEPROM_SECTION = "program"
-#: On a real clock a running program may fall this far behind before it skips time.
-REAL_CLOCK_MAX_LAG_NS = 50_000_000
 #: Command 135 "mode" while the module is in download mode (GP 128 only knows 0..3).
 DOWNLOAD_MODE = 4
 _LEGACY_READ = struct.Struct(">BBBBiB")
@@ -132,6 +130,11 @@ class ProgramSupport:
     def run(self, now_ns: int, end_ns: int) -> bool:
         """Run the program's instructions that start before ``end_ns`` (see Interpreter)."""
         return self.interpreter.run_until(now_ns, end_ns)
+
+    @property
+    def busy(self) -> bool:
+        """The program has instructions to run now (it is not stopped or idle in a WAIT)."""
+        return self.interpreter.busy
 
     # == module events =========================================================================
 

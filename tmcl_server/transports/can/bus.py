@@ -147,7 +147,7 @@ class ModuleNode:
             self.stats["extended"] += 1
             return
         can_id = frame.arbitration_id
-        if not any(module.accepts_can(can_id) for module in self.simulation.modules):
+        if not self.simulation.accepts_can(can_id):
             self.stats["foreign"] += 1
             return
         length = len(frame.data)

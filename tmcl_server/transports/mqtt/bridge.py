@@ -249,8 +249,8 @@ class MqttBridge(Transport):
     async def _publish_state(self, client: aiomqtt.Client) -> None:
         period = 1.0 / self.rate_hz
         while True:
-            self.simulation.sync()
             for feed in self._feeds:
+                self.simulation.sync_module(feed.module)
                 payload = json.dumps(feed.module.snapshot(), separators=(",", ":")).encode()
                 if payload != feed.last_state:
                     await client.publish(f"{feed.base}/state", payload, qos=1, retain=True)
