@@ -138,3 +138,112 @@ def test_supply_voltage_from_the_world_file(tmp_path, raw_client_factory):
     with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], world=str(world)) as sim:
         client = raw_client_factory(sim.tcp)
         assert ok(client, Opcode.GIO, SUPPLY_VOLTAGE_CHANNEL, 1) == 95
+
+
+# -- stallGuard2 and coolStep (§6.3-6.4, AP 168-174, 180-182, 206) -----------------------------
+
+def set_load(sim: SimulatorThread, axis: int, zones: list[tuple[int, int, int]], free: int) -> None:
+    sim.call(lambda: sim.module(1).set_load(axis, zones, free_load=free))
+
+
+def test_ap206_follows_the_stallguard_threshold(sim, client: RawClient):
+    set_load(sim, 0, [], 300)
+    assert ok(client, Opcode.GAP, AP.LOAD) == 300
+    ok(client, Opcode.SAP, AP.STALLGUARD_THRESHOLD, 0, 5)   # less sensitive: reads higher
+    assert ok(client, Opcode.GAP, AP.LOAD) == 300 + 5 * 16
+    ok(client, Opcode.SAP, AP.STALLGUARD_THRESHOLD, 0, -20)  # more sensitive: reads 0 here
+    assert ok(client, Opcode.GAP, AP.LOAD) == 0
+    ok(client, Opcode.SAP, AP.STALLGUARD_THRESHOLD, 0, 63)
+    assert ok(client, Opcode.GAP, AP.LOAD) == 1023
+
+
+def test_a_sensitive_threshold_stalls_where_the_default_does_not(sim, client: RawClient):
+    set_load(sim, 1, [(5000, 9000, 40)], 500)
+    ok(client, Opcode.SAP, AP.STOP_ON_STALL, 1, 1000)
+    ok(client, Opcode.MVP, MoveType.ABS, 1, 20000)
+    sim.advance(2.0)
+    assert ok(client, Opcode.GAP, AP.ACTUAL_POSITION, 1) == 20000  # 40 is no stall at AP 174 = 0
+    ok(client, Opcode.SAP, AP.STALLGUARD_THRESHOLD, 1, -3)   # 40 - 48 reads 0: a stall
+    ok(client, Opcode.MVP, MoveType.ABS, 1, 0)
+    sim.advance(2.0)
+    assert ok(client, Opcode.GAP, AP.ACTUAL_POSITION, 1) == 9000  # stopped on entering the zone
+    assert ok(client, Opcode.GAP, AP.ERROR_FLAGS, 1) == 1
+
+
+def test_the_filter_averages_four_full_steps(sim, client: RawClient):
+    set_load(sim, 2, [(10_000, 50_000, 100)], 500)
+    ok(client, Opcode.SAP, AP.STALLGUARD_FILTER, 2, 1)
+    ok(client, Opcode.MVP, MoveType.ABS, 2, 10_000 + 2 * 256)  # two full steps into the zone
+    sim.advance(2.0)
+    assert ok(client, Opcode.GAP, AP.LOAD, 2) == (100 + 100 + 100 + 500) // 4  # p, p-1, p-2 fs in
+    ok(client, Opcode.SAP, AP.STALLGUARD_FILTER, 2, 0)
+    assert ok(client, Opcode.GAP, AP.LOAD, 2) == 100
+
+
+def test_a_filtered_stall_comes_four_full_steps_into_the_obstacle(sim, client: RawClient):
+    set_load(sim, 3, [(5000, 90_000, 0)], 500)
+    ok(client, Opcode.SAP, AP.STOP_ON_STALL, 3, 1000)
+    ok(client, Opcode.SAP, AP.STALLGUARD_FILTER, 3, 1)
+    ok(client, Opcode.ROR, 0, 3, 51200)
+    sim.advance(1.0)
+    stopped_at = ok(client, Opcode.GAP, AP.ACTUAL_POSITION, 3)
+    assert ok(client, Opcode.GAP, AP.ACTUAL_SPEED, 3) == 0
+    assert ok(client, Opcode.GAP, AP.ERROR_FLAGS, 3) == 1
+    first_zero = 5000 + 3 * 256  # the mean of four readings is 0 once the fourth is in the zone
+    assert first_zero <= stopped_at <= first_zero + 52  # sampled every 1 ms at 51200 pps
+
+
+def coolstep(client: RawClient, motor: int, overrides: dict[int, int] | None = None) -> None:
+    settings = {AP.MAX_ACCELERATION: 5_120_000,  # at speed within 10 ms
+                AP.MAX_CURRENT: 255, AP.SMARTENERGY_HYSTERESIS_START: 1,   # lower threshold 32
+                AP.SMARTENERGY_HYSTERESIS: 2,                                # upper (1+2+1)*32
+                AP.SMARTENERGY_CURRENT_DOWN_STEP: 3, AP.SMARTENERGY_CURRENT_UP_STEP: 0,
+                AP.SMARTENERGY_CURRENT_MINIMUM: 0, **(overrides or {})}
+    for number, value in settings.items():
+        ok(client, Opcode.SAP, number, motor, value)
+
+
+def test_coolstep_lowers_the_current_at_light_load_and_raises_it_under_load(sim, client: RawClient):
+    set_load(sim, 0, [], 600)  # far above the upper threshold: light load
+    coolstep(client, 0)
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 31  # at rest: AP 6's scale
+    ok(client, Opcode.ROR, 0, 0, 51200)  # 200 full steps (readings) a second
+    sim.advance(0.05)
+    assert 15 < ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) < 31  # coming down
+    sim.advance(1.0)
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 15  # half of CS (AP 168 = 0)
+    status = sim.call(lambda: sim.module(1).axis(0).status())
+    assert status.current == 255 * 16 // 32  # the coil current follows
+    set_load(sim, 0, [], 10)  # heavy load: below the lower threshold, +1 per reading
+    sim.advance(0.04)
+    assert 15 < ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) < 31
+    sim.advance(0.1)
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 31
+    ok(client, Opcode.MST)
+    sim.advance(0.5)
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 31  # coolStep off at rest
+
+
+def test_coolstep_minimum_threshold_speed_and_off_switch(sim, client: RawClient):
+    set_load(sim, 4, [], 600)
+    coolstep(client, 4, {AP.SMARTENERGY_CURRENT_MINIMUM: 1})  # down to a quarter
+    ok(client, Opcode.ROR, 0, 4, 51200)
+    sim.advance(1.5)
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT, 4) == 7
+    ok(client, Opcode.SAP, AP.SMARTENERGY_THRESHOLD_SPEED, 4, 60000)  # only above 60000 pps
+    sim.advance(0.01)
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT, 4) == 31
+    ok(client, Opcode.SAP, AP.SMARTENERGY_THRESHOLD_SPEED, 4, 0)
+    ok(client, Opcode.SAP, AP.SMARTENERGY_HYSTERESIS_START, 4, 0)  # 0 switches coolStep off
+    sim.advance(1.0)
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT, 4) == 31
+
+
+# -- AP 29 measured speed ------------------------------------------------------------------------
+
+def test_measured_speed_reads_the_speed_as_a_magnitude(sim, client: RawClient):
+    assert ok(client, Opcode.GAP, AP.MEASURED_SPEED) == 0
+    ok(client, Opcode.ROL, 0, 0, 51200)
+    sim.advance(1.0)
+    actual = ok(client, Opcode.GAP, AP.ACTUAL_SPEED)
+    assert actual < 0 and ok(client, Opcode.GAP, AP.MEASURED_SPEED) == -actual > 51000
