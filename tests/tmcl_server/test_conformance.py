@@ -247,3 +247,39 @@ def test_measured_speed_reads_the_speed_as_a_magnitude(sim, client: RawClient):
     sim.advance(1.0)
     actual = ok(client, Opcode.GAP, AP.ACTUAL_SPEED)
     assert actual < 0 and ok(client, Opcode.GAP, AP.MEASURED_SPEED) == -actual > 51000
+
+
+# -- command 137 restarts the whole module (§3.6.36, docs/protocol.md) ----------------------------
+
+def test_restoring_factory_settings_restarts_the_module(sim, client: RawClient):
+    ok(client, Opcode.SAP, AP.MAX_SPEED, 0, 20000)
+    ok(client, Opcode.SGP, 9, 2, 99)
+    ok(client, Opcode.STGP, 9, 2)
+    ok(client, Opcode.SCO, 3, 1, 4444)
+    ok(client, Opcode.TARGET_REACHED_EVENT, 1, 0, 0b11)
+    ok(client, Opcode.MVP, MoveType.ABS, 0, 1_000_000)
+    ok(client, Opcode.ROR, 0, 1, 30000)
+    for line in (Request(1, Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), Request(1, Opcode.CALC, 9, 0, 5),
+                 Request(1, Opcode.STOP, 0, 0, 0), Request(1, Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0),
+                 Request(1, Opcode.RUN_APPLICATION, 0, 0, 0)):
+        client.request(*line)
+    sim.advance(0.5)
+    assert ok(client, Opcode.GAP, AP.ACTUAL_POSITION, 0) > 0
+    client.send_raw(Request(1, Opcode.RESTORE_FACTORY_SETTINGS, 0, 0, 1234).encode())
+    client.expect_silence(0.1)  # no reply: the module restarts
+    # RAM as after power-on: motion stopped, positions 0, parameters and variables at defaults
+    assert [ok(client, Opcode.GAP, AP.ACTUAL_POSITION, m) for m in (0, 1)] == [0, 0]
+    assert [ok(client, Opcode.GAP, AP.ACTUAL_SPEED, m) for m in (0, 1)] == [0, 0]
+    assert ok(client, Opcode.GAP, AP.MAX_SPEED, 0) == 51200
+    assert ok(client, Opcode.GGP, 9, 2) == 0
+    assert ok(client, Opcode.GCO, 3, 1) == 0
+    # the EEPROM is empty (program included) and the program no longer runs
+    assert ok(client, Opcode.GET_APPLICATION_STATUS, 1) >> 24 == 0
+    client.send_raw(Request(1, Opcode.READ_PROGRAM_MEMORY, 0, 0, 0).encode())
+    assert client.recv_exact(9)[1:8] == bytes(7)  # cell 0: empty (was CALC LOAD, 5)
+    ok(client, Opcode.RSGP, 9, 2)
+    assert ok(client, Opcode.GGP, 9, 2) == 0
+    # the pending 138 request died with the RAM: the next move sends no event
+    ok(client, Opcode.MVP, MoveType.ABS, 0, 100)
+    sim.advance(1.0)
+    client.expect_silence(0.1)
