@@ -173,7 +173,8 @@ STATUS_OK = 100
 
 
 class Status(IntEnum):
-    """Reply status codes (Table 4, plus the 138 event status and the extended codes)."""
+    """Reply status codes: Table 4 (1..6, 100, 101), the 138 event status (128), and the codes
+    Trinamic's TMCL firmware uses beyond Table 4 (7..10; why: docs/protocol.md)."""
 
     OK = 100
     LOADED = 101  # command stored in program memory (download mode)

@@ -283,3 +283,39 @@ def test_restoring_factory_settings_restarts_the_module(sim, client: RawClient):
     ok(client, Opcode.MVP, MoveType.ABS, 0, 100)
     sim.advance(1.0)
     client.expect_silence(0.1)
+
+
+# -- 138 type 0: the next MVP of a motor in the mask (§3.6.35, docs/protocol.md) -----------------
+
+def test_138_type_0_is_not_used_up_by_a_motor_outside_its_mask(sim, client: RawClient):
+    ok(client, Opcode.TARGET_REACHED_EVENT, 0, 0, 0b100)
+    ok(client, Opcode.MVP, MoveType.ABS, 0, 500)   # motor 0: not asked about
+    ok(client, Opcode.MVP, MoveType.ABS, 2, 700)   # the next MVP of motor 2: reported
+    sim.advance(1.0)
+    event = decode_reply(client.recv_exact(9))
+    assert (event.status, event.opcode, event.value) == (Status.TARGET_REACHED_EVENT, 138, 0b100)
+    client.expect_silence(0.1)
+    ok(client, Opcode.MVP, MoveType.ABS, 2, 0)    # used up: no second event
+    sim.advance(1.0)
+    client.expect_silence(0.1)
+
+
+# -- user variables 56..255 are not storable (§5.3 against Table 18, docs/module.md) --------------
+
+def test_only_the_first_56_user_variables_can_be_stored(client: RawClient):
+    assert client.request(1, Opcode.STGP, 55, 2).status == OK
+    for number in (56, 255):
+        assert client.request(1, Opcode.STGP, number, 2).status == Status.WRONG_TYPE
+        assert client.request(1, Opcode.RSGP, number, 2).status == Status.WRONG_TYPE
+
+
+# -- status codes beyond Table 4 (docs/protocol.md) --------------------------------------------------
+
+def test_a_download_past_the_end_of_memory_answers_9_and_stores_nothing(client: RawClient):
+    ok(client, Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 6143)
+    assert client.request(1, Opcode.MST).status == Status.LOADED
+    reply = client.request(1, Opcode.ROR, 0, 0, 5)
+    assert (reply.status, reply.opcode) == (Status.MAX_EXCEEDED, Opcode.ROR) == (9, 1)
+    ok(client, Opcode.EXIT_DOWNLOAD_MODE)
+    ok(client, Opcode.SGP, 81, 0, 2)  # GP 81 bit 1: the program is protected against writing
+    assert client.request(1, Opcode.ENTER_DOWNLOAD_MODE).status == Status.WRITE_PROTECTED == 8
