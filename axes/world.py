@@ -131,16 +131,14 @@ class AxisWorld:
                 spec = {"position": _integer(spec, at)}
             _table(spec, at, _SWITCH_KEYS, required=("position",))
             width = spec.get("width")
+            position = _integer(spec["position"], (*at, "position"))
+            width = None if width is None else _integer(width, (*at, "width"), 0)
+            side = _text(spec.get("side", DEFAULT_SIDES[name]), (*at, "side"))
+            closed = _boolean(spec.get("normally_closed", False), (*at, "normally_closed"))
             try:
-                switches[name] = Switch.place(
-                    _integer(spec["position"], (*at, "position")),
-                    None if width is None else _integer(width, (*at, "width"), 0),
-                    _text(spec.get("side", DEFAULT_SIDES[name]), (*at, "side")),
-                    _boolean(spec.get("normally_closed", False), (*at, "normally_closed")))
-            except WorldError:
-                raise
-            except ValueError as exc:
-                raise WorldError(f"{_name(at)}: {exc}", at) from None
+                switches[name] = Switch.place(position, width, side, closed)
+            except ValueError as exc:  # an unknown side
+                raise WorldError(f"{_name(at)}: {exc}", (*at, "side")) from None
         zones_data = data.get("load_zone", [])
         if not isinstance(zones_data, list):
             raise WorldError(f"{_name((*where, 'load_zone'))} must be an array of tables "
