@@ -529,17 +529,29 @@ class Interpreter:
 
     # -- commands the interpreter handles itself ---------------------------------------------
 
-    def _calcx(self, ty: int, motor: int, va: int) -> int:
-        if ty == CalcOp.LOAD:
+    def calc(self, operation: int, operand: int) -> None:
+        """CALC: the accumulator op= operand (also sent in direct mode, §3.5.5)."""
+        self.accumulator = self.zero_source = calculate(operation, self.accumulator, operand)
+
+    def calcx(self, operation: int) -> None:
+        """CALCX: the accumulator with the X register (also sent in direct mode)."""
+        if operation == CalcOp.LOAD:
             self.x = self.accumulator
-        elif ty == CalcOp.SWAP:
+        elif operation == CalcOp.SWAP:
             self.x, self.accumulator = self.accumulator, self.x
             self.zero_source = self.accumulator
-        elif ty == CalcOp.NOT:
+        elif operation == CalcOp.NOT:
             self.x = wrap32(~self.x)  # the manual: "NOT - logical invert X register"
         else:
-            self.accumulator = calculate(ty, self.accumulator, self.x)
+            self.accumulator = calculate(operation, self.accumulator, self.x)
             self.zero_source = self.accumulator
+
+    def clear_error_flags(self, flag: int) -> None:
+        """CLE: clear one error flag, or all of them (also sent in direct mode)."""
+        self.errors &= ~(_ALL_ERRORS if flag == ErrorFlag.ALL else _ERROR_BITS.get(flag, 0))
+
+    def _calcx(self, ty: int, motor: int, va: int) -> int:
+        self.calcx(ty)
         self.pc += 1
         return _CONTINUE
 
@@ -585,7 +597,7 @@ class Interpreter:
         return _INTERRUPTS
 
     def _cle(self, ty: int, motor: int, va: int) -> int:
-        self.errors &= ~(_ALL_ERRORS if ty == ErrorFlag.ALL else _ERROR_BITS.get(ty, 0))
+        self.clear_error_flags(ty)
         self.pc += 1
         return _CONTINUE
 

@@ -12,7 +12,8 @@ from axes.cores import CHIP_CORES
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
-from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES
+from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES, module_type
+from tmcl_spec.package import version_text
 
 log = logging.getLogger("tmcl_server")
 
@@ -26,14 +27,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="host N modules with addresses (and CAN ids) 1..N (default 1)")
     who.add_argument("--address", type=int, metavar="A",
                      help="host one module with address (and CAN id) A")
-    parser.add_argument("--tcp", action="append", metavar="HOST:PORT",
+    parser.add_argument("--tcp", action="append", metavar="HOST:PORT[,mode=rs485|usb]",
                         help=f"serve raw TMCL over TCP (repeatable; default {DEFAULT_TCP}, "
-                             "port 0 picks a free port)")
+                             "port 0 picks a free port); addresses filter as on RS-485 unless "
+                             "mode=usb")
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
-    parser.add_argument("--pty", action="append", metavar="PATH", default=[],
-                        help="open a virtual serial port and link PATH to it (repeatable)")
-    parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD]", default=[],
-                        help="serve on an existing serial port through pyserial (repeatable)")
+    parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
+                        help="open a virtual serial port and link PATH to it (repeatable); "
+                             "mode usb answers any address like the module's USB port, rs485 "
+                             "filters by address; default: usb for one module, rs485 for several")
+    parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD][,mode=usb|rs485]",
+                        default=[], help="serve on an existing serial port through pyserial "
+                                         "(repeatable; mode as for --pty)")
     can = parser.add_argument_group("CAN (see docs/can.md)")
     can.add_argument("--can", action="append", metavar="INTERFACE:CHANNEL[:BITRATE]", default=[],
                      help="join the simulated CAN bus to a python-can bus, e.g. socketcan:can0, "
@@ -68,8 +73,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
     parser.add_argument("--log-level", default="WARNING",
-                        choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+                        choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+                        help="what the server logs to standard error: WARNING (default) "
+                             "problems such as dropped replies, INFO also reconnections (MQTT), "
+                             "DEBUG also failed writes and malformed input")
+    parser.add_argument("--version", action="version", version=version_text(
+        "tmcl-server", f"simulates a {module_type().name}, firmware {_firmware()}"))
     return parser
+
+
+def _firmware() -> str:
+    major, minor = module_type().firmware
+    return f"V{major}.{minor:02d}"
 
 
 def config_from_args(args: argparse.Namespace) -> ServerConfig:

@@ -216,6 +216,16 @@ class Simulation:
             return [(m, m.checksum_error_reply()) for m in targets]
         return self._execute(targets, request, Interface.SERIAL, sink)
 
+    def handle_frame_for(self, module: TMCLModule, frame: bytes,
+                         sink: ReplySink | None = None) -> list[Routed]:
+        """One frame on a module's own port (USB): it answers whatever the address byte says."""
+        self.sync()
+        try:
+            request = decode_request(frame)
+        except ChecksumError:
+            return [(module, module.checksum_error_reply())]
+        return self._execute([module], request, Interface.SERIAL, sink)
+
     def handle_can_request(self, request: Request, sink: ReplySink | None = None) -> list[Routed]:
         """Route one CAN request (``request.address`` is the frame's CAN id)."""
         can_map = self._can_map

@@ -131,3 +131,24 @@ def test_example_script_runs_self_contained():
     assert result.returncode == 0, result.stderr
     assert "firmware: 6212V105" in result.stdout
     assert "reached 102400" in result.stdout
+
+
+@pytest.mark.parametrize("tool", ["tmcl_server.cli", "interpreter.cli", "tmcl_server.upload"])
+def test_every_console_script_has_version(tool, capsys):
+    """tmcl-server, tmcl-asm and tmcl-upload all answer --version (issue 14)."""
+    import importlib
+
+    from tmcl_spec.package import package_version
+
+    with pytest.raises(SystemExit) as exit_:
+        importlib.import_module(tool).main(["--version"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert package_version() in out and package_version() != "unknown"
+    if tool == "tmcl_server.cli":
+        assert out.startswith("tmcl-server ") and "TMCM-6212, firmware V1.05" in out
+
+
+def test_every_server_option_has_help():
+    for action in build_parser()._actions:
+        assert action.help, f"{action.option_strings} has no help text"
