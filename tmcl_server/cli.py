@@ -9,6 +9,7 @@ import signal
 import sys
 
 from axes.cores import CHIP_CORES
+from tmcl_server.loops import LOOPS, new_event_loop
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
@@ -72,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "(docs/world.md); default: free axes, open switches")
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
+    parser.add_argument("--loop", choices=LOOPS, default="auto",
+                        help="event loop: uvloop (the fast extra) or asyncio's; default auto: "
+                             "uvloop if installed")
     parser.add_argument("--log-level", default="WARNING",
                         choices=["DEBUG", "INFO", "WARNING", "ERROR"],
                         help="what the server logs to standard error: WARNING (default) "
@@ -130,6 +134,7 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
 async def run(config: ServerConfig) -> None:
     server = Server(config)
     loop = asyncio.get_running_loop()
+    log.info("event loop: %s", type(loop).__module__.split(".")[0])
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, server.request_stop)
     await server.start()
@@ -155,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
     config = config_from_args(args)
     try:
-        asyncio.run(run(config))
+        with asyncio.Runner(loop_factory=lambda: new_event_loop(args.loop)) as runner:
+            runner.run(run(config))
     except (OSError, ValueError) as exc:
         print(f"tmcl-server: {exc}", file=sys.stderr)
         return 1

@@ -18,6 +18,7 @@ import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
 
+from tmcl_server.loops import new_event_loop
 from tmcl_server.module import TMCLModule
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.simulation import Simulation
@@ -31,7 +32,7 @@ class SimulatorThread:
                  speed: float | None = None, state_dir: str | None = None,
                  world: str | None = None, module_type: str | None = None,
                  axis_core: str | None = None, can_bus: str | list[str] | None = None,
-                 **endpoints: list[str]) -> None:
+                 loop: str = "asyncio", **endpoints: list[str]) -> None:
         config = config or ServerConfig(endpoints={})
         if modules is not None:
             config.addresses = list(range(1, modules + 1))
@@ -54,6 +55,8 @@ class SimulatorThread:
         for kind, arguments in endpoints.items():
             config.endpoints[kind] = list(arguments)
         self.config = config
+        #: The event loop to run on: "asyncio", "uvloop" or "auto" (tmcl_server/loops.py).
+        self.loop_kind = loop
         self.server: Server | None = None
         self.endpoints: dict[str, list[str]] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -69,7 +72,7 @@ class SimulatorThread:
         return self
 
     def _run(self) -> None:
-        loop = asyncio.new_event_loop()
+        loop = new_event_loop(self.loop_kind)
         self._loop = loop
         try:
             loop.run_until_complete(self._main())

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
+from typing import cast
 
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
@@ -68,8 +69,8 @@ class _TcpProtocol(asyncio.Protocol):
         self._session: StreamSession | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        self.transport = transport
+        # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
+        self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
         self._session = StreamSession(self._simulation, transport.write,
                                       asyncio.get_running_loop(), self._mode)
