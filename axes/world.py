@@ -11,9 +11,7 @@ it and :meth:`World.from_dict` builds the same from a dict (used by the run-time
 
 from __future__ import annotations
 
-import difflib
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -219,6 +217,8 @@ class World:
 def load_world(path: str | Path, number_of_axes: int | None = None,
                number_of_inputs: int | None = None) -> World:
     """Read a TOML world file; errors name the file, the line (when it can be found) and the key."""
+    import tomllib  # only when there is a world file to read
+
     try:
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
@@ -279,6 +279,8 @@ def _table(value: Any, where: KeyPath, known: frozenset[str],
         raise WorldError(f"{_name(where)} must be a table", where)
     for key in value:
         if key not in known:
+            import difflib  # only to word an error
+
             hint = difflib.get_close_matches(key, known, n=1)
             guess = f"; did you mean {hint[0]!r}?" if hint else ""
             raise WorldError(f"unknown key {_name((*where, key))!r}{guess} (known here: "

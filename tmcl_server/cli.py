@@ -14,7 +14,7 @@ from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
 from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES, module_type
-from tmcl_spec.package import version_text
+from tmcl_spec.package import add_version_option
 
 log = logging.getLogger("tmcl_server")
 
@@ -81,8 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="what the server logs to standard error: WARNING (default) "
                              "problems such as dropped replies, INFO also reconnections (MQTT), "
                              "DEBUG also failed writes and malformed input")
-    parser.add_argument("--version", action="version", version=version_text(
-        "tmcl-server", f"simulates a {module_type().name}, firmware {_firmware()}"))
+    add_version_option(parser, f"simulates a {module_type().name}, firmware {_firmware()}")
     return parser
 
 

@@ -27,7 +27,7 @@ from tmcl_server.transports.serial_port import parse_serial_spec
 from tmcl_server.transports.tcp import parse_host_port
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.numbers import to_int32
-from tmcl_spec.package import version_text
+from tmcl_spec.package import add_version_option
 
 #: (byte 1, byte 2, byte 3, value) of a reply: module, status, opcode, value normally;
 #: opcode, type, motor, value for command 134.
@@ -156,7 +156,7 @@ def load_program(path: Path, include: Sequence[Path] = ()) -> list[Instruction]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tmcl-upload", description=__doc__.splitlines()[0])
-    parser.add_argument("--version", action="version", version=version_text("tmcl-upload"))
+    add_version_option(parser)
     parser.add_argument("program", type=Path, help=".tmc source or .bin binary")
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--tcp", metavar="HOST:PORT", help="raw TMCL over TCP (the simulator)")
