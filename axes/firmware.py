@@ -18,10 +18,12 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, Stop
 from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
+from axes.stallguard import CoolStep
 from axes.world import AxisWorld, LoadZone, Switch
 from tmcl_spec.numbers import NS_PER_MS, NS_PER_S, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
@@ -48,7 +50,7 @@ _UNKNOWN = object()  # lookahead not computed since the last change
 _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_SPEED,
                               AP.POSITION_REACHED, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
                               AP.HOME_SWITCH, AP.LOAD, AP.ERROR_FLAGS, AP.ENCODER_POSITION,
-                              AP.SMARTENERGY_ACTUAL_CURRENT})
+                              AP.SMARTENERGY_ACTUAL_CURRENT, AP.MEASURED_SPEED})
 
 
 @dataclass(slots=True)
@@ -83,6 +85,9 @@ class AxisFirmware:
         self._encoder_offset = 0  # encoder counts added to what the mechanics give
         self._encoder_mech_base = 0  # mechanical position at which slip was last rebased
         self._stall_watch = False
+        #: The current scale coolStep regulates (axes/stallguard.py).
+        self._coolstep = CoolStep()
+        self._travel_direction = 1  # of the last motion (the filtered stallGuard2 reading)
         self.driver.power_up()
         self._levels = self.driver.levels()  # logical left, right, home
 
@@ -168,10 +173,12 @@ class AxisFirmware:
                 break
             self._react(stop)  # only reached if the lookahead was skipped
             chip = self.driver.chip
-        self.driver.read_position()
+        self._read_position()
 
     def _read_position(self) -> None:
         self.driver.read_position()
+        if self._params[AP.SMARTENERGY_HYSTERESIS_START] or self._coolstep.scale is not None:
+            self._update_coolstep()
 
     def _emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
         self._pending.append(AxisEvent(self._now_ns, self.index, kind, active))
@@ -406,23 +413,44 @@ class AxisFirmware:
         return self.board.mechanical(self.chip.motor_position)
 
     def _load(self) -> int:
-        return self.board.world.load_at(self._mechanical())
+        """AP 206: the stallGuard2 reading, after threshold (AP 174) and filter (AP 173)."""
+        threshold = self._params[AP.STALLGUARD_THRESHOLD]
+        if not self._params[AP.STALLGUARD_FILTER]:
+            return stallguard.reading(self.board.world.load_at(self._mechanical()), threshold)
+        # at rest the driver holds what it measured over the last full steps it travelled
+        return stallguard.filtered_reading(self.board.world.load_at, self._mechanical(),
+                                           self.driver.heading() or self._travel_direction,
+                                           threshold)
 
     def _actual_speed(self) -> int:
         return self.driver.actual_speed()
 
     def _check_stall(self) -> None:
+        """AP 181: stop a motor at or above that speed whose stallGuard2 reading is 0.
+
+        Where the load changes is an event of the world; in between, while a stall could
+        still come (a zero reading below AP 181, or a filtered reading still falling towards
+        the zero under the motor), the firmware samples every :data:`STALL_POLL_NS`.
+        """
         threshold = self._params[AP.STOP_ON_STALL]
         watching = False
-        if threshold and self._load() == 0 and self._standstill_since is None:
-            if abs(self._actual_speed()) >= threshold:
+        if threshold and self._standstill_since is None:
+            load = self._load()
+            if load == 0 and abs(self._actual_speed()) >= threshold:
                 self._abort_search()
                 self._hard_stop()
                 self._errors |= ERROR_STALL
                 self._emit(AxisEventKind.STALL)
-            else:
+            elif load == 0 or (self._params[AP.STALLGUARD_FILTER] and stallguard.reading(
+                    self.board.world.load_at(self._mechanical()),
+                    self._params[AP.STALLGUARD_THRESHOLD]) == 0):
                 watching = True
         self._stall_watch = watching
+
+    def _update_coolstep(self) -> None:
+        """Bring coolStep's current scale up to the present (called at every position read)."""
+        speed = abs(self._actual_speed()) if self._standstill_since is None else 0
+        self._coolstep.update(self._params, self._mechanical(), speed, self._load())
 
     def _encoder_counts(self) -> int:
         world = self.board.world
@@ -485,6 +513,7 @@ class AxisFirmware:
         marks = []
         direction = self.driver.heading()
         if direction:
+            self._travel_direction = direction
             mark = self._deviation_mark(direction)
             if mark is not None:
                 marks.append(mark)
@@ -496,8 +525,20 @@ class AxisFirmware:
 
     @property
     def current(self) -> int:
-        """The motor current now (0..255): AP 6 while moving, AP 7 after the power-down delay."""
-        return self._params[AP.STANDBY_CURRENT if self._standby else AP.MAX_CURRENT]
+        """The motor current now (0..255): AP 6 while moving, lowered by coolStep at light
+        load, and AP 7 after the power-down delay."""
+        if self._standby:
+            return self._params[AP.STANDBY_CURRENT]
+        run = self._params[AP.MAX_CURRENT]
+        scale = self._coolstep.scale
+        if scale is None:
+            return run
+        return run * (scale + 1) // ((run >> stallguard.CURRENT_SCALE_SHIFT) + 1)
+
+    def _current_scale(self) -> int:
+        """AP 180 (0..31): coolStep's scale while it regulates, else that of the current now."""
+        scale = self._coolstep.scale
+        return self.current >> stallguard.CURRENT_SCALE_SHIFT if scale is None else scale
 
     # == parameters ============================================================================
 
@@ -530,8 +571,10 @@ class AxisFirmware:
             return flags
         if number == AP.ENCODER_POSITION:
             return self._encoder_position()
-        if number == AP.SMARTENERGY_ACTUAL_CURRENT:  # full scale 0..31 of the running current
-            return self.current >> 3
+        if number == AP.SMARTENERGY_ACTUAL_CURRENT:
+            return self._current_scale()
+        if number == AP.MEASURED_SPEED:  # the driver's step-rate measurement: a magnitude
+            return abs(self._actual_speed())
         return self._params[number]
 
     def set_parameter(self, number: int, value: int) -> None:

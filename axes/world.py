@@ -11,7 +11,7 @@ it and :meth:`World.from_dict` builds the same from a dict (used by the run-time
 
 from __future__ import annotations
 
-import tomllib
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,6 +22,9 @@ INFINITY = float("inf")
 DEFAULT_SIDES = {"left": "below", "right": "above", "home": "centre"}
 DEFAULT_LOAD = 500
 LOAD_MAX = 1023
+ANALOG_MAX = 65535
+#: Highest supply voltage a world may set (the module is specified for 10..35 V).
+SUPPLY_VOLTAGE_MAX = 100.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,32 +116,46 @@ class AxisWorld:
         return sorted(points)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> AxisWorld:
+    def from_dict(cls, data: dict[str, Any], where: KeyPath = ()) -> AxisWorld:
+        """The world of one ``[[axis]]`` table; unknown keys are refused (WorldError)."""
+        _table(data, where, _AXIS_KEYS)
         switches = {}
         for name in SWITCH_NAMES:
             spec = data.get(name)
             if spec is None:
                 continue
-            if isinstance(spec, int):
-                spec = {"position": spec}
-            switches[name] = Switch.place(int(spec["position"]), spec.get("width"),
-                                          spec.get("side", DEFAULT_SIDES[name]),
-                                          bool(spec.get("normally_closed", False)))
+            at = (*where, name)
+            if not isinstance(spec, dict):
+                spec = {"position": _integer(spec, at)}
+            _table(spec, at, _SWITCH_KEYS, required=("position",))
+            width = spec.get("width")
+            position = _integer(spec["position"], (*at, "position"))
+            width = None if width is None else _integer(width, (*at, "width"), 0)
+            side = _text(spec.get("side", DEFAULT_SIDES[name]), (*at, "side"))
+            closed = _boolean(spec.get("normally_closed", False), (*at, "normally_closed"))
+            try:
+                switches[name] = Switch.place(position, width, side, closed)
+            except ValueError as exc:  # an unknown side
+                raise WorldError(f"{_name(at)}: {exc}", (*at, "side")) from None
+        zones_data = data.get("load_zone", [])
+        if not isinstance(zones_data, list):
+            raise WorldError(f"{_name((*where, 'load_zone'))} must be an array of tables "
+                             "([[axis.load_zone]])", (*where, "load_zone"))
         zones = []
-        for zone in data.get("load_zone", []):
-            load = int(zone.get("load", 0))
-            if not 0 <= load <= LOAD_MAX:
-                raise ValueError(f"load value {load} outside 0..{LOAD_MAX}")
-            zones.append(LoadZone(int(zone["from"]), int(zone["to"]), load))
-        slip = float(data.get("encoder_slip", 0.0))
-        if not 0.0 <= slip <= 1.0:
-            raise ValueError("encoder_slip must be between 0 and 1")
-        world = cls(switches, zones, int(data.get("load", DEFAULT_LOAD)), slip,
-                    int(data.get("encoder_resolution", 51200)),
-                    int(data.get("motor_fullsteps", 200)))
-        if world.encoder_counts_per_rev <= 0 or world.motor_fullsteps_per_rev <= 0:
-            raise ValueError("encoder_resolution and motor_fullsteps must be positive")
-        return world
+        for number, zone in enumerate(zones_data):
+            at = (*where, "load_zone", number)
+            _table(zone, at, _ZONE_KEYS, required=("from", "to"))
+            low, high = _integer(zone["from"], (*at, "from")), _integer(zone["to"], (*at, "to"))
+            if high < low:
+                raise WorldError(f"{_name(at)}: 'to' ({high}) lies below 'from' ({low})", at)
+            zones.append(LoadZone(low, high, _integer(zone.get("load", 0), (*at, "load"),
+                                                      0, LOAD_MAX)))
+        return cls(switches, zones,
+                   _integer(data.get("load", DEFAULT_LOAD), (*where, "load"), 0, LOAD_MAX),
+                   _number(data.get("encoder_slip", 0.0), (*where, "encoder_slip"), 0.0, 1.0),
+                   _integer(data.get("encoder_resolution", 51200),
+                            (*where, "encoder_resolution"), 1),
+                   _integer(data.get("motor_fullsteps", 200), (*where, "motor_fullsteps"), 1))
 
 
 @dataclass(slots=True)
@@ -149,31 +166,196 @@ class World:
     analog_inputs: dict[int, int] = field(default_factory=dict)
     digital_inputs: dict[int, bool] = field(default_factory=dict)
     clock_hz: int | None = None
+    #: Supply voltage in volts (``GIO 8, 1``); None: the module type's nominal voltage.
+    supply_voltage: float | None = None
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], number_of_axes: int | None = None) -> World:
-        """The world a dict describes; ``number_of_axes`` bounds the axis indices if given."""
+    def from_dict(cls, data: dict[str, Any], number_of_axes: int | None = None,
+                  number_of_inputs: int | None = None) -> World:
+        """The world a dict (a parsed world file) describes; anything unknown is an error.
+
+        ``number_of_axes`` / ``number_of_inputs`` bound the axis indices and input lists if
+        given.  Errors are :class:`WorldError` naming the key path.
+        """
+        _table(data, (), _TOP_KEYS)
         world = cls()
-        for entry in data.get("axis", []):
-            index = int(entry["index"])
-            if index < 0 or (number_of_axes is not None and index >= number_of_axes):
-                limit = "" if number_of_axes is None else f"..{number_of_axes - 1}"
-                raise ValueError(f"axis index {index} outside 0{limit}")
-            world.axes[index] = AxisWorld.from_dict(entry)
-        inputs = data.get("inputs", {})
-        for port, value in enumerate(inputs.get("analog", [])):
-            world.analog_inputs[port] = int(value)
-        for port, value in enumerate(inputs.get("digital", [])):
-            world.digital_inputs[port] = bool(value)
-        clock = data.get("chip", {}).get("clock_hz")
-        world.clock_hz = int(clock) if clock is not None else None
+        entries = data.get("axis", [])
+        if not isinstance(entries, list):
+            raise WorldError("'axis' must be an array of tables ([[axis]])", ("axis",))
+        for number, entry in enumerate(entries):
+            at: KeyPath = ("axis", number)
+            _table(entry, at, _AXIS_KEYS, required=("index",))
+            limit = None if number_of_axes is None else number_of_axes - 1
+            index = _integer(entry["index"], (*at, "index"), 0, limit, what="axis index")
+            if index in world.axes:
+                raise WorldError(f"{_name(at)}: axis index {index} appears twice", (*at, "index"))
+            world.axes[index] = AxisWorld.from_dict(entry, at)
+        inputs = _table(data.get("inputs", {}), ("inputs",), _INPUT_KEYS)
+        for kind in ("analog", "digital"):
+            values = inputs.get(kind, [])
+            at = ("inputs", kind)
+            if not isinstance(values, list):
+                raise WorldError(f"{_name(at)} must be an array", at)
+            if number_of_inputs is not None and len(values) > number_of_inputs:
+                raise WorldError(f"{_name(at)} lists {len(values)} inputs; the module has "
+                                 f"{number_of_inputs}", at)
+            for port, value in enumerate(values):
+                if kind == "analog":
+                    world.analog_inputs[port] = _integer(value, (*at, port), 0, ANALOG_MAX)
+                else:
+                    world.digital_inputs[port] = _boolean(value, (*at, port))
+        chip = _table(data.get("chip", {}), ("chip",), _CHIP_KEYS)
+        if "clock_hz" in chip:
+            world.clock_hz = _integer(chip["clock_hz"], ("chip", "clock_hz"), 1)
+        supply = _table(data.get("supply", {}), ("supply",), _SUPPLY_KEYS)
+        if "voltage" in supply:
+            world.supply_voltage = check_supply_voltage(
+                _number(supply["voltage"], ("supply", "voltage"), 0.0, SUPPLY_VOLTAGE_MAX))
         return world
 
 
-def load_world(path: str | Path, number_of_axes: int | None = None) -> World:
-    """Read a TOML world file; errors name the file."""
+def load_world(path: str | Path, number_of_axes: int | None = None,
+               number_of_inputs: int | None = None) -> World:
+    """Read a TOML world file; errors name the file, the line (when it can be found) and the key."""
+    import tomllib  # only when there is a world file to read
+
     try:
-        with open(path, "rb") as f:
-            return World.from_dict(tomllib.load(f), number_of_axes)
-    except (OSError, tomllib.TOMLDecodeError, KeyError, ValueError, TypeError) as exc:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ValueError(f"world file {path}: {exc.strerror or exc}") from exc
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:  # its message ends with "(at line L, column C)"
         raise ValueError(f"world file {path}: {exc}") from exc
+    try:
+        return World.from_dict(data, number_of_axes, number_of_inputs)
+    except WorldError as exc:
+        line = locate_key(text, exc.where)
+        at = f", line {line}" if line is not None else ""
+        raise ValueError(f"world file {path}{at}: {exc}") from exc
+
+
+# == validation ================================================================================
+
+KeyPath = tuple[str | int, ...]
+
+_TOP_KEYS = frozenset({"axis", "inputs", "chip", "supply"})
+_AXIS_KEYS = frozenset({"index", *SWITCH_NAMES, "load", "load_zone", "encoder_slip",
+                        "encoder_resolution", "motor_fullsteps"})
+_SWITCH_KEYS = frozenset({"position", "width", "side", "normally_closed"})
+_ZONE_KEYS = frozenset({"from", "to", "load"})
+_INPUT_KEYS = frozenset({"analog", "digital"})
+_CHIP_KEYS = frozenset({"clock_hz"})
+_SUPPLY_KEYS = frozenset({"voltage"})
+
+
+class WorldError(ValueError):
+    """A world description that is not valid; ``where`` is the key path of the culprit."""
+
+    def __init__(self, message: str, where: KeyPath = ()) -> None:
+        super().__init__(message)
+        self.where = where
+
+
+def check_supply_voltage(volts: float) -> float:
+    """A supply voltage the simulated monitor can show (0..SUPPLY_VOLTAGE_MAX volts)."""
+    if isinstance(volts, bool) or not isinstance(volts, int | float) or not (
+            0.0 <= volts <= SUPPLY_VOLTAGE_MAX):
+        raise ValueError(f"supply voltage must be 0..{SUPPLY_VOLTAGE_MAX:g} V, got {volts!r}")
+    return float(volts)
+
+
+def _name(where: KeyPath) -> str:
+    """``axis[1].left.position``: where a key is, in words a user can find in the file."""
+    text = ""
+    for part in where:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else part)
+    return text or "the file"
+
+
+def _table(value: Any, where: KeyPath, known: frozenset[str],
+           required: tuple[str, ...] = ()) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise WorldError(f"{_name(where)} must be a table", where)
+    for key in value:
+        if key not in known:
+            import difflib  # only to word an error
+
+            hint = difflib.get_close_matches(key, known, n=1)
+            guess = f"; did you mean {hint[0]!r}?" if hint else ""
+            raise WorldError(f"unknown key {_name((*where, key))!r}{guess} (known here: "
+                             f"{', '.join(sorted(known))})", (*where, key))
+    for key in required:
+        if key not in value:
+            raise WorldError(f"{_name(where)}: missing key {key!r}", where)
+    return value
+
+
+def _integer(value: Any, where: KeyPath, lo: int | None = None, hi: int | None = None,
+             what: str | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise WorldError(f"{_name(where)} must be an integer, got {value!r}", where)
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        span = f"{'' if lo is None else lo}..{'' if hi is None else hi}"
+        raise WorldError(f"{what or _name(where)} {value} outside {span}", where)
+    return value
+
+
+def _number(value: Any, where: KeyPath, lo: float, hi: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
+        raise WorldError(f"{_name(where)} must be a number {lo:g}..{hi:g}, got {value!r}", where)
+    return float(value)
+
+
+def _boolean(value: Any, where: KeyPath) -> bool:
+    if not isinstance(value, bool):
+        raise WorldError(f"{_name(where)} must be true or false, got {value!r}", where)
+    return value
+
+
+def _text(value: Any, where: KeyPath) -> str:
+    if not isinstance(value, str):
+        raise WorldError(f"{_name(where)} must be a string, got {value!r}", where)
+    return value
+
+
+_HEADER = re.compile(r"^\s*\[\[?\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+
+
+def _header(line: str) -> str | None:
+    match = _HEADER.match(line)
+    return match.group(1).replace(" ", "").replace('"', "") if match else None
+
+
+def locate_key(text: str, where: KeyPath) -> int | None:
+    """The 1-based line of the TOML text where the key path ``where`` is written, if found.
+
+    tomllib keeps no positions, so the file is searched: table headers (``[[axis]]``, the
+    n-th for an index) narrow the search to their block, and keys are matched as ``key =``,
+    also inside inline tables.  A best effort: None when the key cannot be found.
+    """
+    lines = text.splitlines()
+    start, end, prefix, found = 0, len(lines), "", None
+    parts = list(where)
+    while parts:
+        part = parts.pop(0)
+        if isinstance(part, int):
+            continue
+        name = f"{prefix}.{part}" if prefix else part
+        headers = [n for n in range(start, end) if _header(lines[n]) == name]
+        if headers:
+            index = parts.pop(0) if parts and isinstance(parts[0], int) else 0
+            if index >= len(headers):
+                return found
+            top = headers[index]
+            stop = next((n for n in range(top + 1, end) if (h := _header(lines[n])) is not None
+                         and not h.startswith(name + ".")), end)
+            start, end, prefix, found = top + 1, stop, name, top + 1
+            continue
+        key = re.compile(rf'(^|[{{,\s.]){re.escape(part)}"?\s*[=.]')
+        line = next((n for n in range(start, end)
+                     if _header(lines[n]) is None and key.search(lines[n].split("#")[0])), None)
+        if line is None:
+            return found
+        start, found = line, line + 1
+    return found

@@ -14,11 +14,13 @@ from pathlib import Path
 from interpreter.assembler import AssemblyError, assemble_file
 from interpreter.disassembler import disassemble, listing
 from interpreter.isa import decode_program
+from tmcl_spec.package import add_version_option
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tmcl-asm", description="TMCL assembler and disassembler "
                                      "for the TMCM-6212 (TMCL-IDE source and binary formats).")
+    add_version_option(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     asm = sub.add_parser("assemble", help="source to an 8-byte-per-command binary")
     asm.add_argument("source", type=Path)

@@ -163,10 +163,6 @@ class Interpreter:
         self.code: list[Instruction] = [EMPTY] * (memory_size + 1)
         #: Instructions executed since creation (benchmarks, tests).
         self.executed = 0
-        #: If set, a running program never lags the module's clock by more than this: the
-        #: rest is skipped, as on a CPU too slow for its work.  Only for real clocks, where
-        #: the host cannot wait for the simulation (see docs/interpreter.md).
-        self.max_lag_ns: int | None = None
         self.triggers: dict[int, Trigger] = {}
         self._timers: dict[int, _Timer] = {}
         self.power_up(0)
@@ -347,6 +343,18 @@ class Interpreter:
             return None
         return max(min(candidates), now_ns + 1)
 
+    @property
+    def busy(self) -> bool:
+        """Running with instructions to execute now: not stopped and not idle in a WAIT."""
+        return self.status is ApplicationStatus.RUN and (
+            self.wait is None or bool(self._dispatchable()))
+
+    def skip_to(self, t_ns: int) -> None:
+        """Let time pass to ``t_ns`` without executing (a CPU too slow for its program); when
+        it resumes, elapsed timers fire once and a WAIT past its deadline ends."""
+        if self.time_ns < t_ns:
+            self.time_ns = t_ns
+
     def run_until(self, now_ns: int, end_ns: int) -> bool:
         """Run the instructions that start before ``end_ns``; the module is at ``now_ns``.
 
@@ -357,8 +365,6 @@ class Interpreter:
             return False
         if self.time_ns < now_ns:
             self.time_ns = now_ns
-        if self.max_lag_ns is not None and self.wait is None and end_ns - self.time_ns > self.max_lag_ns:
-            self.time_ns = end_ns - self.max_lag_ns
         return self._advance(end_ns)
 
     # == execution =============================================================================
@@ -523,17 +529,29 @@ class Interpreter:
 
     # -- commands the interpreter handles itself ---------------------------------------------
 
-    def _calcx(self, ty: int, motor: int, va: int) -> int:
-        if ty == CalcOp.LOAD:
+    def calc(self, operation: int, operand: int) -> None:
+        """CALC: the accumulator op= operand (also sent in direct mode, §3.5.5)."""
+        self.accumulator = self.zero_source = calculate(operation, self.accumulator, operand)
+
+    def calcx(self, operation: int) -> None:
+        """CALCX: the accumulator with the X register (also sent in direct mode)."""
+        if operation == CalcOp.LOAD:
             self.x = self.accumulator
-        elif ty == CalcOp.SWAP:
+        elif operation == CalcOp.SWAP:
             self.x, self.accumulator = self.accumulator, self.x
             self.zero_source = self.accumulator
-        elif ty == CalcOp.NOT:
+        elif operation == CalcOp.NOT:
             self.x = wrap32(~self.x)  # the manual: "NOT - logical invert X register"
         else:
-            self.accumulator = calculate(ty, self.accumulator, self.x)
+            self.accumulator = calculate(operation, self.accumulator, self.x)
             self.zero_source = self.accumulator
+
+    def clear_error_flags(self, flag: int) -> None:
+        """CLE: clear one error flag, or all of them (also sent in direct mode)."""
+        self.errors &= ~(_ALL_ERRORS if flag == ErrorFlag.ALL else _ERROR_BITS.get(flag, 0))
+
+    def _calcx(self, ty: int, motor: int, va: int) -> int:
+        self.calcx(ty)
         self.pc += 1
         return _CONTINUE
 
@@ -579,7 +597,7 @@ class Interpreter:
         return _INTERRUPTS
 
     def _cle(self, ty: int, motor: int, va: int) -> int:
-        self.errors &= ~(_ALL_ERRORS if ty == ErrorFlag.ALL else _ERROR_BITS.get(ty, 0))
+        self.clear_error_flags(ty)
         self.pc += 1
         return _CONTINUE
 

@@ -185,6 +185,10 @@ def main() -> int:
                                      raw.read_replies, args.count, args.window))
             raw.sock.close()
             slcan = RawSlcan(pty)
+            # lockstep with whole-buffer reads: the adapter's own latency, without python-can's
+            # byte-at-a-time reading of the port
+            results.append(pipelined("slcan pty, raw, lockstep", slcan.send, slcan.read_replies,
+                                     args.count, 1))
             results.append(pipelined(f"slcan pty, raw, window {args.window}", slcan.send,
                                      slcan.read_replies, args.count, args.window))
             slcan.close()

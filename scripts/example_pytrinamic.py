@@ -13,10 +13,15 @@ shows that simulated time need not pass in real time.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
-from pytrinamic.connections import ConnectionManager
-from pytrinamic.modules import TMCM6212
+try:
+    from pytrinamic.connections import ConnectionManager
+    from pytrinamic.modules import TMCM6212
+except ImportError:  # the server alone does not need it
+    sys.exit("this example needs pytrinamic: ./scripts/serve.sh installs it, or run "
+             ".venv/bin/pip install -e '.[examples]'")
 
 
 def demo(interface_args: str, advance=None) -> None:

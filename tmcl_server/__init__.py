@@ -47,10 +47,13 @@ __all__ = [
     "TMCLModule",
     "VirtualClock",
 ]
-__version__ = "0.1.0"
 
 
 def __getattr__(name: str) -> Any:
+    if name == "__version__":  # the installed distribution's (tmcl_spec.package)
+        from tmcl_spec.package import package_version
+
+        return package_version()
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'tmcl_server' has no attribute {name!r}")

@@ -9,10 +9,12 @@ import signal
 import sys
 
 from axes.cores import CHIP_CORES
+from tmcl_server.loops import LOOPS, new_event_loop
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
-from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES
+from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES, module_type
+from tmcl_spec.package import add_version_option
 
 log = logging.getLogger("tmcl_server")
 
@@ -26,14 +28,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="host N modules with addresses (and CAN ids) 1..N (default 1)")
     who.add_argument("--address", type=int, metavar="A",
                      help="host one module with address (and CAN id) A")
-    parser.add_argument("--tcp", action="append", metavar="HOST:PORT",
+    parser.add_argument("--tcp", action="append", metavar="HOST:PORT[,mode=rs485|usb]",
                         help=f"serve raw TMCL over TCP (repeatable; default {DEFAULT_TCP}, "
-                             "port 0 picks a free port)")
+                             "port 0 picks a free port); addresses filter as on RS-485 unless "
+                             "mode=usb")
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
-    parser.add_argument("--pty", action="append", metavar="PATH", default=[],
-                        help="open a virtual serial port and link PATH to it (repeatable)")
-    parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD]", default=[],
-                        help="serve on an existing serial port through pyserial (repeatable)")
+    parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
+                        help="open a virtual serial port and link PATH to it (repeatable); "
+                             "mode usb answers any address like the module's USB port, rs485 "
+                             "filters by address; default: usb for one module, rs485 for several")
+    parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD][,mode=usb|rs485]",
+                        default=[], help="serve on an existing serial port through pyserial "
+                                         "(repeatable; mode as for --pty)")
     can = parser.add_argument_group("CAN (see docs/can.md)")
     can.add_argument("--can", action="append", metavar="INTERFACE:CHANNEL[:BITRATE]", default=[],
                      help="join the simulated CAN bus to a python-can bus, e.g. socketcan:can0, "
@@ -67,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "(docs/world.md); default: free axes, open switches")
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
+    parser.add_argument("--loop", choices=LOOPS, default="auto",
+                        help="event loop: uvloop (the fast extra) or asyncio's; default auto: "
+                             "uvloop if installed")
     watch = parser.add_argument_group("watching (see README: trace, recorder)")
     watch.add_argument("--trace", nargs="?", const="-", metavar="FILE",
                        help="log every request, reply, event and dropped frame, decoded "
@@ -87,8 +96,17 @@ def build_parser() -> argparse.ArgumentParser:
                         help="with --clock lockstep: simulated time each request takes "
                              "(default 0.001)")
     parser.add_argument("--log-level", default="WARNING",
-                        choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+                        choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+                        help="what the server logs to standard error: WARNING (default) "
+                             "problems such as dropped replies, INFO also reconnections (MQTT), "
+                             "DEBUG also failed writes and malformed input")
+    add_version_option(parser, f"simulates a {module_type().name}, firmware {_firmware()}")
     return parser
+
+
+def _firmware() -> str:
+    major, minor = module_type().firmware
+    return f"V{major}.{minor:02d}"
 
 
 def config_from_args(args: argparse.Namespace) -> ServerConfig:
@@ -146,6 +164,7 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
 async def run(config: ServerConfig) -> None:
     server = Server(config)
     loop = asyncio.get_running_loop()
+    log.info("event loop: %s", type(loop).__module__.split(".")[0])
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, server.request_stop)
     await server.start()
@@ -171,7 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
     config = config_from_args(args)
     try:
-        asyncio.run(run(config))
+        with asyncio.Runner(loop_factory=lambda: new_event_loop(args.loop)) as runner:
+            runner.run(run(config))
     except (OSError, ValueError) as exc:
         print(f"tmcl-server: {exc}", file=sys.stderr)
         return 1

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import fields
 from typing import Any, TypeVar
 
+from tmcl_server.loops import new_event_loop
 from tmcl_server.module import TMCLModule
 from tmcl_server.record import DEFAULT_RESOLUTION_S, Recorder, Recording
 from tmcl_server.server import Server, ServerConfig
@@ -35,7 +36,7 @@ class SimulatorThread:
                  speed: float | None = None, state_dir: str | None = None,
                  world: str | None = None, module_type: str | None = None,
                  axis_core: str | None = None, can_bus: str | list[str] | None = None,
-                 **endpoints: list[str]) -> None:
+                 loop: str = "asyncio", **endpoints: list[str]) -> None:
         config = config or ServerConfig(endpoints={})
         if modules is not None:
             config.addresses = list(range(1, modules + 1))
@@ -61,6 +62,8 @@ class SimulatorThread:
             else:
                 config.endpoints[kind] = list(arguments)
         self.config = config
+        #: The event loop to run on: "asyncio", "uvloop" or "auto" (tmcl_server/loops.py).
+        self.loop_kind = loop
         self.server: Server | None = None
         self.endpoints: dict[str, list[str]] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -76,7 +79,7 @@ class SimulatorThread:
         return self
 
     def _run(self) -> None:
-        loop = asyncio.new_event_loop()
+        loop = new_event_loop(self.loop_kind)
         self._loop = loop
         try:
             loop.run_until_complete(self._main())
@@ -114,13 +117,21 @@ class SimulatorThread:
     # -- access from the calling thread -------------------------------------------------------
 
     def call(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
-        """Run ``fn`` on the simulator's loop thread and return its result."""
+        """Run ``fn`` on the simulator's loop thread and return its result.
+
+        ``fn`` may change modules (inputs, switches, programs): their next events are asked
+        again afterwards, so the server's timer follows.
+        """
         assert self._loop is not None, "simulator not started"
         if threading.current_thread() is self._thread:  # already there (nested call)
             return fn(*args, **kwargs)
 
         async def run() -> T:
-            return fn(*args, **kwargs)
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                if self.server is not None:
+                    self.server.simulation.notify_changed()
 
         return asyncio.run_coroutine_threadsafe(run(), self._loop).result(timeout=60)
 

@@ -19,15 +19,25 @@ from typing import Any, ClassVar
 
 from axes.cores import make_axis
 from axes.interface import Axis, AxisEvent, AxisEventKind
-from axes.world import DEFAULT_SIDES, INFINITY, AxisWorld, LoadZone, Switch, World
+from axes.world import (
+    DEFAULT_SIDES,
+    INFINITY,
+    AxisWorld,
+    LoadZone,
+    Switch,
+    World,
+    check_supply_voltage,
+)
 from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.program import ProgramSupport
 from tmcl_server.protocol import AnyReply, RawReply, Reply, Request
 from tmcl_spec.commands import (
     ALWAYS_REPLIED,
+    COORD_MOTOR_MASK_FLAG,
     FACTORY_RESET_KEY,
     MOTOR_ALL,
+    USER_FUNCTIONS,
     IOBank,
     MoveType,
     Opcode,
@@ -225,11 +235,12 @@ class TMCLModule:
             status, result = self.perform(request, sink, interface)
             if result is NO_REPLY:
                 return None
-            if isinstance(result, RawReply):
-                return result
             value = result
+        # GP 255 silences every reply but those of GAP, GGP and GIO (§5.1): special layouts too
         if self.globals[0][GP.SUPPRESS_REPLY] and opcode not in ALWAYS_REPLIED:
             return None
+        if isinstance(value, RawReply):
+            return value
         return self.make_reply(status, opcode, value, interface)
 
     def perform(self, request: Request, sink: ReplySink | None = None,
@@ -332,6 +343,7 @@ class TMCLModule:
             "outputs": list(self.outputs),
             "inputs": [self.digital_input(p) for p in range(self.type.digital_inputs)],
             "analog": list(self.analog_inputs),
+            "supply": self.supply_voltage,
             "program": {"state": self.read_global(GP.APPLICATION_STATUS, 0),
                         "pc": self.read_global(GP.PROGRAM_COUNTER, 0)},
         }
@@ -354,6 +366,12 @@ class TMCLModule:
                 for event in self.axes[index].advance_to(t_ns):
                     self._on_axis_event(event)
         self._check_heartbeats()
+
+    def skip_program_to(self, t_ns: int) -> None:
+        """The program lost the race against a real clock: it resumes at ``t_ns`` without
+        running what lies before (docs/scheduling.md); the axes still get every event."""
+        self.program.interpreter.skip_to(t_ns)
+        self.advance_to(t_ns)
 
     def catch_up(self, t_ns: int) -> None:
         """Make ``t_ns`` the present, no event lying before it (a program instruction's time):
@@ -386,7 +404,7 @@ class TMCLModule:
         self.program.on_axis_event(event)
         if event.kind is AxisEventKind.TARGET_REACHED:
             watch = self._reach_watch.pop(event.axis, None)
-            if watch is not None:
+            if watch is not None and not self.globals[0][GP.SUPPRESS_REPLY]:
                 reply = self.make_reply(Status.TARGET_REACHED_EVENT, Opcode.TARGET_REACHED_EVENT,
                                         1 << event.axis, watch.interface)
                 watch.sink.send_unsolicited(reply)
@@ -414,6 +432,21 @@ class TMCLModule:
 
     def digital_input(self, port: int) -> int:
         return int(self.analog_inputs[port] >= self.type.digital_threshold)
+
+    @property
+    def supply_voltage(self) -> float:
+        """The supply voltage (V) the module's monitor sees: the world's, or the nominal one."""
+        volts = self.world.supply_voltage
+        return self.type.nominal_supply_voltage if volts is None else volts
+
+    def set_supply_voltage(self, volts: float) -> None:
+        """Change the supply (V) at run time, e.g. to test a host's under-voltage check."""
+        self.world.supply_voltage = check_supply_voltage(volts)
+        self.emit("supply_changed", None, volts=self.world.supply_voltage)
+
+    def supply_voltage_reading(self) -> int:
+        """What ``GIO <supply channel>, 1`` answers (0.1 V units on the TMCM-6212)."""
+        return round(self.supply_voltage * self.type.supply_voltage_per_volt)
 
     # == the world around the axes (world file, tests, MQTT) ===================================
 
@@ -509,20 +542,35 @@ class TMCLModule:
         self._axis(req.motor).stop()
 
     def _cmd_mvp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if req.type == MoveType.COORD:
+            self._move_to_coordinate(req.motor, req.value)
+            return
         axis = self._axis(req.motor)
         if req.type == MoveType.ABS:
             target = req.value
         elif req.type == MoveType.REL:
             origin = _RELATIVE_ORIGIN[axis.get_parameter(AP.RELATIVE_POSITIONING_OPTION)]
             target = to_int32(axis.get_parameter(origin) + req.value)
-        elif req.type == MoveType.COORD:
-            if not 0 <= req.value < self.type.coordinates:
-                raise CommandError(Status.INVALID_VALUE)
-            target = self.coordinates[axis.index][req.value]
         else:
             raise CommandError(Status.WRONG_TYPE)
         self._arm_reach_watch(axis.index)
         axis.move_to(target)
+
+    def _move_to_coordinate(self, motor: int, number: int) -> None:
+        """MVP COORD: motor 0..5, or (motor field 0..255, §3.6.4) bit 7 set and a motor mask.
+
+        The motors of a mask start together, each to its own coordinate ``number``
+        (docs/protocol.md).
+        """
+        if motor & COORD_MOTOR_MASK_FLAG:
+            indices = [i for i in range(len(self.axes)) if motor >> i & 1]
+        else:
+            indices = [self._axis_index(motor)]
+        if not indices or not 0 <= number < self.type.coordinates:
+            raise CommandError(Status.INVALID_VALUE)
+        self._arm_reach_watch(*indices)
+        for index in indices:
+            self.axis(index).move_to(self.coordinates[index][number])
 
     def _cmd_rfs(self, req: Request, sink: ReplySink | None, interface: Interface) -> int | None:
         axis = self._axis(req.motor)
@@ -660,6 +708,8 @@ class TMCLModule:
     def _cmd_gio(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
         if req.motor not in tuple(IOBank):
             raise CommandError(Status.INVALID_VALUE)
+        if req.motor == IOBank.ANALOG_INPUTS and req.type == self.type.supply_voltage_channel:
+            return self.supply_voltage_reading()
         if not 0 <= req.type < self._input_count(req.motor):
             raise CommandError(Status.WRONG_TYPE)
         return self.read_input(req.type, req.motor)
@@ -769,16 +819,26 @@ class TMCLModule:
             return
         self._reach_request = (mask, req.type == 1, sink, interface)
 
-    def _arm_reach_watch(self, axis: int) -> None:
-        """A move starts on ``axis``: watch it if a 138 request covers it."""
-        self._reach_watch.pop(axis, None)
+    def _arm_reach_watch(self, *axes: int) -> None:
+        """One MVP starts moves on ``axes``: watch those a 138 request covers.
+
+        A type-0 request covers the next MVP that moves a motor of its mask (all the motors
+        of its mask that this one MVP moves); type 1 covers every MVP (docs/protocol.md).
+        """
+        for axis in axes:
+            self._reach_watch.pop(axis, None)
         if self._reach_request is None:
             return
         mask, every_move, sink, interface = self._reach_request
-        if mask >> axis & 1:
+        covered = [axis for axis in axes if mask >> axis & 1]
+        for axis in covered:
             self._reach_watch[axis] = _ReachWatch(sink, interface)
-            if not every_move:
-                self._reach_request = None
+        if covered and not every_move:
+            self._reach_request = None
+
+    def _cmd_user_function(self, req: Request, sink: ReplySink | None,
+                           interface: Interface) -> None:
+        """UF0..UF7 (§3.6.34): this firmware has no customer extension; "100 - OK"."""
 
     # == the dispatch table ====================================================================
 
@@ -804,6 +864,7 @@ class TMCLModule:
         Opcode.GCO: _cmd_gco,
         Opcode.CCO: _cmd_cco,
         Opcode.ACO: _cmd_aco,
+        **dict.fromkeys(USER_FUNCTIONS, _cmd_user_function),
         Opcode.GET_FIRMWARE_VERSION: _cmd_get_firmware_version,
         Opcode.RESTORE_FACTORY_SETTINGS: _cmd_restore_factory_settings,
         Opcode.TARGET_REACHED_EVENT: _cmd_target_reached_event,

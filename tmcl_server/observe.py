@@ -66,7 +66,8 @@ class Observers:
         period = max(RECORD_WAKE_S, self.config.record_resolution)
         while True:
             await asyncio.sleep(period)
-            self.simulation.sync()
+            if self.recorder is not None:
+                self.recorder.catch_up(self.simulation.now_ns)
             stream.flush()
 
     def close(self) -> None:

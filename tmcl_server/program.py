@@ -23,12 +23,18 @@ from interpreter.machine import Interpreter
 from tmcl_server.dispatch import CommandError, Interface, ReplySink
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.protocol import RawReply, Request, checksum
-from tmcl_spec.commands import CodeProtection, ErrorFlag, Opcode, RfsType, Status
+from tmcl_spec.commands import (
+    CALC_MAX_OPERATION,
+    CalcOp,
+    CodeProtection,
+    ErrorFlag,
+    Opcode,
+    RfsType,
+    Status,
+)
 from tmcl_spec.parameters import GP
 
 EEPROM_SECTION = "program"
-#: On a real clock a running program may fall this far behind before it skips time.
-REAL_CLOCK_MAX_LAG_NS = 50_000_000
 #: Command 135 "mode" while the module is in download mode (GP 128 only knows 0..3).
 DOWNLOAD_MODE = 4
 _LEGACY_READ = struct.Struct(">BBBBiB")
@@ -132,6 +138,11 @@ class ProgramSupport:
     def run(self, now_ns: int, end_ns: int) -> bool:
         """Run the program's instructions that start before ``end_ns`` (see Interpreter)."""
         return self.interpreter.run_until(now_ns, end_ns)
+
+    @property
+    def busy(self) -> bool:
+        """The program has instructions to run now (it is not stopped or idle in a WAIT)."""
+        return self.interpreter.busy
 
     # == module events =========================================================================
 
@@ -266,7 +277,25 @@ class ProgramSupport:
     # == program commands sent in direct mode ==================================================
 
     def _acknowledge(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        """Flow and calculation commands in direct mode: OK, and the program is untouched."""
+        """Flow commands in direct mode: OK, and the program is untouched."""
+
+    # CALC, CALCX and CLE act on the registers the program uses: direct AAP/AGP/ACO read
+    # that same accumulator (§3.5.5).  The reply echoes the operand (§3.6.14).
+
+    def _cmd_calc(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if not 0 <= req.type <= CALC_MAX_OPERATION:
+            raise CommandError(Status.WRONG_TYPE)
+        self.interpreter.calc(req.type, req.value)
+
+    def _cmd_calcx(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if not 0 <= req.type <= max(CalcOp):
+            raise CommandError(Status.WRONG_TYPE)
+        self.interpreter.calcx(req.type)
+
+    def _cmd_cle(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if not 0 <= req.type <= max(ErrorFlag):
+            raise CommandError(Status.WRONG_TYPE)
+        self.interpreter.clear_error_flags(req.type)
 
     def _cmd_ei(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         self.interpreter.enable_interrupt(req.type)
@@ -308,7 +337,10 @@ class ProgramSupport:
         Opcode.VECT: _cmd_vect,
         Opcode.AAP: _cmd_aap,
         Opcode.AGP: _cmd_agp,
-        **dict.fromkeys((Opcode.CALC, Opcode.COMP, Opcode.JC, Opcode.JA, Opcode.CSUB, Opcode.RSUB,
-                         Opcode.WAIT, Opcode.STOP, Opcode.CALCX, Opcode.CLE, Opcode.RETI),
+        Opcode.CALC: _cmd_calc,
+        Opcode.CALCX: _cmd_calcx,
+        Opcode.CLE: _cmd_cle,
+        **dict.fromkeys((Opcode.COMP, Opcode.JC, Opcode.JA, Opcode.CSUB, Opcode.RSUB,
+                         Opcode.WAIT, Opcode.STOP, Opcode.RETI),
                         _acknowledge),
     }

@@ -1,7 +1,8 @@
 """The recorder: what the axes did, sampled on simulated time at a chosen resolution.
 
-A :class:`Recorder` attached to a simulation is called by :meth:`Simulation.sync` before the
-modules are brought up to the clock's time: it steps them to every sample instant on the way
+A :class:`Recorder` attached to a simulation is called by the simulation before it brings any
+module up to a time (``Simulation.run_due`` and ``sync_module``, which every advance passes
+through): it steps its modules to every sample instant on the way
 (``module.advance_to(instant)``), reads each recorded axis and writes a :class:`Sample`.
 Stepping to an instant only splits the simulation's stride in two; the axes are exact at any
 instant, so event times do not move (tests/tmcl_server/test_record.py checks it).  On the
@@ -123,7 +124,7 @@ class Recorder:
     def stop(self) -> list[Sample]:
         """Record up to the present, detach, and return the samples."""
         if self.simulation.recorder is self:
-            self.simulation.sync()
+            self.catch_up(self.simulation.now_ns)
             self.simulation.recorder = None
         for module, listener in self._listeners:
             if listener in module.listeners:
@@ -147,15 +148,19 @@ class Recorder:
 
     def catch_up(self, t_ns: int) -> None:
         """Take every sample due up to ``t_ns``, stepping the modules to each instant."""
+        if self.next_ns > t_ns:
+            return
         while self.next_ns <= t_ns:
             instant = self.next_ns
-            for module in self.simulation.modules:
+            for module in self.modules:
                 due = module.next_event_ns()
                 if module.now_ns < instant or (due is not None and due <= instant):
                     module.advance_to(instant)
             for module in self.modules:
                 self._sample(module, instant)
             self.next_ns = instant + self.step_ns
+        for module in self.modules:
+            self.simulation.replan(module)  # stepping may have handled or planned events
 
     def _sample(self, module: TMCLModule, instant: int) -> None:
         t = instant / NS_PER_S

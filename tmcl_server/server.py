@@ -12,6 +12,7 @@ import json
 import logging
 import os
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -21,8 +22,7 @@ from tmcl_server.clock import Clock, LockstepClock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCLModule
 from tmcl_server.observe import Observers
-from tmcl_server.program import REAL_CLOCK_MAX_LAG_NS
-from tmcl_server.simulation import Simulation
+from tmcl_server.simulation import PROGRAM_CHUNK_NS, Simulation
 from tmcl_server.transports import transport_class
 from tmcl_server.transports.base import Transport
 from tmcl_server.transports.can import DEFAULT_BUS_NAME
@@ -34,6 +34,9 @@ if TYPE_CHECKING:
     from tmcl_server.transports.can.bus import SimulatedCanBus
 
 log = logging.getLogger(__name__)
+
+#: Wall time the server's timer spends on simulation work before the loop gets a turn.
+SLICE_WALL_S = 0.0005
 
 
 @dataclass
@@ -90,11 +93,10 @@ def build_simulation(config: ServerConfig) -> Simulation:
     for slot in config.addresses:
         directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
         # each module gets its own copy: the simulator API changes worlds per module
-        world = load_world(config.world, kind.number_of_axes) if config.world else World()
+        world = (load_world(config.world, kind.number_of_axes, kind.analog_inputs) if config.world
+                 else World())
         module = TMCLModule(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world,
                             kind=kind, chip_core=config.axis_core)
-        if not clock.virtual:  # a program too busy for the host's clock must not starve it
-            module.program.interpreter.max_lag_ns = REAL_CLOCK_MAX_LAG_NS
         modules.append(module)
     return Simulation(modules, clock)
 
@@ -116,14 +118,15 @@ class Server:
         self.config = config or ServerConfig()
         self.simulation = simulation or build_simulation(self.config)
         self._can_bus: SimulatedCanBus | None = None
-        #: The trace and the recorder, when the configuration asks for them.
-        self.observers = Observers(self.simulation, self.config)
         self.transports: list[Transport] = []
         self.endpoints: dict[str, list[str]] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._timer: asyncio.TimerHandle | None = None
+        self._timer: asyncio.Handle | None = None
         self._timer_when = 0.0
+        self._running_due = False
         self._stopped = asyncio.Event()
+        #: The trace and the recorder, when the configuration asks for them.
+        self.observers = Observers(self.simulation, self.config)
 
     @property
     def clock(self) -> Clock:
@@ -197,7 +200,7 @@ class Server:
 
     def _reschedule(self) -> None:
         """Arm one loop timer for the next internal event (real clocks only)."""
-        if self._loop is None or self.clock.virtual:
+        if self._loop is None or self.clock.virtual or self._running_due:
             return
         nxt = self.simulation.next_event_ns()
         if nxt is None:
@@ -212,6 +215,17 @@ class Server:
         self._timer = self._loop.call_at(when, self._on_timer)
 
     def _on_timer(self) -> None:
+        """Run what is due; a busy program goes in chunks, and after :data:`SLICE_WALL_S` of
+        work the loop gets its turn (requests, replies) before the rest."""
         self._timer = None
-        self.simulation.sync()
+        self._running_due = True  # run_due's change notices must not arm a second timer
+        try:
+            deadline = time.perf_counter() + SLICE_WALL_S
+            while self.simulation.run_due(PROGRAM_CHUNK_NS):
+                if time.perf_counter() >= deadline:
+                    self._timer_when = self._loop.time()
+                    self._timer = self._loop.call_soon(self._on_timer)
+                    return
+        finally:
+            self._running_due = False
         self._reschedule()

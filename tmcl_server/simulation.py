@@ -3,10 +3,20 @@
 This is the server-independent core (like pymodbus's datastore context): it owns no sockets.
 Transports hand it frames and get replies back; tests and the embedding API move time with
 :meth:`Simulation.advance` when the clock is virtual.
+
+Scheduling (docs/scheduling.md): every module says when it next changes by itself; the
+simulation keeps those times in a heap, so the work per request does not grow with the number
+of modules.  A request brings only the modules it addresses up to the clock; modules with an
+event due are run by :meth:`run_due` (the server's timer on a real clock, :meth:`advance` on
+a virtual one).  A busy TMCL program on a real clock runs in chunks of simulated time, so the
+transports get a turn between chunks, and is allowed to fall at most :data:`MAX_LAG_NS`
+behind the clock.
 """
 
 from __future__ import annotations
 
+import heapq
+import logging
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
@@ -14,12 +24,22 @@ from tmcl_server.clock import Clock, VirtualClock, seconds_to_ns
 from tmcl_server.dispatch import Interface, ReplySink
 from tmcl_server.module import READ_ONLY_OPCODES, TMCLModule
 from tmcl_server.protocol import AnyReply, ChecksumError, Request, decode_request
+from tmcl_spec.numbers import NS_PER_MS
 
 if TYPE_CHECKING:
     from tmcl_server.record import Recorder
     from tmcl_server.trace import Tracer
 
+log = logging.getLogger(__name__)
+
 Routed = tuple["TMCLModule", AnyReply]
+
+#: On a real clock a busy program runs this much simulated time before the transports get a
+#: turn (a request to its module waits at most one chunk, about 20 instructions).
+PROGRAM_CHUNK_NS = 200_000
+#: On a real clock a program may fall this far behind before the rest is skipped, as on a
+#: CPU too slow for its work.
+MAX_LAG_NS = 50 * NS_PER_MS
 
 
 class Simulation:
@@ -30,15 +50,23 @@ class Simulation:
         #: timer when a command created an earlier event.
         self.on_change: Callable[[], None] | None = None
         self._serial_map: dict[int, list[TMCLModule]] | None = None
+        self._can_map: dict[int, list[TMCLModule]] | None = None
+        self._index = {module: i for i, module in enumerate(self.modules)}
+        #: Each module's next event as last planned, and a heap of (time, module index).
+        self._due: list[int | None] = [None] * len(self.modules)
+        self._queue: list[tuple[int, int]] = []
+        #: Program time skipped on a real clock because a module could not keep up (per index).
+        self.skipped_ns = [0] * len(self.modules)
         #: The telegram trace (tmcl_server/trace.py); None: tracing off, and it costs nothing.
         self.tracer: Tracer | None = None
-        #: Samples the axes on the way whenever time moves (tmcl_server/record.py); or None.
+        #: Samples the axes at its instants whenever time moves (tmcl_server/record.py); or None.
         self.recorder: Recorder | None = None
         #: A lockstep clock's time per request (0 for the others): see _execute.
         self._request_ns = clock.request_ns
         for module in self.modules:
             module.on_address_change = self._forget_addresses
             module.advance_to(clock.now_ns())
+        self.replan()
 
     def module(self, address: int) -> TMCLModule:
         """The module that currently answers to a serial address."""
@@ -47,26 +75,83 @@ class Simulation:
                 return module
         raise KeyError(f"no module answers to address {address}")
 
-    # -- time ---------------------------------------------------------------------------------
+    # -- planning -----------------------------------------------------------------------------
 
     @property
     def now_ns(self) -> int:
         return self.clock.now_ns()
 
-    def sync(self) -> None:
-        """Bring every module up to the clock's current time."""
-        t = self.clock.now_ns()
-        if self.recorder is not None:  # it steps the modules to each sample instant up to t
-            self.recorder.catch_up(t)
-        for module in self.modules:
-            due = module.next_event_ns()
-            # Also when the module is up to date but a command left an event due now.
-            if module.now_ns < t or (due is not None and due <= t):
-                module.advance_to(t)
+    def replan(self, module: TMCLModule | None = None) -> None:
+        """Ask ``module`` (default: every module) again when it next changes by itself.
+
+        The simulation asks after everything it does itself; whoever changes a module from
+        outside (tests, the embedding API, the world topics) calls this afterwards.
+        """
+        for index in range(len(self.modules)) if module is None else (self._index[module],):
+            due = self.modules[index].next_event_ns()
+            if due != self._due[index]:
+                self._due[index] = due
+                if due is not None:
+                    heapq.heappush(self._queue, (due, index))
 
     def next_event_ns(self) -> int | None:
-        times = [t for t in (m.next_event_ns() for m in self.modules) if t is not None]
-        return min(times) if times else None
+        queue, due = self._queue, self._due
+        while queue and due[queue[0][1]] != queue[0][0]:
+            heapq.heappop(queue)  # an entry that was planned again since
+        return queue[0][0] if queue else None
+
+    # -- time ---------------------------------------------------------------------------------
+
+    def run_due(self, chunk_ns: int | None = None, t_ns: int | None = None) -> bool:
+        """Run every module with an event due by ``t_ns`` (default: the clock) up to it.
+
+        With ``chunk_ns`` a busy program advances at most that much (it catches up over
+        several calls).  Returns True if a module is still behind ``t_ns``.
+        """
+        t = self.clock.now_ns() if t_ns is None else t_ns
+        if self.recorder is not None:  # it steps its modules to each sample instant up to t
+            self.recorder.catch_up(t)
+        queue, due = self._queue, self._due
+        ran: list[int] = []
+        while queue and queue[0][0] <= t:
+            when, index = heapq.heappop(queue)
+            if due[index] == when:
+                due[index] = None
+                ran.append(index)
+        behind = False
+        for index in ran:
+            module = self.modules[index]
+            self._bring(module, index, t, chunk_ns)
+            self.replan(module)
+            behind |= module.now_ns < t
+        if ran:
+            self._changed()
+        return behind
+
+    def sync_module(self, module: TMCLModule) -> None:
+        """Bring one module to the clock (before a request to it, or a look at it)."""
+        t = self.clock.now_ns()
+        if self.recorder is not None:  # it steps its modules to each sample instant up to t
+            self.recorder.catch_up(t)
+        self._bring(module, self._index[module], t, None if self.clock.virtual else PROGRAM_CHUNK_NS)
+        self.replan(module)
+
+    def sync(self) -> None:
+        """Bring every module up to the clock's current time."""
+        for module in self.modules:
+            self.sync_module(module)
+
+    def _bring(self, module: TMCLModule, index: int, t: int, chunk_ns: int | None) -> None:
+        if chunk_ns is None or not module.program.busy:
+            module.advance_to(t)
+            return
+        if t - module.now_ns > MAX_LAG_NS:
+            resume = t - MAX_LAG_NS
+            self.skipped_ns[index] += resume - module.now_ns
+            log.debug("module %d: the TMCL program fell behind; %d ms skipped so far",
+                      module.slot, self.skipped_ns[index] // NS_PER_MS)
+            module.skip_program_to(resume)
+        module.advance_to(min(t, module.now_ns + chunk_ns))
 
     def advance(self, seconds: float) -> None:
         """Virtual clock only: move time forward, stepping through every event in order."""
@@ -74,13 +159,16 @@ class Simulation:
 
     def advance_to_ns(self, target_ns: int) -> None:
         clock = self._virtual_clock()
+        self.replan()  # the caller may have changed modules since
         while True:
             nxt = self.next_event_ns()
             step = target_ns if nxt is None or nxt > target_ns else max(nxt, clock.now_ns())
             clock.set(step)
-            self.sync()
+            self.run_due(None, step)
             if step >= target_ns:
                 break
+        for module in self.modules:  # the rest catch up (cheap: no event is due)
+            module.advance_to(target_ns)
         self._changed()
 
     def advance_until(self, condition: Callable[[], bool], timeout: float,
@@ -97,6 +185,7 @@ class Simulation:
             now = clock.now_ns()
             if now >= deadline:
                 return False
+            self.replan()
             nxt = self.next_event_ns()
             target = min(deadline, now + step)
             if nxt is not None and now < nxt < target:
@@ -116,13 +205,14 @@ class Simulation:
     # -- routing ------------------------------------------------------------------------------
 
     def _forget_addresses(self) -> None:
-        self._serial_map = None
+        self._serial_map = self._can_map = None
 
-    def _build_serial_map(self) -> dict[int, list[TMCLModule]]:
-        """Serial address -> modules answering it (rebuilt when a module's address changes)."""
+    def _address_map(self, accepts: Callable[[TMCLModule, int], bool],
+                     ids: range) -> dict[int, list[TMCLModule]]:
+        """Address -> modules answering it (rebuilt when a module's address changes)."""
         table: dict[int, list[TMCLModule]] = {}
-        for address in range(256):
-            answering = [m for m in self.modules if m.accepts_serial(address)]
+        for address in ids:
+            answering = [m for m in self.modules if accepts(m, address)]
             if answering:
                 table[address] = answering
         return table
@@ -131,13 +221,12 @@ class Simulation:
         """Route one 9-byte frame like an RS-485 bus: every module with that address acts."""
         serial_map = self._serial_map
         if serial_map is None:
-            serial_map = self._serial_map = self._build_serial_map()
+            serial_map = self._serial_map = self._address_map(TMCLModule.accepts_serial, range(256))
         targets = serial_map.get(frame[0])
         if not targets:
             if self.tracer is not None:
                 self.tracer.foreign(frame, sink)
             return []
-        self.sync()
         try:
             request = decode_request(frame)
         except ChecksumError:
@@ -147,24 +236,45 @@ class Simulation:
             return routed
         return self._execute(targets, request, Interface.SERIAL, sink)
 
+    def handle_frame_for(self, module: TMCLModule, frame: bytes,
+                         sink: ReplySink | None = None) -> list[Routed]:
+        """One frame on a module's own port (USB): it answers whatever the address byte says."""
+        self.sync()
+        try:
+            request = decode_request(frame)
+        except ChecksumError:
+            routed: list[Routed] = [(module, module.checksum_error_reply())]
+            if self.tracer is not None:
+                self.tracer.bad_checksum(frame, sink, routed)
+            return routed
+        return self._execute([module], request, Interface.SERIAL, sink)
+
     def handle_can_request(self, request: Request, sink: ReplySink | None = None) -> list[Routed]:
         """Route one CAN request (``request.address`` is the frame's CAN id)."""
-        targets = [m for m in self.modules if m.accepts_can(request.address)]
+        can_map = self._can_map
+        if can_map is None:
+            can_map = self._can_map = self._address_map(TMCLModule.accepts_can, range(2048))
+        targets = can_map.get(request.address)
         if not targets:
             return []
-        self.sync()
         return self._execute(targets, request, Interface.CAN, sink)
+
+    def accepts_can(self, can_id: int) -> bool:
+        """Whether a module answers to ``can_id`` (a CAN node filters before decoding)."""
+        if self._can_map is None:
+            self._can_map = self._address_map(TMCLModule.accepts_can, range(2048))
+        return can_id in self._can_map
 
     def execute_on(self, targets: list[TMCLModule], request: Request, interface: Interface,
                    sink: ReplySink | None = None) -> list[Routed]:
         """Run a request on given modules, whatever its address (topic-addressed hosts)."""
-        self.sync()
         return self._execute(targets, request, interface, sink)
 
     def notify_changed(self) -> None:
         """Something outside a command changed the world: internal events may have moved."""
         for module in self.modules:
             module.invalidate_schedule()
+        self.replan()
         self._changed()
 
     def _execute(self, targets: list[TMCLModule], request: Request, interface: Interface,
@@ -176,11 +286,14 @@ class Simulation:
             sink = tracer.requested(request, interface, targets, sink)
         routed: list[Routed] = []
         for module in targets:
+            self.sync_module(module)
             reply = module.execute(request, interface, sink)
             if reply is not None:
                 routed.append((module, reply))
         if tracer is not None:
             tracer.replied(request, interface, targets, routed, sink)
         if request.opcode not in READ_ONLY_OPCODES:
+            for module in targets:
+                self.replan(module)
             self._changed()
         return routed

@@ -48,6 +48,15 @@ class Opcode(IntEnum):
     VECT = 37
     RETI = 38
     ACO = 39
+    # Customer-specific extensions (§3.6.34): "user defined"
+    UF0 = 64
+    UF1 = 65
+    UF2 = 66
+    UF3 = 67
+    UF4 = 68
+    UF5 = 69
+    UF6 = 70
+    UF7 = 71
     # TMCL control commands (direct mode only, Table 13)
     STOP_APPLICATION = 128
     RUN_APPLICATION = 129
@@ -151,6 +160,10 @@ class CodeProtection(IntEnum):
 FACTORY_RESET_KEY = 1234
 #: SCO/GCO with motor 255: the forms that copy coordinates between RAM and EEPROM (§3.6.22).
 MOTOR_ALL = 255
+#: MVP COORD's motor field (0..255, §3.6.4): with this bit set, bits 0..5 are a motor mask.
+COORD_MOTOR_MASK_FLAG = 0x80
+#: The user functions UF0..UF7 (§3.6.34).
+USER_FUNCTIONS = frozenset(range(Opcode.UF0, Opcode.UF7 + 1))
 #: Commands whose replies GP 255 never suppresses (§5.1).
 ALWAYS_REPLIED = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO})
 
@@ -160,7 +173,8 @@ STATUS_OK = 100
 
 
 class Status(IntEnum):
-    """Reply status codes (Table 4, plus the 138 event status and the extended codes)."""
+    """Reply status codes: Table 4 (1..6, 100, 101), the 138 event status (128), and the codes
+    Trinamic's TMCL firmware uses beyond Table 4 (7..10; why: docs/protocol.md)."""
 
     OK = 100
     LOADED = 101  # command stored in program memory (download mode)
@@ -235,6 +249,9 @@ OPERANDS: dict[Opcode, tuple[Field, ...]] = {
     Opcode.VECT: (_TYPE, _ADDRESS),
     Opcode.RETI: (),
     Opcode.ACO: (_TYPE, _MOTOR),
+    **{opcode: (_TYPE, _MOTOR, _VALUE) for opcode in (
+        Opcode.UF0, Opcode.UF1, Opcode.UF2, Opcode.UF3,
+        Opcode.UF4, Opcode.UF5, Opcode.UF6, Opcode.UF7)},
 }
 
 #: The symbolic names of the type field, per command that has them (MVP: ABS/REL/COORD, ...).

@@ -43,6 +43,12 @@ class ModuleType:
     #: Full scale of an analogue input reading, and where its digital reading switches.
     analog_full_scale: int = 65535
     digital_threshold: int = 32768
+    #: Analogue (bank 1) channel of the supply-voltage monitor, None if the module has none.
+    supply_voltage_channel: int | None = None
+    #: Readings of that channel per volt (10: units of 0.1 V).
+    supply_voltage_per_volt: int = 10
+    #: The supply voltage (V) when the world file does not say.
+    nominal_supply_voltage: float = 24.0
 
     @property
     def version_string(self) -> bytes:

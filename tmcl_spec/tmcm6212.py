@@ -190,6 +190,11 @@ BANK_PARAMETERS: dict[int, dict[int, ParamSpec]] = {
 
 NUMBER_OF_INPUTS = 4
 NUMBER_OF_OUTPUTS = 4
+#: ``GIO 8, 1``: the supply voltage in 0.1 V.  The manual lists IN0..3 for bank 1 but gives the
+#: port range as 0..4 and the board monitors its supply; the TMCL-IDE and host drivers of
+#: this module family read channel 8 (docs/module.md).
+SUPPLY_VOLTAGE_CHANNEL = 8
+NOMINAL_SUPPLY_VOLTAGE = 24.0  # the manual's "+24V nominal"
 #: GP 65 index -> bits per second.
 BAUD_RATES = (9600, 14400, 19200, 28800, 38400, 57600, 76800, 115200, 230400, 250000,
               500000, 1000000)
@@ -210,6 +215,8 @@ TMCM_6212 = ModuleType(
     digital_inputs=NUMBER_OF_INPUTS,
     analog_inputs=NUMBER_OF_INPUTS,
     outputs=NUMBER_OF_OUTPUTS,
+    supply_voltage_channel=SUPPLY_VOLTAGE_CHANNEL,
+    nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
     coordinates=21,  # 0..20; coordinate 0 is RAM only
     program_memory=6144,  # TMCL commands it can store (manual §1, "Software")
     chip_core="tmc4210",

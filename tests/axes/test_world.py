@@ -107,3 +107,56 @@ def test_an_event_raised_by_a_command_at_time_zero_is_delivered() -> None:
     simulation.handle_serial_frame(Request(1, 4, 0, 0, 0).encode())
     simulation.advance(0.001)
     assert [(e.kind, e.time_ns) for e in events] == [("target_reached", 0)]
+
+
+# -- strict validation: file, line and key in every message -----------------------------------
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("[[axes]]\nindex = 0\n", r"line 1: unknown key 'axes'; did you mean 'axis'"),
+    ("[[axis]]\nindex = 0\n\n[[axis]]\nindex = 1\nhome = { posiiton = 5, width = 2 }\n",
+     r"line 6: unknown key 'axis\[1\]\.home\.posiiton'; did you mean 'position'"),
+    ("[[axis]]\nindex = 0\nleft = { width = 5 }\n", r"line 3: axis\[0\]\.left: missing key 'position'"),
+    ("[[axis]]\nload = 4\n", r"line 1: axis\[0\]: missing key 'index'"),
+    ("[[axis]]\nindex = 0\n[[axis.load_zone]]\nfrom = 0\nto = 9\nlaod = 0\n",
+     r"line 6: unknown key 'axis\[0\]\.load_zone\[0\]\.laod'"),
+    ("[chip]\nclock_hz = 16000000\nclock = 5\n", r"line 3: unknown key 'chip\.clock'"),
+    ("[inputs]\nanalog = [0, 70000]\n", r"line 2: inputs\.analog\[1\] 70000 outside 0\.\.65535"),
+    ("[inputs]\ndigital = [1]\n", r"line 2: inputs\.digital\[0\] must be true or false"),
+    ("[inputs]\nanalog = [0, 0, 0, 0, 0]\n", r"line 2: inputs\.analog lists 5 inputs; the module has 4"),
+    ("[[axis]]\nindex = 0\nencoder_slip = 'lots'\n", r"line 3: axis\[0\]\.encoder_slip must be a number"),
+    ("[[axis]]\nindex = 0\n[[axis]]\nindex = 0\n", r"line 4: .*appears twice"),
+    ("[supply]\nvolts = 24\n", r"line 2: unknown key 'supply\.volts'; did you mean 'voltage'"),
+    ("[[axis]]\nindex = 0\nhome = { position = 0, side = 'left' }\n", r"line 3: .*unknown switch side"),
+])
+def test_world_files_are_validated_strictly(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "w.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=rf"world file .*w\.toml, {message}"):
+        load_world(path, TMCM_6212.number_of_axes, TMCM_6212.analog_inputs)
+
+
+def test_toml_syntax_errors_keep_tomllibs_line(tmp_path: Path) -> None:
+    path = tmp_path / "w.toml"
+    path.write_text("[chip]\nclock_hz = = 5\n")
+    with pytest.raises(ValueError, match=r"w\.toml: .*line 2"):
+        load_world(path)
+
+
+def test_the_server_refuses_a_misspelt_world_with_the_message(tmp_path: Path) -> None:
+    path = tmp_path / "typo.toml"
+    path.write_text("[[axis]]\nindex = 0\nright = { posiiton = 100 }\n")
+    with pytest.raises(ValueError, match=r"typo\.toml, line 3: unknown key"):
+        build_simulation(ServerConfig(clock="virtual", world=str(path)))
+
+
+def test_supply_voltage_in_the_world_and_at_run_time(tmp_path: Path) -> None:
+    path = tmp_path / "supply.toml"
+    path.write_text("[supply]\nvoltage = 30\n")
+    module = TMCM6212(world=load_world(path))
+    assert module.supply_voltage == 30.0
+    assert module.execute(Request(1, 15, 8, 1, 0)).value == 300
+    module.set_supply_voltage(23.96)
+    assert module.execute(Request(1, 15, 8, 1, 0)).value == 240
+    module.execute(Request(1, 137, 0, 0, 1234))  # the supply is the world's, not the EEPROM's
+    assert module.supply_voltage == 23.96
+    assert TMCM6212().execute(Request(1, 15, 8, 1, 0)).value == 240  # nominal 24.0 V

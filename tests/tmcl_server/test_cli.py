@@ -131,3 +131,26 @@ def test_example_script_runs_self_contained():
     assert result.returncode == 0, result.stderr
     assert "firmware: 6212V105" in result.stdout
     assert "reached 102400" in result.stdout
+
+
+@pytest.mark.parametrize("tool", ["tmcl_server.cli:main", "interpreter.cli:main",
+                                  "tmcl_server.tool:upload_alias", "tmcl_server.tool:main"])
+def test_every_console_script_has_version(tool, capsys):
+    """tmcl-server, tmcl-asm, tmcl-upload and tmcl all answer --version (issues 14, 15)."""
+    import importlib
+
+    from tmcl_spec.package import package_version
+
+    module, _, function = tool.partition(":")
+    with pytest.raises(SystemExit) as exit_:
+        getattr(importlib.import_module(module), function)(["--version"])
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    assert package_version() in out and package_version() != "unknown"
+    if tool == "tmcl_server.cli":
+        assert out.startswith("tmcl-server ") and "TMCM-6212, firmware V1.05" in out
+
+
+def test_every_server_option_has_help():
+    for action in build_parser()._actions:
+        assert action.help, f"{action.option_strings} has no help text"

@@ -18,7 +18,7 @@ from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212, ModuleEvent
 from tmcl_server.protocol import RawReply, Reply, Request, checksum
 from tmcl_server.simulation import Simulation
-from tmcl_spec.commands import ApplicationStatus, ErrorFlag, Opcode, Status
+from tmcl_spec.commands import ApplicationStatus, CalcOp, ErrorFlag, Opcode, Status
 from tmcl_spec.parameters import GP
 from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
 
@@ -441,9 +441,7 @@ def test_direct_reads_never_touch_the_program_accumulator() -> None:
         assert bench.cmd(Opcode.GIO, 1, 1).value == 1234
         assert bench.cmd(Opcode.GAP, 4, 0).value == 51200
         assert bench.cmd(Opcode.GGP, 0, 2).value == 0
-        assert bench.cmd(Opcode.CALC, 9, 0, 7).status == Status.OK  # acknowledged, no effect
-        assert bench.cmd(Opcode.CALCX, 10).status == Status.OK
-        assert bench.cmd(Opcode.JA, 0, 0, 5).status == Status.OK
+        assert bench.cmd(Opcode.JA, 0, 0, 5).status == Status.OK  # acknowledged, no effect
     assert bench.cmd(Opcode.GET_APPLICATION_STATUS, 2).value == 42
     assert bench.gp(GP.APPLICATION_STATUS) == ApplicationStatus.RUN
 
@@ -460,6 +458,32 @@ def test_direct_accumulator_commands_use_the_program_accumulator() -> None:
     assert bench.cmd(Opcode.ACO, 3, 1).status == Status.OK
     assert bench.cmd(Opcode.GCO, 3, 1).value == 777
     assert bench.cmd(Opcode.AAP, 3, 0).status == Status.WRONG_TYPE  # actual speed is read-only
+
+
+def test_direct_calc_calcx_cle_work_on_the_accumulator_direct_aap_reads() -> None:
+    """§3.5.5: one accumulator; direct CALC/CALCX/CLE change it as a program's would."""
+    bench = Bench()
+    reply = bench.cmd(Opcode.CALC, CalcOp.LOAD, 0, 1000)
+    assert (reply.status, reply.value) == (Status.OK, 1000)  # the operand echoed (§3.6.14)
+    assert bench.cmd(Opcode.CALC, CalcOp.MUL, 0, 3).status == Status.OK
+    assert bench.cmd(Opcode.CALCX, CalcOp.LOAD).status == Status.OK  # X = 3000
+    assert bench.cmd(Opcode.CALC, CalcOp.SUB, 0, 500).status == Status.OK  # A = 2500
+    assert bench.cmd(Opcode.AAP, 4, 1).status == Status.OK
+    assert bench.cmd(Opcode.GAP, 4, 1).value == 2500
+    assert bench.cmd(Opcode.CALCX, CalcOp.SWAP).status == Status.OK  # A = 3000, X = 2500
+    assert bench.cmd(Opcode.AGP, 7, 2).status == Status.OK
+    assert bench.gp(7, 2) == 3000
+    assert bench.cmd(Opcode.GET_APPLICATION_STATUS, 3).value == 2500  # X
+    assert bench.cmd(Opcode.CALC, CalcOp.SWAP, 0, 1).status == Status.WRONG_TYPE  # CALCX only
+    assert bench.cmd(Opcode.CALCX, 11).status == Status.WRONG_TYPE
+    bench.interpreter.set_error_flag(ErrorFlag.EDV)
+    bench.interpreter.set_error_flag(ErrorFlag.ETO)
+    assert bench.cmd(Opcode.CLE, ErrorFlag.EDV).status == Status.OK
+    assert not bench.interpreter.error_flag(ErrorFlag.EDV)
+    assert bench.interpreter.error_flag(ErrorFlag.ETO)
+    assert bench.cmd(Opcode.CLE, ErrorFlag.ALL).status == Status.OK
+    assert not bench.interpreter.error_flag(ErrorFlag.ETO)
+    assert bench.cmd(Opcode.CLE, 6).status == Status.WRONG_TYPE
 
 
 def test_a_program_that_loops_forever_leaves_time_to_the_host() -> None:

@@ -102,16 +102,6 @@ def test_upload_over_a_pty_with_the_serial_client(tmcl_sim_factory: object, tmp_
     assert stored == assemble_file(source).instructions
 
 
-def test_real_clock_servers_bound_program_lag() -> None:
-    from tmcl_server.program import REAL_CLOCK_MAX_LAG_NS
-    from tmcl_server.server import ServerConfig, build_simulation
-
-    real = build_simulation(ServerConfig(clock="real"))
-    virtual = build_simulation(ServerConfig(clock="virtual"))
-    assert real.modules[0].program.interpreter.max_lag_ns == REAL_CLOCK_MAX_LAG_NS
-    assert virtual.modules[0].program.interpreter.max_lag_ns is None
-
-
 def test_upload_through_pytrinamic_connection_manager(tmcl_sim: SimulatorThread, source: Path) -> None:
     connection = f"--interface socket_serial_tmcl --port {tmcl_sim.tcp}"
     assert tmcl_upload([str(source), "--connection", connection, "--verify", "--run"]) == 0

@@ -157,7 +157,7 @@ def test_decode_hex_and_capture_files(capsys, tmp_path: Path) -> None:
 def test_console_scripts_as_processes(server: ServerProcess, tmp_path: Path) -> None:
     tcp = server.endpoints["tcp"][0]
     version = subprocess.run([BIN / "tmcl", "--version"], capture_output=True, text=True, timeout=30)
-    assert version.returncode == 0 and version.stdout.startswith("tmcl (tmcl-sim) ")
+    assert version.returncode == 0 and version.stdout.startswith("tmcl 0.")
     helped = subprocess.run([BIN / "tmcl", "--help"], capture_output=True, text=True, timeout=30)
     assert "examples:" in helped.stdout and "exit codes:" in helped.stdout
     source = tmp_path / "two.tmc"

@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 from tmcl_server.tool.connection import EXIT_CODES, ToolError
+from tmcl_spec.package import add_version_option, version_text
 
 _EPILOG = """examples:
   tmcl send SAP MaxPositioningSpeed 0 51200     set AP 4 of motor 0
@@ -57,13 +58,11 @@ def _connection_options(parser: argparse.ArgumentParser, suppress: bool) -> None
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from tmcl_server import __version__
-
     parser = argparse.ArgumentParser(
         prog="tmcl", description="Talk to a TMCL module (simulated or real): send commands by "
         "name, read its identity and parameters, watch it, manage its program, decode dumps, "
         "plot recordings.", epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"tmcl (tmcl-sim) {__version__}")
+    add_version_option(parser)
     _connection_options(parser, suppress=False)
     sub = parser.add_subparsers(dest="subcommand", required=True, metavar="COMMAND")
 
@@ -184,7 +183,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def upload_alias(argv: list[str] | None = None) -> int:
     """``tmcl-upload PROGRAM [options]`` is ``tmcl program upload PROGRAM [options]``."""
-    return main(["program", "upload", *(sys.argv[1:] if argv is None else argv)])
+    arguments = sys.argv[1:] if argv is None else argv
+    if "--version" in arguments:  # as argparse's --version does: print, then exit 0
+        print(version_text("tmcl-upload", "tmcl program upload"))
+        raise SystemExit(0)
+    return main(["program", "upload", *arguments])
 
 
 if __name__ == "__main__":

@@ -8,10 +8,12 @@ import logging
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
+from enum import Enum
 from typing import TYPE_CHECKING, Any, Protocol
 
+from tmcl_server.dispatch import ReplySink
 from tmcl_server.protocol import FRAME_LENGTH, FrameAssembler, Reply
-from tmcl_server.simulation import Simulation
+from tmcl_server.simulation import Routed, Simulation
 
 if TYPE_CHECKING:
     from tmcl_server.transports.can.bus import SimulatedCanBus
@@ -50,6 +52,59 @@ class Transport(ABC):
         """Stop serving and release every resource (sockets, pty links)."""
 
 
+class LinkMode(Enum):
+    """How a byte-stream endpoint addresses the modules behind it (docs/protocol.md)."""
+
+    #: The module's own USB port: one module, which answers whatever the address byte says.
+    USB = "usb"
+    #: An RS-485 bus: a module acts only on frames with its address (GP 66 / GP 87).
+    RS485 = "rs485"
+
+
+def split_endpoint_options(argument: str, known: Iterable[str] = ("mode",)) -> tuple[str, dict[str, str]]:
+    """``PATH[,key=value]...`` -> (PATH, options); an unknown key is a ValueError."""
+    base, options, names = argument, {}, tuple(known)
+    while True:
+        head, sep, tail = base.rpartition(",")
+        if not sep or "=" not in tail:
+            return base, options
+        key, _, value = tail.partition("=")
+        if key not in names:
+            raise ValueError(f"unknown option {key!r} in {argument!r} (known: {', '.join(names)})")
+        options[key] = value
+        base = head
+
+
+def link_mode(simulation: Simulation, options: dict[str, str], endpoint: str,
+              default: LinkMode | None = None) -> LinkMode:
+    """The ``mode=`` option, else ``default``, else USB for one module and RS-485 for several."""
+    text = options.get("mode")
+    if text is None:
+        if default is not None:
+            return default
+        return LinkMode.USB if len(simulation.modules) == 1 else LinkMode.RS485
+    try:
+        mode = LinkMode(text.lower().replace("-", ""))
+    except ValueError:
+        raise ValueError(f"{endpoint}: mode must be usb or rs485, got {text!r}") from None
+    if mode is LinkMode.USB and len(simulation.modules) != 1:
+        raise ValueError(f"{endpoint}: mode=usb is one module's own port, but the server has "
+                         f"{len(simulation.modules)} modules; use mode=rs485")
+    return mode
+
+
+#: Takes one 9-byte frame and the session's reply sink; returns who answered what.
+Router = Callable[[bytes, ReplySink], list[Routed]]
+
+
+def frame_router(simulation: Simulation, mode: LinkMode) -> Router:
+    """What a stream session calls with each frame: bus addressing, or the one module's port."""
+    if mode is LinkMode.RS485:
+        return simulation.handle_serial_frame
+    module = simulation.modules[0]
+    return lambda frame, sink: simulation.handle_frame_for(module, frame, sink)
+
+
 class ByteSession(Protocol):
     """What a byte-stream endpoint (a pty, a serial port) feeds: TMCL frames or SLCAN lines."""
 
@@ -65,16 +120,20 @@ class StreamSession:
     the sink for replies that arrive later (command 138 events).
     """
 
-    __slots__ = ("_assembler", "_loop", "_write", "closed", "endpoint", "simulation")
+    __slots__ = ("_assembler", "_loop", "_route", "_write", "closed", "endpoint", "rs485", "simulation")
 
     def __init__(self, simulation: Simulation, write: Callable[[bytes], None],
-                 loop: asyncio.AbstractEventLoop, endpoint: str = "") -> None:
+                 loop: asyncio.AbstractEventLoop, mode: LinkMode = LinkMode.RS485,
+                 endpoint: str = "") -> None:
         self.simulation = simulation
         #: How the trace names this stream (``tcp 127.0.0.1:40512``, ``pty /tmp/ttyTMCL0``).
         self.endpoint = endpoint
         self._write = write
         self._loop = loop
         self._assembler = FrameAssembler()
+        self._route = frame_router(simulation, mode)
+        #: GP 75 (telegram pause) delays replies on RS-485 only.
+        self.rs485 = mode is LinkMode.RS485
         self.closed = False
 
     def feed(self, data: bytes) -> None:
@@ -88,8 +147,8 @@ class StreamSession:
                 self.simulation.tracer.torn_frame(self.endpoint, assembler, now)
             frames = assembler.feed(data, now)
         for frame in frames:
-            for module, reply in self.simulation.handle_serial_frame(frame, self):
-                delay = module.reply_delay_s
+            for module, reply in self._route(frame, self):
+                delay = module.reply_delay_s if self.rs485 else 0.0
                 if delay or self.closed:
                     self._send(reply.encode(), delay)
                 else:  # the common case, kept short: it runs for every request

@@ -1,7 +1,11 @@
 """A virtual serial port: a pseudo-terminal in raw mode behind a stable symlink.
 
-Hosts open the link (for example ``/tmp/ttyTMCL0``) exactly like a USB or RS-485 adapter:
-pytrinamic's ``serial_tmcl``, minicom, or any pyserial program.
+Hosts open the link (for example ``/tmp/ttyTMCL0``) exactly like the module's USB port or an
+RS-485 adapter: pytrinamic's ``serial_tmcl``, minicom, or any pyserial program.  ``--pty
+PATH[,mode=usb|rs485]`` chooses how frames are addressed (docs/protocol.md).  A lock file
+beside the link (``.NAME.lock``, held with ``flock`` while the server runs) keeps a second
+server from taking over a link that a live one serves; the kernel drops the lock when its
+holder dies, so a killed server leaves nothing that blocks the next one.
 """
 
 from __future__ import annotations
@@ -9,41 +13,108 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import fcntl
 import logging
 import os
 import tty
 from pathlib import Path
 
 from tmcl_server.simulation import Simulation
-from tmcl_server.transports.base import ByteSession, StreamSession, Transport
+from tmcl_server.transports.base import (
+    ByteSession,
+    LinkMode,
+    StreamSession,
+    Transport,
+    TransportHost,
+    link_mode,
+    split_endpoint_options,
+)
 
 log = logging.getLogger(__name__)
 
 
+class LinkInUseError(FileExistsError):
+    """Another live server serves the pty link."""
+
+
 def replace_symlink(target: str, link: Path) -> None:
-    """Point ``link`` at ``target`` atomically; refuse to clobber anything but a symlink."""
+    """Point ``link`` at ``target`` atomically; refuse to clobber anything but a symlink.
+
+    The directory must exist: a mistyped path is reported, not created.
+    """
     if link.exists() and not link.is_symlink():
         raise FileExistsError(f"{link} exists and is not a symlink; not replacing it")
-    link.parent.mkdir(parents=True, exist_ok=True)
+    if not link.parent.is_dir():
+        raise FileNotFoundError(f"cannot create the pty link {link}: directory {link.parent} "
+                                "does not exist")
     tmp = link.with_name(f".{link.name}.{os.getpid()}.tmp")
     tmp.unlink(missing_ok=True)
     os.symlink(target, tmp)
     os.replace(tmp, link)
 
 
+class LinkLock:
+    """An exclusive claim on a pty link path, held while the server serves it."""
+
+    def __init__(self, link: Path) -> None:
+        self.path = link.with_name(f".{link.name}.lock")
+        self._fd: int | None = None
+
+    def acquire(self, link: Path) -> None:
+        if not link.parent.is_dir():
+            raise FileNotFoundError(f"cannot create the pty link {link}: directory "
+                                    f"{link.parent} does not exist")
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                owner = os.read(fd, 32).decode(errors="replace").strip() or "?"
+                os.close(fd)
+                raise LinkInUseError(
+                    f"{link} is already served by another tmcl-server (pid {owner}, lock "
+                    f"{self.path}); stop it or choose another path") from None
+            # The previous holder may have removed the file between our open and our lock:
+            # then the lock is on a file nobody else sees, so take the new one instead.
+            with contextlib.suppress(FileNotFoundError):
+                if os.fstat(fd).st_ino == os.stat(self.path).st_ino:
+                    break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        with contextlib.suppress(OSError):
+            self.path.unlink()  # while still locked, so nobody holds a lock on a removed file
+        os.close(self._fd)
+        self._fd = None
+
+
 class PtyTransport(Transport):
     kind = "pty"
 
-    def __init__(self, simulation: Simulation, link: str) -> None:
+    def __init__(self, simulation: Simulation, link: str, mode: LinkMode = LinkMode.RS485) -> None:
         self.simulation = simulation
         self.link = Path(link)
+        self.mode = mode
         self.device: str | None = None
         self._master: int | None = None
         self._slave: int | None = None
         self._session: ByteSession | None = None
+        self._lock = LinkLock(self.link)
+
+    @classmethod
+    def build(cls, host: TransportHost, argument: str) -> PtyTransport:
+        """``PATH[,mode=usb|rs485]``; without a mode: USB for one module, RS-485 for several."""
+        path, options = split_endpoint_options(argument)
+        return cls(host.simulation, path, link_mode(host.simulation, options, f"--pty {path}"))
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
+        self._lock.acquire(self.link)
         master, slave = os.openpty()
         # Keep our own slave descriptor open: the master then never sees EIO/hang-up when a
         # client closes the port, so the next client finds the port just as it was.
@@ -58,7 +129,7 @@ class PtyTransport(Transport):
 
     def _make_session(self, loop: asyncio.AbstractEventLoop) -> ByteSession:
         """What speaks on the port: 9-byte TMCL here, SLCAN in the CAN adapter (slcan.py)."""
-        return StreamSession(self.simulation, self._write, loop, f"pty {self.link}")
+        return StreamSession(self.simulation, self._write, loop, self.mode, f"pty {self.link}")
 
     def _on_readable(self) -> None:
         assert self._master is not None and self._session is not None
@@ -97,3 +168,4 @@ class PtyTransport(Transport):
         with contextlib.suppress(OSError):
             if self.link.is_symlink() and os.readlink(self.link) == self.device:
                 self.link.unlink()
+        self._lock.release()

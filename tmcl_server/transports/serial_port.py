@@ -11,7 +11,14 @@ import threading
 import serial
 
 from tmcl_server.simulation import Simulation
-from tmcl_server.transports.base import StreamSession, Transport
+from tmcl_server.transports.base import (
+    LinkMode,
+    StreamSession,
+    Transport,
+    TransportHost,
+    link_mode,
+    split_endpoint_options,
+)
 from tmcl_spec.tmcm6212 import BAUD_RATES
 
 log = logging.getLogger(__name__)
@@ -30,8 +37,9 @@ def parse_serial_spec(text: str) -> tuple[str, int | None]:
 class SerialPortTransport(Transport):
     kind = "serial"
 
-    def __init__(self, simulation: Simulation, spec: str) -> None:
+    def __init__(self, simulation: Simulation, spec: str, mode: LinkMode = LinkMode.RS485) -> None:
         self.simulation = simulation
+        self.mode = mode
         self.device, baud = parse_serial_spec(spec)
         if baud is None:  # the module's own GP 65 setting decides, as on the real part
             baud = BAUD_RATES[simulation.modules[0].globals[0][65]] if simulation.modules else 9600
@@ -42,10 +50,17 @@ class SerialPortTransport(Transport):
         self._stop = threading.Event()
         self._reader_fd: int | None = None
 
+    @classmethod
+    def build(cls, host: TransportHost, argument: str) -> SerialPortTransport:
+        """``DEVICE[:BAUD][,mode=usb|rs485]``; without a mode: USB for one module, RS-485 for
+        several (docs/protocol.md)."""
+        spec, options = split_endpoint_options(argument)
+        return cls(host.simulation, spec, link_mode(host.simulation, options, f"--serial {spec}"))
+
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
         self._port = serial.serial_for_url(self.device, baudrate=self.baudrate, timeout=0)
-        self._session = StreamSession(self.simulation, self._port.write, loop,
+        self._session = StreamSession(self.simulation, self._port.write, loop, self.mode,
                                       f"serial {self.device}")
         try:
             fd = self._port.fileno()

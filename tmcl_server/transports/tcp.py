@@ -1,7 +1,9 @@
 """Raw TMCL over TCP: 9-byte frames in, 9-byte replies out, many clients at once.
 
 pytrinamic's ``socket_serial_tmcl`` interface (an Ethernet-to-serial converter) speaks
-exactly this, so ``--port 127.0.0.1:2323`` reaches the simulator.
+exactly this, so ``--port 127.0.0.1:2323`` reaches the simulator.  Like such a converter on
+an RS-485 bus, TCP filters frames by address whatever the number of modules;
+``HOST:PORT,mode=usb`` makes it one module's own port instead (docs/protocol.md).
 """
 
 from __future__ import annotations
@@ -9,9 +11,17 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
+from typing import cast
 
 from tmcl_server.simulation import Simulation
-from tmcl_server.transports.base import StreamSession, Transport
+from tmcl_server.transports.base import (
+    LinkMode,
+    StreamSession,
+    Transport,
+    TransportHost,
+    link_mode,
+    split_endpoint_options,
+)
 
 log = logging.getLogger(__name__)
 
@@ -50,19 +60,21 @@ def disable_nagle(transport: asyncio.BaseTransport) -> None:
 
 
 class _TcpProtocol(asyncio.Protocol):
-    def __init__(self, simulation: Simulation, connections: set[_TcpProtocol]) -> None:
+    def __init__(self, simulation: Simulation, connections: set[_TcpProtocol],
+                 mode: LinkMode) -> None:
         self._simulation = simulation
         self._connections = connections
+        self._mode = mode
         self.transport: asyncio.Transport | None = None
         self._session: StreamSession | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        self.transport = transport
+        # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
+        self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
         peer = transport.get_extra_info("peername")
         self._session = StreamSession(self._simulation, transport.write, asyncio.get_running_loop(),
-                                      f"tcp {peer[0]}:{peer[1]}" if peer else "tcp")
+                                      self._mode, f"tcp {peer[0]}:{peer[1]}" if peer else "tcp")
         self._connections.add(self)
 
     def data_received(self, data: bytes) -> None:
@@ -78,17 +90,26 @@ class _TcpProtocol(asyncio.Protocol):
 class TcpTransport(Transport):
     kind = "tcp"
 
-    def __init__(self, simulation: Simulation, address: str = DEFAULT_TCP) -> None:
+    def __init__(self, simulation: Simulation, address: str = DEFAULT_TCP,
+                 mode: LinkMode = LinkMode.RS485) -> None:
         self.simulation = simulation
         self.host, self.port = parse_host_port(address)
+        self.mode = mode
         self._server: asyncio.Server | None = None
         self.connections: set[_TcpProtocol] = set()
+
+    @classmethod
+    def build(cls, host: TransportHost, argument: str) -> TcpTransport:
+        """``HOST:PORT[,mode=rs485|usb]``; RS-485 addressing unless told otherwise."""
+        address, options = split_endpoint_options(argument)
+        return cls(host.simulation, address,
+                   link_mode(host.simulation, options, f"--tcp {address}", LinkMode.RS485))
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
         self._server = await loop.create_server(
-            lambda: _TcpProtocol(self.simulation, self.connections), self.host, self.port,
-            reuse_address=True)
+            lambda: _TcpProtocol(self.simulation, self.connections, self.mode), self.host,
+            self.port, reuse_address=True)
         return listening_endpoints(self._server)
 
     async def close(self) -> None:

@@ -173,6 +173,25 @@ def test_bad_lines_are_refused_and_remote_and_extended_frames_ignored(
     assert (stats["remote"], stats["extended"], stats["bad_length"], stats["requests"]) == (1, 1, 1, 1)
 
 
+def test_odd_data_digits_get_a_bel_and_the_next_line_of_the_same_write_still_counts(
+        port: SlcanPort) -> None:
+    assert port.ask(b"O") == b"\r"
+    port.write(b"t00170601000\r" + tmcl_line(1, Opcode.GGP, GP.CAN_ID) + b"\r")  # 13 digits
+    assert port.answer() == b"\a"
+    assert port.answer() == b"z\r"
+    reply = decode_slcan_transmit(port.answer().rstrip(b"\r"))
+    assert reply is not None and decode_can_reply(reply.data).value == 1
+
+
+def test_the_ack_and_the_reply_leave_in_one_write(port: SlcanPort) -> None:
+    assert port.ask(b"O") == b"\r"
+    port.write(tmcl_line(1, Opcode.GGP, GP.CAN_ID) + b"\r")
+    readable, _, _ = select.select([port.fd], [], [], WAIT_S)
+    assert readable
+    data = os.read(port.fd, 4096)
+    assert data.startswith(b"z\r") and data.endswith(b"\r") and data.count(b"\r") == 2
+
+
 def test_stale_frames_of_a_vanished_host_are_dropped_by_close(sim: SimulatorThread,
                                                               port: SlcanPort) -> None:
     assert port.ask(b"O") == b"\r"

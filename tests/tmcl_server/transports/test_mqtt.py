@@ -381,3 +381,48 @@ def test_sim_topics_trigger_a_limit_stop_and_interrupts_in_a_running_program(bro
         assert client.send(Opcode.GGP, 0, 2, 0)[3] == 2  # both input edges were counted
     finally:
         client.close()
+
+
+def test_an_idle_module_on_a_real_clock_publishes_its_state_once(broker):
+    """The time stamp alone is no change: an idle module is quiet until something changes."""
+    cfg = ServerConfig(clock="real", mqtt_rate=50,
+                       endpoints={"tcp": ["127.0.0.1:0"], "mqtt": [f"{broker.url}/idle"]})
+    simulator = SimulatorThread(cfg).start()
+    try:
+        async def scenario():
+            async with probing(broker) as probe:
+                await probe.client.subscribe("idle/1/state", qos=1)
+                first = await probe.wait(lambda m: m.topic.value == "idle/1/state")
+                mark = probe.mark()
+                # 25 publishing periods of 20 ms; before the fix each one sent a new message
+                with contextlib.suppress(AssertionError):
+                    await probe.wait(lambda m: True, timeout=0.5, since=mark)
+                assert probe.messages[mark:] == [], [json_of(m)["t"] for m in probe.messages[mark:]]
+                press = lambda: simulator.module(1).set_digital_input(3, True)  # noqa: E731
+                await asyncio.to_thread(simulator.call, press)
+                changed = await probe.wait(lambda m: m.topic.value == "idle/1/state", since=mark)
+                assert json_of(changed)["inputs"][3] == 1
+                assert json_of(changed)["t"] > json_of(first)["t"]  # stamped with its own time
+
+        asyncio.run(scenario())
+    finally:
+        simulator.stop()
+
+
+def test_every_event_kind_is_documented():
+    """docs/mqtt.md names every kind a module emits (axis events, module and program events)."""
+    import re
+    from pathlib import Path
+
+    from axes.interface import AxisEventKind
+
+    root = Path(__file__).resolve().parents[3]
+    kinds = {kind.value for kind in AxisEventKind}
+    for path in [*root.joinpath("tmcl_server").rglob("*.py"), *root.joinpath("interpreter").rglob("*.py")]:
+        text = path.read_text()
+        kinds.update(re.findall(r'\bemit\(\s*"(\w+)"', text))
+        kinds.update(re.findall(r'program_event\([^,]+,\s*"(\w+)"', text))
+    assert {"current_changed", "heartbeat_timeout", "interrupt_taken", "supply_changed"} <= kinds
+    doc = (root / "docs" / "mqtt.md").read_text()
+    undocumented = sorted(k for k in kinds if f"`{k}`" not in doc)
+    assert not undocumented, f"event kinds missing from docs/mqtt.md: {undocumented}"

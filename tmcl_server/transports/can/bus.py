@@ -153,7 +153,7 @@ class ModuleNode:
         if frame.is_extended_id:
             return self._ignore(frame, "extended")
         can_id = frame.arbitration_id
-        if not any(module.accepts_can(can_id) for module in self.simulation.modules):
+        if not self.simulation.accepts_can(can_id):
             return self._ignore(frame, "foreign")
         length = len(frame.data)
         if frame.is_fd or length not in REQUEST_LENGTHS:

@@ -75,9 +75,9 @@ def decode_slcan_transmit(line: bytes) -> can.Message | None:
     can_id, dlc = int(match[1], 16), int(match[2])
     if can_id > (0x1FFF_FFFF if extended else 0x7FF):
         return None
+    if not remote and len(match[3]) != 2 * dlc:
+        return None  # two hex digits per data byte, as many bytes as the DLC says
     data = b"" if remote else bytes.fromhex(match[3].decode("ascii"))
-    if not remote and len(data) != dlc:
-        return None
     return can.Message(arbitration_id=can_id, is_extended_id=extended, is_remote_frame=remote,
                        dlc=dlc, data=data)
 
@@ -88,7 +88,10 @@ class SlcanSession:
     def __init__(self, bus: SimulatedCanBus, write: Callable[[bytes], None],
                  discard_output: Callable[[], None]) -> None:
         self.bus = bus
-        self._write = write
+        self._write_out = write
+        #: While a write from the host is handled, what goes back is collected here and
+        #: written at once: one write per request (the ack and the reply together).
+        self._batch: list[bytes] | None = None
         self._discard_output = discard_output
         self._line = bytearray()
         self._junk = False  # the current line overflowed: answer BEL at its end
@@ -102,7 +105,22 @@ class SlcanSession:
 
     # -- host -> adapter ----------------------------------------------------------------------
 
+    def _write(self, data: bytes) -> None:
+        if self._batch is None:
+            self._write_out(data)
+        else:
+            self._batch.append(data)
+
     def feed(self, data: bytes) -> None:
+        self._batch = []
+        try:
+            self._feed(data)
+        finally:
+            out, self._batch = self._batch, None
+            if out:
+                self._write_out(b"".join(out))
+
+    def _feed(self, data: bytes) -> None:
         for chunk in re.split(rb"(\r)", data.replace(b"\n", b"")):
             if chunk == b"\r":
                 line, self._line = bytes(self._line), bytearray()

@@ -16,6 +16,7 @@ import logging
 import time
 from collections import Counter
 from enum import Enum
+from typing import cast
 
 import can
 
@@ -96,8 +97,8 @@ class SocketcandClient(asyncio.Protocol):
     # -- connection ---------------------------------------------------------------------------
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        assert isinstance(transport, asyncio.Transport)
-        self.transport = transport
+        # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
+        self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
         self.server.clients.add(self)
         self.stats["connections"] += 1

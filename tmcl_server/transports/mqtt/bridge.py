@@ -103,7 +103,8 @@ class _ModuleFeed:
 
     module: TMCLModule
     base: str
-    last_state: bytes | None = None
+    #: The last state published, without its time stamp (what "changed" is compared on).
+    last_state: str | None = None
     listener: Callable[[ModuleEvent], None] | None = field(default=None, repr=False)
 
 
@@ -250,12 +251,16 @@ class MqttBridge(Transport):
     async def _publish_state(self, client: aiomqtt.Client) -> None:
         period = 1.0 / self.rate_hz
         while True:
-            self.simulation.sync()
             for feed in self._feeds:
-                payload = json.dumps(feed.module.snapshot(), separators=(",", ":")).encode()
-                if payload != feed.last_state:
-                    await client.publish(f"{feed.base}/state", payload, qos=1, retain=True)
-                    feed.last_state = payload
+                self.simulation.sync_module(feed.module)
+                snapshot = feed.module.snapshot()
+                stamp = snapshot.pop("t")  # time alone is no change: compare the rest
+                state = json.dumps(snapshot, separators=(",", ":"))
+                if state != feed.last_state:
+                    payload = json.dumps({"t": stamp, **snapshot}, separators=(",", ":"))
+                    await client.publish(f"{feed.base}/state", payload.encode(), qos=1,
+                                         retain=True)
+                    feed.last_state = state
             await asyncio.sleep(period)
 
     def _event_listener(self, feed: _ModuleFeed) -> Callable[[ModuleEvent], None]:

@@ -8,6 +8,7 @@
     sim/load/<axis>               0..1023 (the load value everywhere), or
                                   {"free": v, "zones": [[from, to, load], ...]}
     sim/encoder_slip/<axis>       0.0..1.0
+    sim/supply                    the supply voltage in volts (GIO 8, 1 reads it in 0.1 V)
 
 docs/mqtt.md and docs/world.md describe the units (positions are mechanical positions).
 """
@@ -114,6 +115,8 @@ def apply_sim_message(module: TMCLModule, path: list[str], payload: bytes) -> No
                 _load(module, _index(axis, "axis", len(module.axes)), value)
             case ["encoder_slip", axis]:
                 _slip(module, _index(axis, "axis", len(module.axes)), value)
+            case ["supply"]:
+                module.set_supply_voltage(value)
             case _:
                 raise WorldTopicError(f"unknown sim topic {'/'.join(path)!r}")
     except (ValueError, TypeError) as exc:

@@ -1,0 +1,110 @@
+"""stallGuard2 and coolStep as the TMCL firmware presents them (manual §6.3-6.4, AP 168-182, 206).
+
+The motor driver measures the load once per full step (stallGuard2) and, with coolStep on,
+raises or lowers the motor current to keep that reading between two thresholds.  The model
+(docs/motion.md, "stallGuard2 and coolStep"):
+
+* The world's load value (``axes.world``, 0..1023) is the reading at threshold 0, unfiltered.
+  AP 174 (threshold, -64..63) shifts it by :data:`THRESHOLD_STEP` per unit, clamped to
+  0..1023: a lower value is more sensitive (reads 0, a stall, at a lighter load).
+* AP 173 = 1 (filter): the reading is the mean over the last :data:`FILTER_FULL_STEPS` full
+  steps travelled, and the driver measures once per four full steps instead of every one.
+* coolStep (AP 172 > 0, moving at or above AP 182, and below AP 22 if that is set) regulates
+  the current scale (AP 180, 0..31) between AP 6's scale and half or a quarter of it
+  (AP 168): every reading at or above the upper threshold ``(AP172 + AP170 + 1) * 32`` counts
+  towards a decrement (one per 32, 8, 2 or 1 readings, AP 169); every reading below the lower
+  threshold ``AP172 * 32`` raises the scale by 1, 2, 4 or 8 (AP 171).
+
+Everything here is arithmetic on counts of full steps: the firmware brings it up to date at
+each of its own samples (host commands, events), assuming the load held since the last one,
+which is exact between the world's load-zone edges (those are events).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+from axes.world import LOAD_MAX
+from tmcl_spec.parameters import AP
+
+#: Change of the reading per unit of AP 174 [MODEL]: the threshold's range -64..63 then
+#: spans the whole 0..1023 scale, as on the TMC2130/5130 drivers.
+THRESHOLD_STEP = 16
+#: World units (1/256 microsteps) per full step of the motor.
+FULL_STEP = 256
+#: The filtered reading (AP 173 = 1) is measured once per this many full steps.
+FILTER_FULL_STEPS = 4
+#: AP 169 -> readings above the upper threshold per decrement of the current scale.
+READINGS_PER_DECREMENT = (32, 8, 2, 1)
+#: AP 171 -> increment of the current scale per reading below the lower threshold.
+INCREMENT_PER_READING = (1, 2, 4, 8)
+#: Thresholds are in units of 32 readings (AP 170, AP 172).
+THRESHOLD_UNIT = 32
+#: AP 6 (0..255) -> current scale (0..31): the driver's CS.
+CURRENT_SCALE_SHIFT = 3
+
+
+def reading(load: int, threshold: int) -> int:
+    """AP 206 unfiltered: the world's load value shifted by the threshold (AP 174)."""
+    return max(0, min(LOAD_MAX, load + THRESHOLD_STEP * threshold))
+
+
+def filtered_reading(load_at: Callable[[int], int], position: int, direction: int,
+                     threshold: int) -> int:
+    """AP 206 with the filter (AP 173 = 1): the mean over the last four full steps travelled."""
+    samples = [reading(load_at(position - k * FULL_STEP * direction), threshold)
+               for k in range(FILTER_FULL_STEPS)]
+    return sum(samples) // FILTER_FULL_STEPS
+
+
+def minimum_scale(full_scale: int, quarter: bool) -> int:
+    """The lowest scale coolStep goes to: half (AP 168 = 0) or a quarter (1) of the current."""
+    return max(0, (full_scale + 1) // (4 if quarter else 2) - 1)
+
+
+class CoolStep:
+    """The current scale coolStep keeps (AP 180), fed with the full steps the motor travels.
+
+    ``scale`` is None while coolStep does not regulate (the driver then uses AP 6 as it is).
+    """
+
+    def __init__(self) -> None:
+        self.scale: int | None = None
+        self._since = 0  # mechanical position of the last update
+        self._pending = 0  # full steps travelled that no measurement has used yet
+        self._above = 0  # readings above the upper threshold not yet turned into a decrement
+
+    @staticmethod
+    def active(params: Mapping[int, int], speed: int) -> bool:
+        """Whether coolStep regulates at this speed (pps, magnitude) with these parameters."""
+        high = params[AP.COOLSTEP_THRESHOLD_SPEED]
+        return (params[AP.SMARTENERGY_HYSTERESIS_START] > 0 and speed > 0
+                and speed >= params[AP.SMARTENERGY_THRESHOLD_SPEED] and (not high or speed < high))
+
+    def update(self, params: Mapping[int, int], position: int, speed: int, sg_reading: int) -> None:
+        """Bring the scale up to the motor at ``position`` (world units) going at ``speed``."""
+        travelled, part = divmod(abs(position - self._since), FULL_STEP)
+        self._since = position - part if position >= self._since else position + part
+        if not self.active(params, speed):
+            self.scale, self._pending, self._above = None, 0, 0
+            return
+        full = params[AP.MAX_CURRENT] >> CURRENT_SCALE_SHIFT
+        lowest = minimum_scale(full, bool(params[AP.SMARTENERGY_CURRENT_MINIMUM]))
+        scale = full if self.scale is None else max(lowest, min(full, self.scale))
+        every = FILTER_FULL_STEPS if params[AP.STALLGUARD_FILTER] else 1
+        self._pending += travelled
+        measurements, self._pending = divmod(self._pending, every)
+        lower = params[AP.SMARTENERGY_HYSTERESIS_START] * THRESHOLD_UNIT
+        upper = (params[AP.SMARTENERGY_HYSTERESIS_START] + params[AP.SMARTENERGY_HYSTERESIS]
+                 + 1) * THRESHOLD_UNIT
+        if measurements and sg_reading < lower:
+            self._above = 0
+            scale = min(full, scale + measurements * INCREMENT_PER_READING[
+                params[AP.SMARTENERGY_CURRENT_UP_STEP]])
+        elif measurements and sg_reading >= upper:
+            steps, self._above = divmod(self._above + measurements, READINGS_PER_DECREMENT[
+                params[AP.SMARTENERGY_CURRENT_DOWN_STEP]])
+            scale = max(lowest, scale - steps)
+        elif measurements:
+            self._above = 0
+        self.scale = scale
