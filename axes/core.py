@@ -58,8 +58,14 @@ class ChipModel(Protocol):
         """An independent copy, to look ahead without disturbing this chip."""
         ...
 
-    def run(self, until: int) -> Stop | None:
-        """Advance to tick ``until``; return early (``t < until``) at a notable instant."""
+    def run(self, until: int, budget: int | None = None) -> Stop | None:
+        """Advance to tick ``until``; return early (``t < until``) at a notable instant.
+
+        ``budget`` bounds the work of one call (in the engine's own steps, e.g. ramp ticks
+        it cannot take in closed form): when it runs out, return None with ``t < until``.
+        The firmware's look-ahead passes one, so no setting can make a request's work
+        unbounded; bringing the chip to the present passes none.
+        """
         ...
 
     def at_rest(self) -> bool:

@@ -31,6 +31,9 @@ from tmcl_spec.parameters import AP, ParamSpec
 #: How far ahead the firmware looks for the next event; also bounds how many steps pass
 #: between two reads of a 24-bit position register (4 s at 1 Mpps is well below 2**23).
 LOOKAHEAD_NS = 4 * NS_PER_S
+#: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
+#: it the look-ahead stops short and the axis looks again from there when that time comes.
+LOOKAHEAD_BUDGET = 20_000
 #: How often the firmware samples stallGuard while it could stall but does not yet.
 STALL_POLL_NS = NS_PER_MS
 
@@ -116,7 +119,7 @@ class AxisFirmware:
             return self._lookahead_cache  # type: ignore[return-value]
         twin = self.chip.clone()
         horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + LOOKAHEAD_NS
-        stop = twin.run(twin.ticks_at(horizon_ns))
+        stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))
         self._lookahead_cache = result

@@ -416,7 +416,10 @@ class MotorEngine:
         v = self.v
         if hard and v:
             return None
-        if self.mode == RampMode.HOLD:
+        if self.mode == RampMode.HOLD or self.a_max == 0 or (v == 0 and vt == 0):
+            # Ramp ticks cannot change the velocity: hold mode; no acceleration; or at rest
+            # with a target speed of zero (V_MAX 0, a curve value of 0, a blocking switch),
+            # which stays zero while the motor does not move.
             window = v and self.dx_ref_tolerance and (self.left_active or self.right_active)
             return None if window else -1
         if v != vt << 8:
@@ -558,8 +561,12 @@ class MotorEngine:
 
     # == the engine ============================================================================
 
-    def run(self, until: int) -> Stop | None:
-        """Advance to clk32 tick ``until``; return early (self.t < until) at a notable instant."""
+    def run(self, until: int, budget: int | None = None) -> Stop | None:
+        """Advance to clk32 tick ``until``; return early (self.t < until) at a notable instant.
+
+        ``budget`` bounds the work: after that many ramp ticks taken one by one, it returns
+        None short of ``until`` (the caller looks again from there).
+        """
         if self.ramp_next > until and self.t < until and not self.powered_down:
             # No ramp tick on the way (a look at the position mid-move): the velocity
             # stays as it is, only pulses happen.
@@ -580,7 +587,9 @@ class MotorEngine:
                 if self.ramp_next <= self.t:
                     self.a_actual = 0
                     if self.mode in (RampMode.RAMP, RampMode.SOFT):
-                        self.v_target = vt_steady
+                        # with no acceleration the curve moves on while the speed cannot:
+                        # the last skipped tick wrote its value where the motor is now
+                        self.v_target = self._ramp_target()[0] if self.a_max == 0 else vt_steady
                 self.ramp_next = (self.t // ramp + 1) * ramp
                 if stop is not None:
                     return stop
@@ -593,14 +602,23 @@ class MotorEngine:
                 if stop is not None:
                     return stop
                 return None
+            if budget is not None:
+                if budget <= 0:
+                    return None  # out of budget, short of until
+                period = 1 << self.ramp_div
+                last = min(until, nr + budget * period - 1)
+            else:
+                last = until
             if self.t < nr - 1:
                 stop = self._pulses(nr - 1)
                 if stop is not None:
                     return stop
-            if self._can_fast() and nr + (1 << self.ramp_div) - 1 <= until:
-                stop = self._fast(until)
+            if self._can_fast() and nr + (1 << self.ramp_div) - 1 <= last:
+                stop = self._fast(last)
             else:
                 stop = self._slow_tick(nr)
+            if budget is not None:
+                budget -= max(1, (self.ramp_next - nr) >> self.ramp_div)
             if stop is not None:
                 return stop
         return None

@@ -33,7 +33,8 @@ def add_version_option(parser: argparse.ArgumentParser, detail: str = "") -> Non
     class _Version(argparse.Action):
         def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
                      values: str | Sequence[Any] | None, option_string: str | None = None) -> None:
-            parser.exit(message=version_text(parser.prog, detail) + "\n")
+            print(version_text(parser.prog, detail))  # on stdout, as argparse's own action does
+            parser.exit()
 
     parser.add_argument("--version", nargs=0, action=_Version,
                         help="show the program's version and exit")
