@@ -121,7 +121,7 @@ class Simulation:
         t = self.clock.now_ns()
         self._bring(module, index, t, None if self.clock.virtual else PROGRAM_CHUNK_NS)
         due = self._due[index]
-        if due is not None and due <= t or module.program.busy:
+        if (due is not None and due <= t) or module.program.busy:
             self.replan(module)  # events were handled or a program ran: its plan moved
 
     def sync(self) -> None:
