@@ -25,6 +25,11 @@ class Stop(IntEnum):
     EVENT = 4  # a chip event the firmware reacts to (switch, latch, velocity reached, ...)
 
 
+class StaleLookahead(RuntimeError):
+    """A look-ahead copy no longer matches its chip (something wrote to the chip since the copy
+    was made, e.g. another motor of a multi-motor chip): look ahead again."""
+
+
 class Board(Protocol):
     """What a chip's inputs are wired to: the module's input stage and the mechanics."""
 
@@ -56,6 +61,12 @@ class ChipModel(Protocol):
 
     def clone(self) -> Self:
         """An independent copy, to look ahead without disturbing this chip."""
+        ...
+
+    def adopt(self, twin: Self) -> Self:
+        """Continue with the state a :meth:`clone` reached; returns the chip to use from now on
+        (the twin itself for a one-motor chip, this object for a motor of a shared chip).
+        Raises :class:`StaleLookahead` if the twin no longer fits."""
         ...
 
     def run(self, until: int, budget: int | None = None) -> Stop | None:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from axes import stallguard
 from axes.board import AxisBoard
-from axes.core import ChipDriver, ChipModel, Stop
+from axes.core import ChipDriver, ChipModel, StaleLookahead, Stop
 from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.stallguard import CoolStep
@@ -152,7 +152,11 @@ class AxisFirmware:
             timer = self._timer_due()
             chip_at = ahead.time_ns if ahead is not None else None
             if chip_at is not None and chip_at <= t_ns and (timer is None or chip_at <= timer):
-                self.driver.chip = ahead.chip
+                try:
+                    self.driver.chip = self.driver.chip.adopt(ahead.chip)
+                except StaleLookahead:
+                    self._invalidate()  # the chip changed under the copy: look again
+                    continue
                 self._invalidate()
                 self._now_ns = max(self._now_ns, chip_at)
                 self._react(ahead.stop)

@@ -44,7 +44,7 @@ from collections.abc import Sequence
 from enum import IntEnum
 from math import floor, pi, sin
 
-from axes.core import Board, Stop
+from axes.core import Board, StaleLookahead, Stop
 from axes.tmc42x import (
     DEFAULT_CLOCK_HZ,
     MASK24,
@@ -149,7 +149,7 @@ QUADRANT_BITS = ((1, 1, 0, 1), (1, 0, 1, 0), (0, 0, 0, 1), (0, 1, 1, 0))
 DAC_MASK = {usrs: (0x3F << (6 - usrs)) & 0x3F for usrs in range(1, 7)}
 
 
-class StaleTwin(RuntimeError):
+class StaleTwin(StaleLookahead):
     """``adopt`` was given a twin computed from a chip state that no longer holds."""
 
 

@@ -567,16 +567,28 @@ class MotorEngine:
         ``budget`` bounds the work: after that many ramp ticks taken one by one, it returns
         None short of ``until`` (the caller looks again from there).
         """
-        if self.ramp_next > until and self.t < until and not self.powered_down:
-            # No ramp tick on the way (a look at the position mid-move): the velocity
-            # stays as it is, only pulses happen.
-            return self._pulses(until)
         while self.t < until:
             if self.powered_down:
                 self.t = until
                 ramp = 1 << self.ramp_div
                 self.ramp_next = (until // ramp + 1) * ramp
                 return None
+            nr = self.ramp_next
+            if nr > until:
+                # No ramp tick on the way (a look at the position mid-move): the velocity
+                # stays as it is, only pulses happen.
+                return self._pulses(until)
+            if nr + (1 << self.ramp_div) > until and budget is None:
+                # Exactly one ramp tick on the way: take it plainly (the closed forms below
+                # pay off over many ticks; one tick the plain way is the same tick).
+                if self.t < nr - 1:
+                    stop = self._pulses(nr - 1)
+                    if stop is not None:
+                        return stop
+                stop = self._slow_tick(nr)
+                if stop is not None:
+                    return stop
+                continue
             steady = self._steady_steps()
             if steady is not None:
                 moving = self.v != 0
@@ -596,12 +608,6 @@ class MotorEngine:
                 if moving and self.v == 0:
                     return Stop.STOPPED
                 continue
-            nr = self.ramp_next
-            if nr > until:
-                stop = self._pulses(until)
-                if stop is not None:
-                    return stop
-                return None
             if budget is not None:
                 if budget <= 0:
                     return None  # out of budget, short of until

@@ -130,11 +130,14 @@ class Simulation:
 
     def sync_module(self, module: TMCLModule) -> None:
         """Bring one module to the clock (before a request to it, or a look at it)."""
+        index = self._index[module]
         t = self.clock.now_ns()
         if self.recorder is not None:  # it steps its modules to each sample instant up to t
             self.recorder.catch_up(t)
-        self._bring(module, self._index[module], t, None if self.clock.virtual else PROGRAM_CHUNK_NS)
-        self.replan(module)
+        self._bring(module, index, t, None if self.clock.virtual else PROGRAM_CHUNK_NS)
+        due = self._due[index]
+        if (due is not None and due <= t) or module.program.busy:
+            self.replan(module)  # events were handled or a program ran: its plan moved
 
     def sync(self) -> None:
         """Bring every module up to the clock's current time."""

@@ -156,6 +156,10 @@ class StreamSession:
                         self._write(reply.encode())
                     except OSError:
                         self.closed = True
+        if assembler.buffer:
+            # The 5 ms pause is a pause on the line: it counts from when we are ready for
+            # more bytes again, not from when a long burst began to be processed.
+            assembler.last_byte_ns = time.monotonic_ns()
 
     def _send(self, data: bytes, delay_s: float = 0.0) -> None:
         if self.closed:

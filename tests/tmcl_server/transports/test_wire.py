@@ -43,6 +43,21 @@ def test_partial_frame_is_dropped_after_a_pause_of_more_than_5ms(sim, raw_client
     client.expect_silence(0.05)
 
 
+def test_our_own_processing_time_is_no_pause_on_the_line(sim, raw_client_factory):
+    """A burst takes the server longer than 5 ms to work through; a frame torn at its end and
+    completed 1 ms later (while the server was still busy) is one request, not garbage."""
+    client = raw_client_factory(sim.tcp)
+    request = Request(1, Opcode.GAP, 4, 0, 0).encode()
+    burst = 5000
+    client.send_raw(request * burst + request[:4])
+    time.sleep(0.001)  # a short pause of the host, well under 5 ms
+    client.send_raw(request[4:])
+    replies = client.recv_exact(9 * (burst + 1))
+    for n in range(burst + 1):
+        reply = decode_reply(replies[9 * n:9 * n + 9])
+        assert (reply.status, reply.value) == (100, 51200), n
+
+
 def test_garbage_then_pause_resynchronises(sim, raw_client_factory):
     client = raw_client_factory(sim.tcp)
     rng = random.Random(7)
