@@ -33,7 +33,7 @@ from tmcl_spec.parameters import AP, ParamSpec
 LOOKAHEAD_NS = 4 * NS_PER_S
 #: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
 #: it the look-ahead stops short and the axis looks again from there when that time comes.
-LOOKAHEAD_BUDGET = 20_000
+LOOKAHEAD_BUDGET = 2_000
 #: How often the firmware samples stallGuard while it could stall but does not yet.
 STALL_POLL_NS = NS_PER_MS
 
