@@ -289,6 +289,7 @@ class AxisFirmware:
     def _hard_stop(self) -> None:
         """Stop within one chip tick, at once (switch, stall, deviation, heartbeat)."""
         self.driver.hard_stop()
+        self._invalidate()  # a look-ahead made before (a timer's stall check) would move on
         self._positioning = False
         self._awaiting_arrival = False
         self._velocity_command = 0
