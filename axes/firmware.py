@@ -504,7 +504,7 @@ class AxisFirmware:
             self._emit(AxisEventKind.DEVIATION)
 
     def _deviation_mark(self, direction: int) -> int | None:
-        """Motor position where the deviation will first exceed AP 212 (slip > 0 only).
+        """Motor position where the deviation will first exceed AP 212 (slip > 0, or stuck).
 
         The estimate is refined at the mark itself: if the limit is not yet exceeded there, a
         new mark at least one step further is set, so the event lands on the exact step.
@@ -512,10 +512,11 @@ class AxisFirmware:
         limit = self._params[AP.MAX_DEVIATION]
         ratio = self._counts_per_microstep()
         world = self.board.world
-        if not limit or not ratio or world.encoder_slip <= 0:
+        slip = 1.0 if self.board.stuck else world.encoder_slip  # stuck: the encoder sees nothing
+        if not limit or not ratio or slip <= 0:
             return None
         per_count = world.motor_fullsteps_per_rev * 256 / world.encoder_counts_per_rev
-        encoder_per_step = (1.0 - world.encoder_slip) * self.board.scale / per_count / ratio
+        encoder_per_step = (1.0 - slip) * self.board.scale / per_count / ratio
         rate = direction * (1.0 - encoder_per_step)  # change of AP1 - AP209 per step
         if rate == 0:
             return None
@@ -645,6 +646,7 @@ class AxisFirmware:
         self._command()
         self._rebase_encoder()
         self.board.set_world(world)
+        self.board.set_stuck(world.stuck, self.chip.motor_position)
         self._rebase_encoder()
         self._pins_changed()
         self._check_stall()
@@ -675,6 +677,43 @@ class AxisFirmware:
         self._command()
         self._rebase_encoder()
         self.board.world.encoder_slip = slip
+        self._after_command()
+
+    def set_stuck(self, stuck: bool, load: int | None = None) -> None:
+        """A fault of the mechanics: from now on the motor no longer follows its steps (or
+        follows them again).  The chip keeps counting; the mechanics, the switches they actuate
+        and the encoder stay where they stopped, so the encoder deviates (AP 212 catches it).
+        ``load``: what stallGuard2 reads meanwhile (0 for a blocked rotor; None: the world's)."""
+        self._command()
+        world = self.board.world
+        world.stuck = stuck
+        world.stuck_load = load if stuck else None
+        self.board.set_stuck(stuck, self.chip.motor_position)
+        self.board.world_changed()
+        self._check_stall()
+        self._after_command()
+
+    def break_switch(self, name: str, level: bool | None) -> None:
+        """A broken switch: its input stays at the electrical ``level`` wherever the axis is
+        (before swap and polarity, AP 14/24/25); None repairs it."""
+        self._command()
+        if level is None:
+            self.board.world.broken_switches.pop(name, None)
+        else:
+            self.board.world.broken_switches[name] = level
+        self.board.world_changed()
+        self._pins_changed()
+        self._after_command()
+
+    def place_mechanics(self, mechanical: int) -> None:
+        """After a module restart: the mechanics stand at ``mechanical`` (world units) while
+        the fresh counters (AP 1, the encoder) start from 0, so the world's switches and load
+        zones stay where they are."""
+        self._command()
+        self.board.place(mechanical, self.chip.motor_position)
+        self._encoder_mech_base = mechanical
+        self._encoder_offset = 0
+        self._pins_changed()
         self._after_command()
 
     def register_access(self, address: int, value: int | None = None) -> int:

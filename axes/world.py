@@ -95,12 +95,24 @@ class AxisWorld:
     encoder_slip: float = 0.0
     encoder_counts_per_rev: int = 51200
     motor_fullsteps_per_rev: int = 200
+    #: Faults of the mechanics and wiring (tmcl_server/faults.py, docs/faults.md); they belong
+    #: to the world, so a module restart keeps them.  The motor stops following its steps:
+    stuck: bool = False
+    #: ... and stallGuard2 reads this while it is stuck (None: the load of the place it is stuck at).
+    stuck_load: int | None = None
+    #: Broken switches: name -> the electrical level the input is stuck at, wherever the axis is.
+    broken_switches: dict[str, bool] = field(default_factory=dict)
 
     def level(self, name: str, position: int) -> bool:
+        broken = self.broken_switches.get(name)
+        if broken is not None:
+            return broken
         switch = self.switches.get(name)
         return switch.level(position) if switch is not None else False
 
     def load_at(self, position: int) -> int:
+        if self.stuck and self.stuck_load is not None:
+            return self.stuck_load
         for zone in self.load_zones:
             if zone.low <= position <= zone.high:
                 return zone.load
@@ -109,8 +121,9 @@ class AxisWorld:
     def edges(self) -> list[int]:
         """Every position where a switch level or the load value changes (sorted)."""
         points: set[int] = set()
-        for switch in self.switches.values():
-            points.update(switch.edges())
+        for name, switch in self.switches.items():
+            if name not in self.broken_switches:  # a broken switch's level never changes
+                points.update(switch.edges())
         for zone in self.load_zones:
             points.update(zone.edges())
         return sorted(points)

@@ -141,6 +141,9 @@ class TMCLModule:
         if self.globals[0][GP.DO_NOT_RESTORE_USER_VARIABLES] == 0:
             for key, value in ee.items("user_variables"):
                 self.globals[2][int(key)] = value
+        # A restart resets the counters, not the mechanics: they stay where they are.
+        mechanics = ([self.axis(i).status().mechanical_position for i in range(len(self.axes))]
+                     if hasattr(self, "axes") else [])
         self.axes: list[Axis] = [self._axis_factory(i) for i in range(self.type.number_of_axes)]
         #: Each axis's next event, and the axes whose entry must be asked again.
         self._axis_due: list[int | None] = [None] * len(self.axes)
@@ -149,6 +152,8 @@ class TMCLModule:
         self._touched: set[int] = set()
         for axis in self.axes:
             axis.advance_to(self.now_ns)
+            if mechanics and mechanics[axis.index]:
+                axis.place_mechanics(mechanics[axis.index])
             for key, value in (ee.get("axis_parameters", axis.index) or {}).items():
                 axis.set_parameter(int(key), value)
         self.coordinates = [[0] * self.type.coordinates for _ in self.axes]
@@ -179,6 +184,12 @@ class TMCLModule:
         """Command 137: erase the EEPROM and restart with factory settings."""
         self.eeprom.erase()
         self.power_up()
+
+    def power_cycle(self) -> None:
+        """Switch the module off and on (a reset fault, docs/faults.md): RAM as after power-on,
+        the EEPROM kept, a program auto-started if GP 77 says so; the world stays."""
+        self.power_up()
+        self.emit("power_cycle", None)
 
     # == addressing ============================================================================
 
@@ -498,6 +509,20 @@ class TMCLModule:
     def set_encoder_slip(self, axis: int, slip: float) -> None:
         target = self._world_axis(axis)
         target.set_encoder_slip(slip)
+        self.world.axes.setdefault(axis, target.world)
+
+    def set_axis_stuck(self, axis: int, stuck: bool, load: int | None = None) -> None:
+        """The motor of ``axis`` stops following its steps (a fault; False: it follows again)."""
+        target = self._world_axis(axis)
+        target.set_stuck(stuck, load)
+        self.world.axes.setdefault(axis, target.world)
+
+    def break_switch(self, axis: int, name: str, level: bool | None) -> None:
+        """Hold the "left", "right" or "home" input at an electrical level (None: repaired)."""
+        if name not in SWITCH_NAMES:
+            raise ValueError(f"unknown switch {name!r}")
+        target = self._world_axis(axis)
+        target.break_switch(name, level)
         self.world.axes.setdefault(axis, target.world)
 
     def axis_world(self, axis: int) -> AxisWorld:
