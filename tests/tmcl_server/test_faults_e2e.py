@@ -179,3 +179,20 @@ def test_faults_from_the_start_by_a_pytest_marker(tmcl_sim: SimulatorThread) -> 
         assert iface.get_axis_parameter(AP.MAX_SPEED, 0) == 51200
     finally:
         iface.close()
+
+
+def test_the_readme_example_runs(tmp_path) -> None:
+    """README, "Testing your host against faults": its pytest example passes as written."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
+    section = readme[readme.index("## Testing your host against faults"):]
+    example = section.split("```python\n", 1)[1].split("```", 1)[0]
+    (tmp_path / "test_example.py").write_text(example)
+    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                             "-p", "no:xdist", str(tmp_path / "test_example.py")],
+                            capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "2 passed" in result.stdout

@@ -336,7 +336,7 @@ class CanTiming:
 
     def frame_ns(self, frame: can.Message) -> int:
         length = 0 if frame.is_remote_frame else len(frame.data)
-        bits = can_frame_bits(length) + (18 if frame.is_extended_id else 0)  # 29-bit id: SRR, IDE, 18 bits
+        bits = can_frame_bits(length) + (20 if frame.is_extended_id else 0)  # SRR, r1, 18 id bits
         return bits * NS_PER_S // self.rate.bits_per_s
 
     def transmit(self, bus: SimulatedCanBus, frame: can.Message, sender: CanParty | None,
