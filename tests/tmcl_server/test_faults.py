@@ -368,3 +368,16 @@ def test_sim_fault_messages_install_list_and_remove_faults() -> None:
         apply_fault_message(rig.faults, module, ["fault", "remove"], b"x")
     with pytest.raises(FaultSpecError, match="unknown fault"):
         apply_fault_message(rig.faults, module, ["fault"], b"nothing")
+
+
+def test_the_command_line_reads_faults_and_wire_timing(tmp_path) -> None:
+    from tmcl_server.cli import build_parser, config_from_args
+
+    (tmp_path / "f.toml").write_text('[[fault]]\nkind = "sag"\nvolts = 9.5\n')
+    args = build_parser().parse_args(["--fault", "noreply:opcode=GAP", "--faults", str(tmp_path / "f.toml"),
+                                      "--wire-timing", "--processing-time", "0.001"])
+    config = config_from_args(args)
+    assert [f.text for f in config.faults] == ["sag:volts=9.5", "noreply:opcode=GAP"]
+    assert config.wire_timing and config.processing_time == 0.001
+    with pytest.raises(SystemExit, match="fault: unknown fault 'noreplyy'"):
+        config_from_args(build_parser().parse_args(["--fault", "noreplyy"]))

@@ -2,7 +2,8 @@
 
 Round trips are measured with pyserial exactly as a host sees them; the figure is the median
 of many requests, and of up to three rounds the best one (other work on a loaded machine only
-ever makes a round trip longer, never shorter than the line allows).
+ever makes a round trip longer, never shorter than the line allows).  The two that hold the
+figures to the issue's tolerances run while no other test of the run does (``exclusive``).
 """
 
 from __future__ import annotations
@@ -46,9 +47,10 @@ def test_the_figures_of_the_model() -> None:
     assert can_round_trip_s(20_000) == pytest.approx(0.0113)
 
 
-def round_trip(path: str, samples: int, rounds: int = 3, tolerance: float = 0.0,
+def round_trip(path: str, samples: int, rounds: int = 6, tolerance: float = 0.0,
                computed: float = 0.0) -> float:
-    """The median GAP round trip on the pty; the best of up to ``rounds`` medians."""
+    """The median GAP round trip on the pty; the best of up to ``rounds`` medians (it stops at
+    the first within ``tolerance`` of ``computed``)."""
     best = float("inf")
     with serial.Serial(path, 115200, timeout=2) as port:
         for _ in range(rounds):
@@ -62,10 +64,12 @@ def round_trip(path: str, samples: int, rounds: int = 3, tolerance: float = 0.0,
             best = min(best, statistics.median(times))
             if best <= computed * (1 + tolerance):
                 break
+            time.sleep(0.3)  # let a burst of other work pass (wall time is what is measured)
     return best
 
 
-@pytest.mark.parametrize(("baud", "samples", "tolerance"), [(9600, 25, 0.10), (115200, 150, 0.20)])
+@pytest.mark.exclusive
+@pytest.mark.parametrize(("baud", "samples", "tolerance"), [(9600, 25, 0.10), (115200, 101, 0.20)])
 def test_a_gap_round_trip_on_the_pty_takes_what_the_line_takes(
         tmcl_sim_factory: Callable[..., SimulatorThread], tmp_path, baud: int, samples: int,
         tolerance: float) -> None:
