@@ -242,6 +242,16 @@ COMMON_KEYS: dict[str, Param] = {
     "after": Param(lambda t: _integer(t, "after", 0, 2**31), 0, help="let this many matching "
                                                                      "requests pass first"),
 }
+def describe_kinds() -> list[dict[str, Any]]:
+    """Every kind and key in words and defaults, JSON-ready (a front end builds its forms from it)."""
+    def keys(params: Mapping[str, Param]) -> list[dict[str, Any]]:
+        return [{"key": name, "help": param.help, "required": param.required,
+                 "default": list(param.default) if isinstance(param.default, tuple) else param.default}
+                for name, param in params.items()]
+    return [{"kind": kind.name, "category": kind.category, "summary": kind.summary,
+             "keys": keys(kind.params), "common_keys": keys(COMMON_KEYS)} for kind in KINDS.values()]
+
+
 #: Keys that make a fault wait for requests (a state fault or a reset without them acts at once).
 _TRIGGER_KEYS = ("endpoint", "opcode", "type", "motor", "rate", "count", "after")
 
@@ -546,6 +556,7 @@ class FaultInjector:
             self.simulation.faults = self
         else:
             for module in self._modules(spec):
+                active.fired += 1
                 self._strike_now(active, module)
             if spec.kind.category == REQUEST:  # a reset at once: done, nothing to undo
                 del self.faults[active.id]

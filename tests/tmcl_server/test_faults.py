@@ -16,6 +16,7 @@ from tmcl_server.faults import (
     Delivery,
     FaultInjector,
     FaultSpecError,
+    describe_kinds,
     fault_from_mapping,
     fault_spec,
     load_fault_file,
@@ -113,6 +114,16 @@ def test_fault_files_in_toml_json_and_text(tmp_path) -> None:
     bad.write_text('[[fault]]\nkind = "noreply"\nopcode = "GAP"\nrat = 0.1\n')
     with pytest.raises(FaultSpecError, match=r"bad\.toml.*did you mean 'rate'"):
         load_fault_file(bad)
+
+
+def test_every_kind_is_described_for_a_front_end() -> None:
+    kinds = {k["kind"]: k for k in describe_kinds()}
+    assert set(kinds) == {"noreply", "drop", "delay", "checksum", "status", "tear", "garbage",
+                          "duplicate", "wrong_address", "reset", "stuck", "switch", "sag"}
+    assert {"key": "ms", "help": "milliseconds, or a range LOW..HIGH", "required": False,
+            "default": [100.0, 100.0]} in kinds["delay"]["keys"]
+    assert [k["key"] for k in kinds["noreply"]["common_keys"]][:3] == ["endpoint", "module", "opcode"]
+    json.dumps(kinds)  # JSON-ready as it is
 
 
 def test_a_fault_for_an_axis_the_module_lacks_is_refused_before_anything_happens() -> None:
@@ -344,8 +355,8 @@ def test_a_reset_without_a_request_key_happens_at_once_and_is_not_kept() -> None
     rig.send(Opcode.SAP, AP.MAX_SPEED, 0, 1234)
     events = []
     rig.modules[0].listeners.append(lambda e: events.append(e.kind))
-    rig.faults.add("reset")
-    assert events == ["power_cycle"] and rig.faults.describe() == []
+    fault = rig.faults.add("reset")
+    assert events == ["power_cycle"] and rig.faults.describe() == [] and fault.fired == 1
     assert rig.gap(AP.MAX_SPEED) != 1234
 
 

@@ -147,3 +147,35 @@ def test_can_frames_take_their_time_at_gp69s_bit_rate(
         assert computed * 0.98 <= statistics.median(times) <= computed * 1.3
     finally:
         bus.shutdown()
+
+
+def test_a_serial_port_is_paced_at_its_own_baud_rate_and_meets_faults_too() -> None:
+    """``--serial DEV:19200``: the host on the other end of a pty pair, as on a USB-RS485 adapter."""
+    import os
+    import select
+    import tty
+
+    def read_reply(fd: int, timeout: float) -> bytes:
+        data, deadline = b"", time.monotonic() + timeout
+        while len(data) < 9 and select.select([fd], [], [], max(0.0, deadline - time.monotonic()))[0]:
+            data += os.read(fd, 9 - len(data))
+        return data
+
+    master, slave = os.openpty()
+    tty.setraw(master)
+    try:
+        with SimulatorThread(clock="virtual", serial=[f"{os.ttyname(slave)}:19200"], wire_timing=True) as sim:
+            times = []
+            for _ in range(5):
+                start = time.perf_counter()
+                os.write(master, GAP)
+                assert decode_reply(read_reply(master, 2.0)).status == 100
+                times.append(time.perf_counter() - start)
+            computed = serial_round_trip_s(19200)
+            assert computed * 0.98 <= statistics.median(times) <= computed * 1.5
+            with sim.fault("noreply", count=1):
+                os.write(master, GAP)
+                assert read_reply(master, 0.1) == b""
+    finally:
+        os.close(master)
+        os.close(slave)
