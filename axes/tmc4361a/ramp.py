@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import IntEnum
-from math import lcm
+from math import isqrt, lcm
 
 #: Clocks per bow quantum (datasheet §6.3.10: AACTUAL alters every 64 clock cycles).
 BOW_QUANTUM = 64
@@ -216,6 +216,41 @@ def first_true(pred, limit: int) -> int:
     return high
 
 
+def first_nonneg(margin, limit: int) -> int:
+    """Smallest i in 1..limit with margin(i) >= 0, for a margin non-decreasing in i.
+
+    Bracketed false position on the exact integer margins (interpolating in floating point),
+    with a bisection step whenever an interpolation fails to halve the bracket: a handful of
+    evaluations for the smooth margins of a ramp segment, O(log) in the worst case.
+    """
+    if limit < 1:
+        return limit + 1
+    f_high = margin(limit)
+    if f_high < 0:
+        return limit + 1
+    f_low = margin(1)
+    if f_low >= 0:
+        return 1
+    low, high = 1, limit
+    bisect = False
+    while high - low > 1:
+        width = high - low
+        if bisect:
+            probe = (low + high) // 2
+        else:
+            fl, fh = float(f_low), float(f_high)
+            span = fh - fl
+            step = int(width * (-fl / span)) if span > 0 else width // 2
+            probe = min(max(low + step, low + 1), high - 1)
+        f = margin(probe)
+        if f >= 0:
+            high, f_high = probe, f
+        else:
+            low, f_low = probe, f
+        bisect = not bisect and (high - low) * 2 > width
+    return high
+
+
 def ceil_div(a: int, b: int) -> int:
     return -(-a // b)
 
@@ -227,7 +262,7 @@ class Ramp:
     """The ramp generator's state, the law for one clock, and the segment jumper."""
 
     __slots__ = ("P", "p", "w", "s", "a", "slope", "stage", "q", "goal", "braking", "wait",
-                 "no_vstart", "stopping")
+                 "no_vstart", "stopping", "_distances")
 
     def __init__(self, params: Params) -> None:
         self.P = params
@@ -243,6 +278,8 @@ class Ramp:
         self.wait = 0  # TZEROWAIT clocks left
         self.no_vstart = False  # a U-turn without TZEROWAIT restarts from 0, not VSTART
         self.stopping = False  # a soft stop (DSTOP) is under way
+        #: braking distances by motion state, shared with copies (cleared on new parameters)
+        self._distances: dict[tuple, int] = {}
 
     def copy(self) -> Ramp:
         twin = Ramp.__new__(Ramp)
@@ -256,6 +293,7 @@ class Ramp:
         """New register values; the state is kept (rescaled if CLK_FREQ changed)."""
         old = self.P
         self.P = params
+        self._distances = {}
         if params.S != old.S:
             self.p = self.p * params.S // old.S
             self.w = self.w * params.S // old.S
@@ -609,6 +647,15 @@ class Ramp:
         P = self.P
         if P.profile == 1:
             return self._trapezoid_braking(self.w)
+        key = (self.w, self.a, self.slope, self.stage, self.q % P.quantum, self.goal)
+        cached = self._distances.get(key)
+        if cached is None:
+            if len(self._distances) > 4096:
+                self._distances.clear()
+            cached = self._distances[key] = self._s_braking()
+        return cached
+
+    def _s_braking(self) -> int:
         twin = self.copy()
         twin.braking = True
         action = (A_FALL, Variant.TO_TARGET, 0, False)
@@ -617,7 +664,7 @@ class Ramp:
         while True:
             seg = twin._segment(action)
             if seg is not None:
-                e = twin._slope_horizon(action, seg, NEVER, None)
+                e = twin._slope_horizon(action, seg, NEVER)
                 if e > NEVER:
                     return NEVER
                 total += twin._advance_segment(e - 1, seg)
@@ -738,17 +785,15 @@ class Ramp:
         first = (-q0) % self.P.quantum + 1
         return first + (max(n, 1) - 1) * self.P.quantum
 
-    def _slope_horizon(self, action: tuple, seg: tuple[int, int, int], limit: int,
-                       rem0: int | None) -> int:
-        """First tick (1..limit) at which a continuing segment must be done by :meth:`tick`.
+    def _slope_horizon(self, action: tuple, seg: tuple[int, int, int], limit: int) -> int:
+        """First tick (1..limit) at which a continuing segment must be done by :meth:`tick`,
+        leaving out the braking decision of a positioning move (:meth:`_braking_limit`).
 
-        ``rem0``: the fine distance to the aim point of a positioning move that may brake.
         Returns limit + 1 if the segment lasts beyond ``limit`` (which may be NEVER).
         """
         P = self.P
         kind = action[0]
         alpha = seg[0]
-        best = limit + 1
         if kind == A_SPEED or kind == A_POSITION:
             goal = action[1] if kind == A_SPEED else P.V
             slope = RISE if self.w < goal else FALL if self.w > goal else 0
@@ -759,17 +804,12 @@ class Ramp:
             variant, goal, reversal = action[1], action[2], action[3]
             slope = FALL
         if slope == 0:
-            pass  # cruise: only the braking decision (below) ends it
-        elif kind == A_STOP:
-            if alpha < 0:
-                best = min(best, ceil_div(self.w, -alpha))
-        elif P.profile == 1:
-            best = min(best, self._trapezoid_limits(slope, goal, variant, alpha))
-        else:
-            best = min(best, self._s_limits(slope, goal, variant, reversal, seg, best - 1))
-        if rem0 is not None:
-            best = min(best, self._braking_limit(seg, rem0, best - 1))
-        return best
+            return limit + 1  # cruise
+        if kind == A_STOP:
+            return min(limit + 1, ceil_div(self.w, -alpha)) if alpha < 0 else limit + 1
+        if P.profile == 1:
+            return min(limit + 1, self._trapezoid_limits(slope, goal, variant, alpha))
+        return self._s_limits(slope, goal, variant, reversal, seg, limit)
 
     def _trapezoid_limits(self, slope: int, goal: int, variant: int, alpha: int) -> int:
         P = self.P
@@ -823,18 +863,18 @@ class Ramp:
             threshold, above = 0, False
         state_after = self._state_after
         if above:
-            best = first_true(lambda i: state_after(seg, i)[0] >= threshold, best - 1)
+            best = first_nonneg(lambda i: state_after(seg, i)[0] - threshold, best - 1)
         else:
-            best = first_true(lambda i: state_after(seg, i)[0] <= threshold, best - 1)
+            best = first_nonneg(lambda i: threshold - state_after(seg, i)[0], best - 1)
         # the rising/falling rule switching to DOWN (or to HOLD)
         if has_down and stage in (Stage.UP, Stage.HOLD):
             reach_down = self.reach_down
 
-            def fires(i: int) -> bool:
+            def fires(i: int) -> int:
                 w, a, _ = state_after(seg, i)
-                return abs(goal - w) < reach_down(slope * a, j_down, g_end)
+                return reach_down(slope * a, j_down, g_end) - abs(goal - w) - 1
 
-            best = first_true(fires, best - 1)
+            best = first_nonneg(fires, best - 1)
         return best
 
     def _braking_limit(self, seg: tuple[int, int, int], rem0: int, limit: int) -> int:
@@ -847,12 +887,12 @@ class Ramp:
                 return 1
             return min(max(1, (rem0 - d) // self.w + 1), limit + 1)
 
-        def brakes(i: int) -> bool:
+        def brakes(i: int) -> int:
             twin = self.copy()
             dist = twin._advance_segment(i, seg)
-            return rem0 - dist < twin.braking_distance()
+            return twin.braking_distance() - rem0 + dist - 1
 
-        return first_true(brakes, limit)
+        return first_nonneg(brakes, limit)
 
     def segment_for(self, ctx: Context) -> tuple[tuple, tuple[int, int, int] | None]:
         """The action of the next tick and its continuing segment (None: the tick is special)."""
@@ -896,18 +936,18 @@ class Ramp:
             return min(self.wait + 1, limit + 1)
         if seg is None:
             return 1
-        best = limit + 1
+        if kind == A_NORAMP:
+            best = limit + 1
+        else:
+            best = self._slope_horizon(action, seg, limit)
         if self.w or seg[0] or seg[1]:
             wanted = list(positions)
             if self.P.positioning:
                 wanted += [ctx.target, ctx.target + self.s]
             best = self._steps_limit(wanted, seg, best - 1)
-        if kind == A_NORAMP:
-            return best
-        rem0 = action[1] if kind == A_POSITION else None
-        best = self._slope_horizon(action, seg, best - 1, rem0)
         if kind == A_POSITION:
-            best = min(best, self._rem_sign_limit(rem0, seg, best - 1))
+            best = self._braking_limit(seg, action[1], best - 1)
+            best = min(best, self._rem_sign_limit(action[1], seg, best - 1))
         elif (kind == A_FALL and self.P.positioning and not self.braking and self.w
               and self.aim_rem(ctx.target) == 0):
             best = 1
@@ -917,7 +957,7 @@ class Ramp:
         """The tick after the one that reaches the aim point (the decision changes there)."""
         if limit < 1:
             return limit + 1
-        e = first_true(lambda i: self._state_after(seg, i)[2] >= rem, limit)
+        e = self.ticks_to_cover(seg, rem, limit)
         return min(e + 1, limit + 1)
 
     def _steps_limit(self, positions: list[int], seg: tuple[int, int, int], limit: int) -> int:
@@ -929,7 +969,37 @@ class Ramp:
                 nearest = d
         if nearest is None or limit < 1:
             return limit + 1
-        return first_true(lambda i: self._state_after(seg, i)[2] >= nearest, limit)
+        return self.ticks_to_cover(seg, nearest, limit)
+
+    def ticks_to_cover(self, seg: tuple[int, int, int], distance: int, limit: int) -> int:
+        """First tick (1..limit, else limit + 1) by which the segment has covered ``distance``."""
+        alpha, delta, _ = seg
+        w = self.w
+        if delta == 0:
+            # i*w + alpha*i*(i+1)/2 >= distance: solve the quadratic, then settle exactly
+            if alpha == 0:
+                if w <= 0:
+                    return limit + 1
+                return min(ceil_div(distance, w), limit + 1)
+            b = 2 * w + alpha
+            disc = b * b + 8 * alpha * distance
+            if disc < 0:
+                return limit + 1
+            root = isqrt(disc)
+            guess = max(1, (root - b) // (2 * alpha)) if alpha > 0 else max(
+                1, (b - root) // (-2 * alpha))
+            if guess > limit + 1:
+                guess = limit + 1
+
+            def covered(i: int) -> bool:
+                return i * w + alpha * i * (i + 1) // 2 >= distance
+
+            while guess > 1 and covered(guess - 1):
+                guess -= 1
+            while guess <= limit and not covered(guess):
+                guess += 1
+            return guess
+        return first_nonneg(lambda i: self._state_after(seg, i)[2] - distance, limit)
 
     def step_distance(self, position: int) -> int | None:
         """Fine distance until the unwrapped position ``position`` is reached in direction s."""

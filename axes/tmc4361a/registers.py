@@ -7,7 +7,7 @@ shared); addresses whose read and write meanings differ get one name per view.
 
 from __future__ import annotations
 
-from enum import IntEnum, IntFlag
+from enum import IntEnum
 
 MASK32 = 0xFFFF_FFFF
 DEFAULT_CLK_FREQ = 16_000_000
@@ -172,7 +172,18 @@ RAMP_REGISTERS = frozenset({
 })
 
 
-class GeneralConf(IntFlag):
+class BitNames:
+    """A namespace of plain int bit masks (plain ints: the chip tests them on every tick)."""
+
+    @classmethod
+    def names(cls, value: int) -> list[str]:
+        """The names of the masks set in ``value`` (for messages and debugging)."""
+        return [name for name, mask in vars(cls).items()
+                if not name.startswith("_") and isinstance(mask, int) and mask
+                and value & mask == mask]
+
+
+class GeneralConf(BitNames):
     USE_ASTART_AND_VSTART = 1 << 0
     DIRECT_ACC_VAL_EN = 1 << 1
     DIRECT_BOW_VAL_EN = 1 << 2
@@ -182,7 +193,7 @@ class GeneralConf(IntFlag):
     REVERSE_MOTOR_DIR = 1 << 28
 
 
-class RefConf(IntFlag):
+class RefConf(BitNames):
     """REFERENCE_CONF (0x01) bits."""
 
     STOP_LEFT_EN = 1 << 0
@@ -209,7 +220,7 @@ class RefConf(IntFlag):
     MODIFIED_POS_COMPARE = 3 << 28
 
 
-class Event(IntFlag):
+class Event(BitNames):
     """EVENTS (0x0E) bits; the STATUS flags they follow are in :class:`Status`."""
 
     TARGET_REACHED = 1 << 0
@@ -245,7 +256,7 @@ class Event(IntFlag):
     RST_EV = 1 << 31
 
 
-class Status(IntFlag):
+class Status(BitNames):
     """STATUS (0x0F) flags (live)."""
 
     TARGET_REACHED_F = 1 << 0
