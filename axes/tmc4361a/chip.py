@@ -122,6 +122,11 @@ class TMC4361A:
     # == the contract: time, motion, pins ======================================================
 
     @property
+    def ramp(self) -> Ramp:
+        """The ramp generator's exact state (diagnostics and tests; write through SPI only)."""
+        return self._ramp
+
+    @property
     def motor_position(self) -> int:
         """Microsteps that reached the STEP output, unwrapped (what the mechanics follow)."""
         return self._ramp.x
@@ -155,10 +160,10 @@ class TMC4361A:
         self.pin_left, self.pin_right, self.pin_home = left, right, home
         new_l, new_r = self._stop_active_raw()
         conf = self.regs.get(Reg.REFERENCE_CONF, 0)
-        if (old_l and not new_l and conf & RefConf.LATCH_X_ON_INACTIVE_L
-                or not old_l and new_l and conf & RefConf.LATCH_X_ON_ACTIVE_L
-                or old_r and not new_r and conf & RefConf.LATCH_X_ON_INACTIVE_R
-                or not old_r and new_r and conf & RefConf.LATCH_X_ON_ACTIVE_R):
+        if ((old_l and not new_l and conf & RefConf.LATCH_X_ON_INACTIVE_L)
+                or (not old_l and new_l and conf & RefConf.LATCH_X_ON_ACTIVE_L)
+                or (old_r and not new_r and conf & RefConf.LATCH_X_ON_INACTIVE_R)
+                or (not old_r and new_r and conf & RefConf.LATCH_X_ON_ACTIVE_R)):
             self.x_latch = self.xactual
             self._raise(Event.XLATCH_DONE)
         if home != old_home:
@@ -190,10 +195,12 @@ class TMC4361A:
             if e > limit:
                 ramp.advance(ctx, limit)
                 self.t = until
+                self._update_flags()  # nothing rises inside a jump; live flags move on
                 return None
             if e > 1:
                 ramp.advance(ctx, e - 1)
                 self.t += e - 1
+                self._update_flags()
             stop = self._tick(ctx)
             if stop is not None:
                 return stop
@@ -410,7 +417,7 @@ class TMC4361A:
         if expected is not None:
             offset = signed32(x - g(Reg.X_HOME, 0))
             margin = g(Reg.HOME_SAFETY_MARGIN, 0)
-            if offset < -margin and self.pin_home != expected[0] or (
+            if (offset < -margin and self.pin_home != expected[0]) or (
                     offset > margin and self.pin_home != expected[1]):
                 flags |= Status.HOME_ERROR_F
         tolerance = g(Reg.ENC_POS_DEV_TOL, 0)
@@ -688,7 +695,7 @@ class TMC4361A:
             ramp.set_params(self._params())
             if address == Reg.RAMPMODE and data != old:
                 ramp.mode_changed()
-            elif address == Reg.VMAX and data != old or address == Reg.BOW3:
+            elif (address == Reg.VMAX and data != old) or address == Reg.BOW3:
                 ramp.replan()
         elif address == Reg.XTARGET and data != old:
             ramp.replan()

@@ -119,6 +119,7 @@ class Params:
     use_astart: bool
     bows_equal: bool  # BOW2 == BOW4: S-ramps pass through v = 0 without stopping
     quantum: int
+    margin: int  # how far past the entry of the target step a positioning move aims
 
     @classmethod
     def from_registers(cls, regs: RampRegisters, quantum: int = BOW_QUANTUM) -> Params:
@@ -137,7 +138,12 @@ class Params:
             return quantum * ((reg * S) >> 53 if direct_j else reg * S // f ** 3)
 
         vmax = signed32(regs.vmax)
-        return cls(S=S, f=f, positioning=bool(regs.rampmode & 4), profile=regs.rampmode & 3,
+        V, AMAX, ASTART = vel(abs(vmax)), acc(regs.amax), acc(regs.astart)
+        DMAX, DFINAL, VBREAK = acc(regs.dmax), acc(regs.dfinal), vel(regs.vbreak)
+        J3, J4 = jerk(regs.bow3), jerk(regs.bow4)
+        margin = landing_margin(S, regs.rampmode & 3, V, AMAX, ASTART, DMAX, DFINAL, VBREAK, J3,
+                                J4, quantum)
+        return cls(S=S, f=f, margin=margin, positioning=bool(regs.rampmode & 4), profile=regs.rampmode & 3,
                    V=vel(abs(vmax)), sv=sign(vmax), VSTART=vel(regs.vstart),
                    VSTOP=vel(regs.vstop), VBREAK=vel(regs.vbreak), AMAX=acc(regs.amax),
                    DMAX=acc(regs.dmax), ASTART=acc(regs.astart), DFINAL=acc(regs.dfinal),
@@ -145,6 +151,28 @@ class Params:
                    J3=jerk(regs.bow3), J4=jerk(regs.bow4), tzerowait=regs.tzerowait,
                    use_astart=bool(regs.general_conf & 1),
                    bows_equal=regs.bow2 == regs.bow4, quantum=quantum)
+
+
+def landing_margin(S: int, profile: int, V: int, AMAX: int, ASTART: int, DMAX: int,
+                   DFINAL: int, VBREAK: int, J3: int, J4: int, quantum: int) -> int:
+    """How far past the entry of the target step a positioning move aims (fine units).
+
+    The braking decision, taken once per clock, can leave the final approach short of its aim
+    by at most one clock of travel plus one clock of acceleration carried through the whole
+    braking ramp; aiming that far into the target step lands every normal move inside it.
+    Capped at half a step.
+    """
+    if profile == 2:
+        if not (DMAX and J3 and J4):
+            return S // 2
+        brake_ticks = V // DMAX + 1 + quantum * (DMAX // J3 + DMAX // J4 + 2)
+    else:
+        decel = min([DMAX] + ([DFINAL] if VBREAK else []))
+        if decel == 0:
+            return S // 2
+        brake_ticks = V // decel + 1
+    a = max(AMAX, ASTART)
+    return min(S // 2, V + a + a * brake_ticks)
 
 
 @dataclass(slots=True)
@@ -261,8 +289,22 @@ def ceil_div(a: int, b: int) -> int:
 class Ramp:
     """The ramp generator's state, the law for one clock, and the segment jumper."""
 
-    __slots__ = ("P", "p", "w", "s", "a", "slope", "stage", "q", "goal", "braking", "wait",
-                 "no_vstart", "stopping", "_distances")
+    __slots__ = (
+        "P",
+        "_distances",
+        "a",
+        "braking",
+        "goal",
+        "no_vstart",
+        "p",
+        "q",
+        "s",
+        "slope",
+        "stage",
+        "stopping",
+        "w",
+        "wait",
+    )
 
     def __init__(self, params: Params) -> None:
         self.P = params
@@ -313,6 +355,8 @@ class Ramp:
         self.stage = Stage.CRUISE if self.w else Stage.IDLE
 
     def hard_stop(self) -> None:
+        self.wait = 0
+        self.no_vstart = False
         self.w = 0
         self.a = 0
         self.slope = 0
@@ -336,17 +380,13 @@ class Ramp:
     # == decisions =============================================================================
 
     def aim_rem(self, target: int) -> int:
-        """Signed fine distance to the aim point of a positioning move (docs: aim point)."""
-        P = self.P
-        S = P.S
-        if P.VSTOP == 0 and P.profile != 0:
-            return target * S + S // 2 - self.p
-        n = target - self.x
-        if n > 0:
-            return target * S - self.p
-        if n < 0:
-            return (target + 1) * S - 1 - self.p
-        return 0
+        """Signed fine distance to the aim point of a positioning move (docs: aim point):
+        the landing margin past the entry into the target step."""
+        S = self.P.S
+        offset = self.P.margin
+        if self.s > 0:
+            return target * S + offset - self.p
+        return (target + 1) * S - 1 - offset - self.p
 
     def decide(self, ctx: Context) -> tuple:
         """The action of the next tick (without performing it)."""
@@ -366,20 +406,22 @@ class Ramp:
             if (direction < 0 and ctx.blocked_neg) or (direction > 0 and ctx.blocked_pos):
                 V = 0
             if V == 0:
-                return (A_FALL, Variant.TO_ZERO, 0, False) if self.w else (A_IDLE,)
-            rem = self.aim_rem(ctx.target)
-            if self.w == 0:
+                return (A_FALL, Variant.TO_ZERO, 0, False) if self.stage else (A_IDLE,)
+            if self.stage == Stage.IDLE:
                 return (A_START, direction) if n else (A_IDLE,)
-            if rem == 0 or sign(rem) != self.s:
-                return (A_FALL, Variant.TO_ZERO, 0, sign(rem) == -self.s)
+            if n * self.s < 0:
+                return (A_FALL, Variant.TO_ZERO, 0, True)
+            rem = self.aim_rem(ctx.target)
+            if rem * self.s <= 0:
+                return (A_FALL, Variant.TO_ZERO, 0, False)
             return (A_POSITION, abs(rem))
         V, sv = P.V, P.sv
         if (sv < 0 and ctx.blocked_neg) or (sv > 0 and ctx.blocked_pos):
             V = 0
-        if self.w == 0:
+        if self.stage == Stage.IDLE:
             return (A_START, sv) if V and sv else (A_IDLE,)
         if sv != self.s or V == 0:
-            return (A_FALL, Variant.TO_ZERO, 0, V > 0)
+            return (A_FALL, Variant.TO_ZERO, 0, V > 0 and sv != 0)
         return (A_SPEED, V)
 
     # == one clock =============================================================================
@@ -407,6 +449,8 @@ class Ramp:
                 (P.profile == 0 and (moving or self.w)) or (moving and self.w <= P.VSTOP)):
             self.hard_stop()
             return True, False
+        if self.w == 0 and self.stage == Stage.IDLE:
+            self.braking = False
         return False, moving and self.w == 0
 
     def _no_ramp_tick(self, ctx: Context) -> None:
@@ -430,10 +474,8 @@ class Ramp:
         P = self.P
         if kind == A_START:
             self.start(action[1])
-            if P.positioning:
-                action = (A_POSITION, abs(self.aim_rem(ctx.target)))
-            else:
-                action = (A_SPEED, P.V)
+            action = (A_POSITION, abs(self.aim_rem(ctx.target))) if P.positioning else (
+                A_SPEED, P.V)
             kind = action[0]
         if kind == A_SPEED:
             self.speed_tick(action[1])
@@ -445,9 +487,16 @@ class Ramp:
             twin.speed_tick(P.V)
             if rem - twin.w >= twin.braking_distance():
                 self.speed_tick(P.V)
-            else:
-                self.braking = True
-                self.fall_tick(Variant.TO_TARGET, 0, False)
+                return
+            if (P.profile == 2 and self.slope == RISE and self.stage == Stage.UP and self.a > 0
+                    and self.q % P.quantum == P.quantum // 2 and self.w < P.V):
+                twin = self.copy()  # skip the B1 quantum: the acceleration stays here
+                twin._s_tick(RISE, P.V, Variant.TO_SPEED, False, hold=True)
+                if rem - twin.w >= twin.braking_distance():
+                    self._s_tick(RISE, P.V, Variant.TO_SPEED, False, hold=True)
+                    return
+            self.braking = True
+            self.fall_tick(Variant.TO_TARGET, 0, False)
 
     def start(self, direction: int) -> None:
         P = self.P
@@ -489,32 +538,40 @@ class Ramp:
 
     def _trapezoid_tick(self, slope: int, goal: int, variant: int) -> None:
         P = self.P
-        below = P.VBREAK > 0 and self.w < P.VBREAK
+        vb = P.VBREAK
         self.slope = slope
         if slope == RISE:
-            rate = P.ASTART if below else P.AMAX
+            if vb and self.w < vb:  # ASTART up to VBREAK, landing on it
+                rate, w = P.ASTART, min(self.w + P.ASTART, vb)
+            else:
+                rate, w = P.AMAX, self.w + P.AMAX
             self.a = rate
-            self.w = min(self.w + rate, goal)
+            self.w = min(w, goal)
             self.stage = Stage.UP if self.w < goal else Stage.CRUISE
             if self.w == goal:
                 self.a = 0
             return
-        rate = P.DFINAL if below else P.DMAX
+        if vb and self.w <= vb:
+            rate, w = P.DFINAL, self.w - P.DFINAL
+        else:  # DMAX down to VBREAK, landing on it
+            rate, w = P.DMAX, self.w - P.DMAX
+            if vb:
+                w = max(w, vb)
         self.a = -rate
         if variant == Variant.TO_SPEED:
-            self.w = max(self.w - rate, goal)
+            self.w = max(w, goal)
             if self.w == goal:
                 self.a = 0
                 self.stage = Stage.CRUISE
         elif variant == Variant.TO_ZERO:
-            self.w -= rate
+            self.w = w
             if self.w <= P.VSTOP:
                 self.w = 0
                 self.a = 0
                 self.stage = Stage.IDLE
         else:
             floor = min(self.w, P.VSTOP)
-            self.w = max(self.w - rate, floor)
+            self.w = max(w, floor)
             if self.w == floor:
                 self.a = 0
                 self.stage = Stage.CRAWL if floor else Stage.IDLE
@@ -532,18 +589,26 @@ class Ramp:
         return P.J2, P.J3, P.J4, P.DMAX, g_end, continuous, vstop_end
 
     def reach_down(self, g: int, j_down: int, g_end: int) -> int:
-        """Velocity change of a DOWN stage started at the next tick with gain ``g``."""
+        """Velocity change of a DOWN stage started at the next tick with gain ``g``.
+
+        The stage keeps ``g`` for half a quantum, then loses ``j_down`` per quantum until the
+        gain reaches ``g_end`` (that tick still counts at the final gain).
+        """
+        Q = self.P.quantum
         low = min(g_end, g)
+        head = (Q // 2) * g
         if g - j_down <= low:
-            return low
+            return head + low
         if j_down == 0:
             return NEVER
         n = ceil_div(g - low, j_down)  # quanta until the gain reaches ``low``
-        return self.P.quantum * ((n - 1) * g - j_down * (n - 1) * n // 2) + low
+        return head + Q * ((n - 1) * g - j_down * (n - 1) * n // 2) + low
 
-    def _s_tick(self, slope: int, goal: int, variant: int, reversal: bool) -> None:
+    def _s_tick(self, slope: int, goal: int, variant: int, reversal: bool,
+                hold: bool = False) -> None:
         P = self.P
         Q = P.quantum
+        H = Q // 2  # the quantum falls half-way through each block of Q ticks
         if self.slope != slope:
             self.switch_slope(slope)
         j_rec, j_up, j_down, g_max, g_end, continuous, vstop_end = self.slope_constants(
@@ -558,13 +623,15 @@ class Ramp:
             stage = Stage.UP
             self.q = 0
         if stage == Stage.REC:
-            if self.q % Q == 0:
+            if self.q % Q == H:
                 g = min(g + j_rec, 0)
             next_stage = Stage.UP if g == 0 else Stage.REC
         elif stage in (Stage.UP, Stage.HOLD):
-            due = stage == Stage.UP and self.q % Q == 0 and g < g_max
+            due = stage == Stage.UP and self.q % Q == H and g < g_max
             g_up = min(g + j_up, g_max) if due else g
-            if not has_down or rem - g_up >= self.reach_down(g_up, j_down, g_end):
+            if hold:
+                next_stage = Stage.HOLD
+            elif not has_down or rem - g_up >= self.reach_down(g_up, j_down, g_end):
                 g = g_up
                 next_stage = Stage.HOLD if g == g_max or stage == Stage.HOLD else Stage.UP
             elif due and g > 0 and rem - g >= self.reach_down(g, j_down, g_end):
@@ -577,7 +644,7 @@ class Ramp:
                 self.q = 0
                 self.goal = goal
         if stage == Stage.DOWN:
-            if self.q % Q == 0:
+            if self.q % Q == H:
                 low = min(g_end, g)
                 g -= j_down
                 if g <= low:
@@ -591,6 +658,8 @@ class Ramp:
         if slope == RISE:
             if w >= goal:
                 w, next_stage, ended = goal, Stage.CRUISE, False
+            elif w <= 0 and g < 0:  # still taking back a deceleration: standstill
+                w, next_stage, ended = 0, Stage.IDLE, False
         elif variant == Variant.TO_SPEED:
             if w <= goal:
                 w, next_stage, ended = goal, Stage.CRUISE, False
@@ -674,24 +743,23 @@ class Ramp:
                 return total
 
     def _trapezoid_braking(self, w: int) -> int:
+        """D(w) of a trapezoid/SixPoint final approach (monotone in w: the DMAX part lands
+        exactly on VBREAK, the rest runs with DFINAL down to the VSTOP floor)."""
         P = self.P
         floor = min(w, P.VSTOP)
         if w == floor:
             return floor
+        vb = P.VBREAK
         total = 0
-        if P.VBREAK == 0 or w >= P.VBREAK:
+        if not vb or w > vb:
             if P.DMAX == 0:
                 return NEVER
-            to_floor = ceil_div(w - floor, P.DMAX)
-            if P.VBREAK == 0:
-                above = to_floor
-            else:
-                above = (w - P.VBREAK) // P.DMAX + 1
-            if to_floor <= above:
-                n = to_floor - 1
-                return total + n * w - P.DMAX * n * (n + 1) // 2 + floor
-            total += above * w - P.DMAX * above * (above + 1) // 2
-            w -= above * P.DMAX
+            land = max(vb, floor)  # the first clamp the DMAX ticks run into
+            n = ceil_div(w - land, P.DMAX) - 1  # ticks strictly above it
+            total = n * w - P.DMAX * n * (n + 1) // 2 + land
+            if land == floor:
+                return total
+            w = vb
         if P.DFINAL == 0:
             return NEVER
         n = ceil_div(w - floor, P.DFINAL) - 1
@@ -709,7 +777,7 @@ class Ramp:
             return (-P.DSTOP, 0, 0)
         if kind == A_NORAMP:
             return None
-        if kind == A_SPEED or kind == A_POSITION:
+        if kind in (A_SPEED, A_POSITION):
             goal = action[1] if kind == A_SPEED else P.V
             if self.w == goal:
                 if self.stage != Stage.CRUISE or self.a != 0 or self.slope != 0:
@@ -724,12 +792,12 @@ class Ramp:
         if P.profile == 1:
             if self.slope != slope:
                 return None
-            below = P.VBREAK > 0 and self.w < P.VBREAK
+            vb = P.VBREAK
             if slope == RISE:
-                return (P.ASTART if below else P.AMAX, 0, 0)
+                return (P.ASTART if vb and self.w < vb else P.AMAX, 0, 0)
             if variant == Variant.TO_TARGET and self.stage == Stage.CRAWL:
                 return (0, 0, 0)
-            return (-(P.DFINAL if below else P.DMAX), 0, 0)
+            return (-(P.DFINAL if vb and self.w <= vb else P.DMAX), 0, 0)
         if self.slope != slope:
             return None
         stage = self.stage
@@ -758,7 +826,8 @@ class Ramp:
         alpha, delta, q0 = seg
         if delta == 0:
             return self.w + i * alpha, alpha, i * self.w + alpha * i * (i + 1) // 2
-        c_i, s1, s2 = quanta_sums(q0, i, self.P.quantum)
+        Q = self.P.quantum
+        c_i, s1, s2 = quanta_sums(q0 - Q // 2 + Q, i, Q)
         return (self.w + i * alpha + delta * s1, alpha + delta * c_i,
                 i * self.w + alpha * i * (i + 1) // 2 + delta * s2)
 
@@ -778,12 +847,11 @@ class Ramp:
         alpha, delta, q0 = seg
         if delta == 0:
             return None
-        if delta > 0:
-            n = ceil_div(limit_value - alpha, delta)
-        else:
-            n = ceil_div(alpha - limit_value, -delta)
-        first = (-q0) % self.P.quantum + 1
-        return first + (max(n, 1) - 1) * self.P.quantum
+        n = (ceil_div(limit_value - alpha, delta) if delta > 0
+             else ceil_div(alpha - limit_value, -delta))
+        Q = self.P.quantum
+        first = (Q // 2 - q0) % Q + 1
+        return first + (max(n, 1) - 1) * Q
 
     def _slope_horizon(self, action: tuple, seg: tuple[int, int, int], limit: int) -> int:
         """First tick (1..limit) at which a continuing segment must be done by :meth:`tick`,
@@ -794,7 +862,7 @@ class Ramp:
         P = self.P
         kind = action[0]
         alpha = seg[0]
-        if kind == A_SPEED or kind == A_POSITION:
+        if kind in (A_SPEED, A_POSITION):
             goal = action[1] if kind == A_SPEED else P.V
             slope = RISE if self.w < goal else FALL if self.w > goal else 0
             variant, reversal = Variant.TO_SPEED, False
@@ -817,11 +885,12 @@ class Ramp:
         best = NEVER
         if alpha == 0:
             return best
-        if P.VBREAK > 0:
-            if w < P.VBREAK and alpha > 0:
-                best = min(best, ceil_div(P.VBREAK - w, alpha) + 1)
-            elif w >= P.VBREAK and alpha < 0:
-                best = min(best, (w - P.VBREAK) // -alpha + 2)
+        vb = P.VBREAK
+        if vb:  # the tick that lands on VBREAK (the rate changes after it)
+            if w < vb and alpha > 0:
+                best = min(best, ceil_div(vb - w, alpha))
+            elif w > vb and alpha < 0:
+                best = min(best, ceil_div(w - vb, -alpha))
         if slope == RISE:
             best = min(best, ceil_div(goal - w, alpha))
         elif variant == Variant.TO_SPEED:
@@ -836,7 +905,7 @@ class Ramp:
                   seg: tuple[int, int, int], limit: int) -> int:
         P = self.P
         stage = self.stage
-        j_rec, j_up, j_down, g_max, g_end, continuous, vstop_end = self.slope_constants(
+        _, _, j_down, g_max, g_end, continuous, vstop_end = self.slope_constants(
             slope, variant, reversal)
         has_down = not (continuous or vstop_end)
         best = limit + 1
@@ -864,6 +933,8 @@ class Ramp:
         state_after = self._state_after
         if above:
             best = first_nonneg(lambda i: state_after(seg, i)[0] - threshold, best - 1)
+            if seg[0] < 0:  # a REC stage of a rising slope may come to rest first
+                best = first_nonneg(lambda i: -state_after(seg, i)[0], best - 1)
         else:
             best = first_nonneg(lambda i: threshold - state_after(seg, i)[0], best - 1)
         # the rising/falling rule switching to DOWN (or to HOLD)
@@ -936,21 +1007,21 @@ class Ramp:
             return min(self.wait + 1, limit + 1)
         if seg is None:
             return 1
-        if kind == A_NORAMP:
-            best = limit + 1
-        else:
-            best = self._slope_horizon(action, seg, limit)
+        best = limit + 1 if kind == A_NORAMP else self._slope_horizon(action, seg, limit)
         if self.w or seg[0] or seg[1]:
             wanted = list(positions)
             if self.P.positioning:
                 wanted += [ctx.target, ctx.target + self.s]
             best = self._steps_limit(wanted, seg, best - 1)
+        P = self.P
+        if P.positioning and self.x == ctx.target and (self.w or self.stage != Stage.IDLE):
+            # inside the target microstep: the move ends at the first tick with |v| <= VSTOP
+            if P.profile == 0:
+                return 1
+            best = first_nonneg(lambda i: P.VSTOP - self._state_after(seg, i)[0], best - 1)
         if kind == A_POSITION:
             best = self._braking_limit(seg, action[1], best - 1)
             best = min(best, self._rem_sign_limit(action[1], seg, best - 1))
-        elif (kind == A_FALL and self.P.positioning and not self.braking and self.w
-              and self.aim_rem(ctx.target) == 0):
-            best = 1
         return best
 
     def _rem_sign_limit(self, rem: int, seg: tuple[int, int, int], limit: int) -> int:

@@ -1,6 +1,6 @@
 """TMC4361A register map, power-on values, bit fields and unit conversions, as data.
 
-Sources: ``shared/spec/tmc4361a.md`` §2–§4 and §8, and the register chapter (19) of the
+Sources: ``shared/spec/tmc4361a.md`` §2-§4 and §8, and the register chapter (19) of the
 datasheet.  Names follow the datasheet (and pytrinamic's ``TMC4361.REG`` where a name is
 shared); addresses whose read and write meanings differ get one name per view.
 """

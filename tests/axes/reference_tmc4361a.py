@@ -105,6 +105,23 @@ class ReferenceRamp:
         self.J1, self.J2, self.J3, self.J4 = (jerk(b) for b in (r.bow1, r.bow2, r.bow3, r.bow4))
         self.positioning = bool(r.rampmode & 4)
         self.profile = r.rampmode & 3
+        self.margin = self._landing_margin()
+
+    def _landing_margin(self) -> int:
+        """How far past the entry of the target step a positioning move aims (docs)."""
+        S, Q = self.S, self.quantum
+        if self.profile == 2:
+            if not (self.DMAX and self.J3 and self.J4):
+                return S // 2
+            brake_ticks = self.V // self.DMAX + 1 + Q * (
+                self.DMAX // self.J3 + self.DMAX // self.J4 + 2)
+        else:
+            decel = min([self.DMAX] + ([self.DFINAL] if self.VBREAK else []))
+            if decel == 0:
+                return S // 2
+            brake_ticks = self.V // decel + 1
+        a = max(self.AMAX, self.ASTART)
+        return min(S // 2, self.V + a + a * brake_ticks)
 
     def write(self, name: str, value: int) -> None:
         """A register write: the same re-planning rules as the chip (docs/tmc4361a.md)."""
@@ -113,7 +130,7 @@ class ReferenceRamp:
         self._derive()
         self._distances = {}
         self._reaches = {}
-        if name in ("xtarget", "vmax", "rampmode") and value != old or name == "bow3":
+        if (name in ("xtarget", "vmax", "rampmode") and value != old) or name == "bow3":
             self.braking = False
         if name == "rampmode" and value != old:
             self.a = 0
@@ -146,15 +163,15 @@ class ReferenceRamp:
             if action is not None:
                 self._apply(action, target)
         self.p += self.s * self.w
-        if self.positioning and self.x == target and self.w <= (
-                0 if self.profile == 0 else self.VSTOP) and moving:
-            self._rest()
-            self.arrivals.append(self.t)
-        elif self.positioning and self.profile == 0 and self.x == target and self.w:
+        at_target = self.positioning and self.x == target
+        if at_target and (self.w or moving) if self.profile == 0 else (
+                at_target and moving and self.w <= self.VSTOP):
             self._rest()
             self.arrivals.append(self.t)
         elif moving and self.w == 0:
             self.stops.append(self.t)
+        if self.w == 0 and self.stage == IDLE:
+            self.braking = False
 
     def _no_ramp_tick(self, target: int) -> None:
         """RAMPMODE(1:0) = 0: the velocity jumps (positioning: towards XTARGET, 0 there)."""
@@ -171,6 +188,8 @@ class ReferenceRamp:
         self.stage = CRUISE if self.w else IDLE
 
     def _rest(self) -> None:
+        self.wait = 0
+        self.no_vstart = False
         self.w = 0
         self.a = 0
         self.slope = 0
@@ -178,35 +197,34 @@ class ReferenceRamp:
         self.braking = False
 
     def _aim_rem(self, target: int) -> int:
-        """Signed fine distance from here to the aim point (docs: "aim point")."""
+        """Signed fine distance from here to the aim point (docs: "aim point"): the landing
+        margin past the entry into the target microstep."""
         S = self.S
-        n = target - self.x
-        if self.VSTOP == 0:
-            return target * S + S // 2 - self.p
-        if n > 0:
-            return target * S - self.p
-        if n < 0:
-            return (target + 1) * S - 1 - self.p
-        return 0
+        offset = self.margin
+        if self.s > 0:
+            return target * S + offset - self.p
+        return (target + 1) * S - 1 - offset - self.p
 
     def _choose(self, target: int) -> tuple | None:
         if self.positioning:
             if self.braking:
                 return ("fall", TO_TARGET, 0)
             if self.V == 0:
-                return ("fall", TO_ZERO, 0) if self.w else None
-            rem = self._aim_rem(target)
-            if self.w == 0:
+                return ("fall", TO_ZERO, 0) if self.stage != IDLE else None
+            if self.stage == IDLE:
                 if target == self.x:
                     return None
                 return ("start", _sign(target - self.x))
-            if rem == 0 or _sign(rem) != self.s:
-                return ("fall", TO_ZERO, 0, _sign(rem) == -self.s)
+            if (target - self.x) * self.s < 0:
+                return ("fall", TO_ZERO, 0, True)
+            rem = self._aim_rem(target)
+            if rem * self.s <= 0:
+                return ("fall", TO_ZERO, 0, False)
             return ("position", abs(rem))
-        if self.w == 0:
+        if self.stage == IDLE:
             return ("start", self.sv) if self.V and self.sv else None
         if self.sv != self.s or self.V == 0:
-            return ("fall", TO_ZERO, 0, self.V > 0)
+            return ("fall", TO_ZERO, 0, self.V > 0 and self.sv != 0)
         return ("speed", self.V)
 
     def _apply(self, action: tuple, target: int) -> None:
@@ -227,9 +245,16 @@ class ReferenceRamp:
             twin._speed_tick(self.V)
             if rem - twin.w >= twin._braking_distance():
                 self._speed_tick(self.V)
-            else:
-                self.braking = True
-                self._fall_tick(TO_TARGET, 0, False)
+                return
+            if (self.profile == 2 and self.slope == RISE and self.stage == UP and self.a > 0
+                    and self.q % self.quantum == self.quantum // 2 and self.w < self.V):
+                twin = copy.copy(self)  # skip the B1 quantum: the acceleration stays here
+                twin._s_tick(RISE, self.V, TO_SPEED, hold=True)
+                if rem - twin.w >= twin._braking_distance():
+                    self._s_tick(RISE, self.V, TO_SPEED, hold=True)
+                    return
+            self.braking = True
+            self._fall_tick(TO_TARGET, 0, False)
 
     def _start(self, direction: int) -> None:
         self.s = direction
@@ -296,38 +321,48 @@ class ReferenceRamp:
             self._s_tick(slope, goal, variant, reversal)
 
     def _trapezoid_tick(self, slope: int, goal: int, variant: int) -> None:
-        below = self.VBREAK > 0 and self.w < self.VBREAK
+        vb = self.VBREAK
         self.slope = slope
         if slope == RISE:
-            rate = self.ASTART if below else self.AMAX
+            if vb and self.w < vb:  # ASTART up to VBREAK, landing on it
+                rate, w = self.ASTART, min(self.w + self.ASTART, vb)
+            else:
+                rate, w = self.AMAX, self.w + self.AMAX
             self.a = rate
-            self.w = min(self.w + rate, goal)
+            self.w = min(w, goal)
             self.stage = UP if self.w < goal else CRUISE
             if self.w == goal:
                 self.a = 0
             return
-        rate = self.DFINAL if below else self.DMAX
+        if vb and self.w <= vb:
+            rate, w = self.DFINAL, self.w - self.DFINAL
+        else:  # DMAX down to VBREAK, landing on it
+            rate, w = self.DMAX, self.w - self.DMAX
+            if vb:
+                w = max(w, vb)
         self.a = -rate
         if variant == TO_SPEED:
-            self.w = max(self.w - rate, goal)
+            self.w = max(w, goal)
             if self.w == goal:
                 self.a = 0
                 self.stage = CRUISE
         elif variant == TO_ZERO:
-            self.w -= rate
+            self.w = w
             if self.w <= self.VSTOP:
                 self.w = 0
                 self.a = 0
                 self.stage = IDLE
         else:
             floor = min(self.w, self.VSTOP)
-            self.w = max(self.w - rate, floor)
+            self.w = max(w, floor)
             if self.w == floor:
                 self.a = 0
                 self.stage = CRAWL if floor else IDLE
 
-    def _s_tick(self, slope: int, goal: int, variant: int, reversal: bool) -> None:
+    def _s_tick(self, slope: int, goal: int, variant: int, reversal: bool = False,
+                hold: bool = False) -> None:
         Q = self.quantum
+        H = Q // 2  # the quantum falls half-way through each block of Q ticks
         if self.slope != slope:
             self._switch_slope(slope)
         continuous = (variant == TO_ZERO and reversal and self.regs.bow2 == self.regs.bow4)
@@ -346,13 +381,15 @@ class ReferenceRamp:
             stage = UP
             self.q = 0
         if stage == REC:
-            if self.q % Q == 0:
+            if self.q % Q == H:
                 g = min(g + j_rec, 0)
             next_stage = UP if g == 0 else REC
         elif stage in (UP, HOLD):
-            due = stage == UP and self.q % Q == 0 and g < g_max
+            due = stage == UP and self.q % Q == H and g < g_max
             g_up = min(g + j_up, g_max) if due else g
-            if not has_down or self._ok(rem, g_up, j_down, g_end):
+            if hold:
+                next_stage = HOLD
+            elif not has_down or self._ok(rem, g_up, j_down, g_end):
                 g = g_up
                 next_stage = HOLD if g == g_max or stage == HOLD else UP
             elif due and g > 0 and self._ok(rem, g, j_down, g_end):
@@ -365,7 +402,7 @@ class ReferenceRamp:
                 self.q = 0
                 self.goal = goal
         if stage == DOWN:
-            if self.q % Q == 0:
+            if self.q % Q == H:
                 low = min(g_end, g)
                 g -= j_down
                 if g <= low:
@@ -382,6 +419,8 @@ class ReferenceRamp:
         if slope == RISE:
             if w >= goal:
                 w, next_stage, ended = goal, CRUISE, False
+            elif w <= 0 and g < 0:  # still taking back a deceleration: standstill
+                w, next_stage, ended = 0, IDLE, False
         elif variant == TO_SPEED:
             if w <= goal:
                 w, next_stage, ended = goal, CRUISE, False
@@ -429,7 +468,7 @@ class ReferenceRamp:
         if cached is not None:
             return cached
         low = min(g_end, g)
-        total = 0
+        total = (self.quantum // 2) * g  # ticks before the first quantum
         while True:  # one bow quantum per round, then ``quantum`` ticks at that gain
             g -= j_down
             if g <= low:
