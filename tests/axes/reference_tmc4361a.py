@@ -2,12 +2,15 @@
 
 A literal transcription of the motion law written down in ``docs/tmc4361a.md`` ("The motion
 law"): exact integer state in *fine units* (one microstep = ``S`` fine units, velocities in
-fine units per clock, accelerations in fine units per clock squared), velocity updated every
-clock, bow (jerk) quanta every ``quantum`` clocks counted from the start of each bow phase,
-and a positioning rule that brakes at the last tick at which braking one tick later would
-overshoot the aim point.  The braking distance is found by simply running the braking ramp
-on a copy, tick by tick.  Slow on purpose: ``tests/axes/test_tmc4361a.py`` compares the fast
-engine of ``axes/tmc4361a`` with it.  No switches, events or encoder here: motion only.
+fine units per clock, accelerations in fine units per clock squared); the velocity changes
+every clock; in S-ramps the acceleration changes by one bow quantum half-way through each
+block of ``quantum`` clocks, counted from the start of the bow stage; a positioning move keeps
+doing what velocity mode would do only while the final approach started one clock later
+would still end short of its aim point (a landing margin past the entry of the target step).
+The braking distance is found by simply running the final approach on a copy, tick by tick
+(memoised; a final approach longer than a million clocks counts as never ending).  Slow on
+purpose: ``tests/axes/test_tmc4361a.py`` compares the fast engine of ``axes/tmc4361a`` with
+it.  No switches, events or encoder here: motion only.
 """
 
 from __future__ import annotations
