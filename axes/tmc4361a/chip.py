@@ -107,7 +107,7 @@ class TMC4361A:
         self._wake = 0
         self.x_latch = 0
         self._home_latched = False
-        self._home_entry: int | None = None
+        self._home_entry: tuple[int, int] | None = None  # (XACTUAL, direction) entering
         self._freeze_written = False
         self._mark: int | None = None
         self._mark_dir = 0
@@ -356,11 +356,13 @@ class TMC4361A:
             entering = new == active_level
             if side == "centre":
                 if entering:
-                    self._home_entry = self.xactual
+                    self._home_entry = (self.xactual, direction)
                 elif self._home_entry is not None:
-                    last_active = self.xactual - direction
-                    position = (signed32(self._home_entry) + signed32(last_active)) // 2
+                    entry, entry_direction = self._home_entry
                     self._home_entry = None
+                    if entry_direction == direction:  # passed through, not turned back
+                        last_active = self.xactual - direction
+                        position = (signed32(entry) + signed32(last_active)) // 2
             elif (side == "left") == (entering == (direction > 0)):
                 position = self.xactual
         conf = self.regs.get(Reg.REFERENCE_CONF, 0)
@@ -688,8 +690,8 @@ class TMC4361A:
                 self._raise(Event.COVER_DONE)  # the datagram goes out at once
                 return
             case Reg.REFERENCE_CONF:
-                if not data & RefConf.START_HOME_TRACKING:
-                    self._home_latched = False
+                if not data & RefConf.START_HOME_TRACKING or not old & RefConf.START_HOME_TRACKING:
+                    self._home_latched = False  # armed again by a 0 -> 1 write
         self.regs[address] = data
         if address in RAMP_REGISTERS:
             ramp.set_params(self._params())

@@ -615,6 +615,29 @@ def test_home_tracking_latches_x_home_at_the_selected_edge(kind: int, expected: 
     assert not chip.read(Reg.REFERENCE_CONF) & RefConf.START_HOME_TRACKING  # cleared with it
 
 
+def test_a_centred_home_needs_the_range_passed_and_tracking_rearms_on_a_new_write() -> None:
+    board = LineBoard(home=(100, 10_000))
+    conf = 6 << 16 | RefConf.START_HOME_TRACKING
+    chip = velocity_chip(board, reference_conf=conf, x_home=7, vmax=velocity_register(50_000))
+    run_for(chip, 0.05)  # into the range ...
+    chip.write(Reg.VMAX, velocity_register(-50_000))
+    run_for(chip, 0.2)  # ... and back out the same side: no centre
+    assert chip.read(Reg.X_HOME) == 7 and not chip.read(Reg.EVENTS) & Event.XLATCH_DONE
+    assert chip.motor_position < -3000
+    board.home = (-8000, -7000)  # ahead of the motor
+    run_for(chip, 0.2)  # through the new range, moving down
+    assert chip.read(Reg.X_HOME) == -7500 & MASK32
+    chip.write(Reg.X_HOME, 0)
+    chip.write(Reg.VMAX, velocity_register(50_000))
+    run_for(chip, 0.3)  # through it again: tracking was used up
+    assert chip.read(Reg.X_HOME) == 0
+    chip.read(Reg.EVENTS)  # clearing XLATCH_DONE ends the tracking ...
+    chip.write(Reg.REFERENCE_CONF, conf)  # ... and a new 0 -> 1 write arms it again
+    chip.write(Reg.VMAX, velocity_register(-50_000))
+    run_for(chip, 0.5)
+    assert chip.read(Reg.X_HOME) == -7500 & MASK32
+
+
 def test_home_error_flag_outside_the_safety_margin() -> None:
     board = LineBoard(home=(300, 10**9))  # HOME_REF high above 300, but X_HOME says 0
     chip = velocity_chip(board, reference_conf=3 << 16, home_safety_margin=50,
