@@ -284,7 +284,7 @@ class TMC4361A:
         self._mark = None
         if self.board is not None:
             mark = self.board.next_mark(self.motor_position, direction)
-            if mark is not None:
+            if mark is not None and (mark - self.motor_position) * direction > 0:
                 self._mark = mark
                 self._mark_dir = direction
                 out.append(mark)
