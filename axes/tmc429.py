@@ -185,11 +185,12 @@ class TMC429Motor(MotorEngine):
     def write(self, reg: MotorReg | int, data: int) -> None:
         self.chip.write(motor_address(self.index, reg), data)
 
-    def run(self, until: int) -> Stop | None:
-        """Advance this motor (only) to tick ``until``; return early at a notable instant."""
+    def run(self, until: int, budget: int | None = None) -> Stop | None:
+        """Advance this motor (only) to tick ``until``; return early at a notable instant
+        (or, with a work ``budget``, short of ``until`` when it runs out: MotorEngine.run)."""
         moving = self.v != 0
         x_before = self.x_actual
-        stop = super().run(until)
+        stop = super().run(until, budget)
         if self.v:
             self.rest_since = None
         elif moving or self.x_actual != x_before or self.rest_since is None:
