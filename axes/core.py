@@ -198,6 +198,9 @@ class MotorDriverLink(Protocol):
     def load(self) -> int:
         """AP 206: the stallGuard2 value the driver measured."""
 
+    def stalled(self) -> bool:
+        """The driver's stallGuard2 flag: its last measurement read 0."""
+
     def current_scale(self) -> int | None:
         """AP 180: the current scale coolStep set (0..31), None while coolStep is off."""
 

@@ -120,6 +120,7 @@ class AxisFirmware:
         self._encoder_offset = 0  # encoder counts added to what the mechanics give
         self._encoder_mech_base = 0  # mechanical position at which slip was last rebased
         self._stall_watch = False
+        self._motion_origin = 0  # motor position where the motion last started
         #: The current scale coolStep regulates (axes/stallguard.py).
         self._coolstep = CoolStep()
         self._travel_direction = 1  # of the last motion (the filtered stallGuard2 reading)
@@ -266,6 +267,7 @@ class AxisFirmware:
 
     def _motion_started(self) -> None:
         self._standstill_since = None
+        self._motion_origin = self.chip.motor_position
         if self._standby:
             self._standby = False
             self._current_changed()
@@ -481,16 +483,27 @@ class AxisFirmware:
         threshold = self._params[AP.STOP_ON_STALL]
         watching = False
         if threshold and self._standstill_since is None:
-            load = self._load()
-            if load == 0 and abs(self._actual_speed()) >= threshold:
+            stalled = self._driver_stalled() if self.motor_driver is not None else self._load() == 0
+            if stalled and abs(self._actual_speed()) >= threshold:
                 self._abort_search()
                 self._hard_stop()
                 self._errors |= ERROR_STALL
                 self._emit(AxisEventKind.STALL)
-            elif load == 0 or stallguard.reading(self.board.world.load_at(self._mechanical()),
-                                                 self._params[AP.STALLGUARD_THRESHOLD]) == 0:
+            elif stalled or stallguard.reading(self.board.world.load_at(self._mechanical()),
+                                               self._params[AP.STALLGUARD_THRESHOLD]) == 0:
                 watching = True
         self._stall_watch = watching
+
+    def _driver_stalled(self) -> bool:
+        """The modelled driver's stallGuard2 flag, once it is from this motion: the driver
+        measures at full steps (four with the filter), so until the motor has made that
+        many since it started the flag is the last motion's and the firmware ignores it."""
+        full_step = 1 << self._params[AP.MICROSTEPS]
+        if self._params[AP.STALLGUARD_FILTER]:
+            full_step *= stallguard.FILTER_FULL_STEPS
+        if abs(self.chip.motor_position - self._motion_origin) < full_step:
+            return False
+        return self.motor_driver.stalled()  # type: ignore[union-attr]
 
     def _update_coolstep(self) -> None:
         """Bring coolStep's current scale up to the present (called at every position read)."""

@@ -197,6 +197,19 @@ class TMC429Motor(MotorEngine):
             self.rest_since = self.t  # run() returns at the instant a motion ends
         return stop
 
+    def driver_spi(self, frame: int) -> int:
+        """A 20-bit datagram on the microcontroller's own SPI to this motor's driver (the
+        Step/Dir modules); its answer.  A write that changes a driver register counts as a
+        write to this motor (a lookahead twin made before it is stale)."""
+        driver = self.driver
+        if driver is None:
+            return 0
+        before = driver.registers()
+        answer = driver.spi(frame)
+        if driver.registers() != before:
+            self.writes += 1
+        return answer
+
     def set_pins(self, ref_l: bool, ref_r: bool, gp_in: bool = False) -> None:
         """Drive this motor's (left, right, home) switch levels; the layout decides which count."""
         super().set_pins(ref_l, ref_r, gp_in)
