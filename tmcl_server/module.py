@@ -156,7 +156,7 @@ class TMCLModule:
         self.outputs = [0] * self.type.outputs
         self.pullups = [1] * self.type.pullup_ports
         self.analog_inputs = [0] * self.type.analog_inputs
-        if GP.END_SWITCH_POLARITY in bank0:
+        if bank0.get(GP.END_SWITCH_POLARITY):
             self._apply_switch_polarity()
         self.apply_world(self.world)
         self._tick_origin_ms = self.now_ns // NS_PER_MS

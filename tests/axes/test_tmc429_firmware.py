@@ -139,9 +139,26 @@ def register_settings(draw) -> tuple[int, int, int, int]:
     return pulse_div, ramp_div, v_max, a_max
 
 
+_random_moves = dict(setting=register_settings(),
+                     targets=st.lists(st.integers(-20_000, 20_000), min_size=1, max_size=3))
+
+
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(setting=register_settings(), targets=st.lists(st.integers(-20_000, 20_000), min_size=1, max_size=3))
+@given(**_random_moves)
 def test_random_moves_land_on_target_without_overshoot(setting, targets) -> None:
+    _random_moves_case(setting, targets)
+
+
+@pytest.mark.soak
+@pytest.mark.timeout(3600)
+@settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**_random_moves)
+def test_random_moves_land_on_target_without_overshoot_soak(setting, targets) -> None:
+    _random_moves_case(setting, targets)
+
+
+def _random_moves_case(setting: tuple[int, int, int, int], targets: list[int]) -> None:
+    """AP 154/153/4/5 as drawn, then moves to ``targets``: each lands, none passes it."""
     pulse_div, ramp_div, v_max, a_max = setting
     axis = make_axes("tmc429", 1, AXIS_PARAMETERS_1110)[0]
     for number, value in ((AP.PULSE_DIVISOR, pulse_div), (AP.RAMP_DIVISOR, ramp_div),

@@ -85,8 +85,9 @@ def test_version_and_every_parameter_the_pytrinamic_class_names(sim, kind, path)
         assert error.value.reply.status == Status.WRONG_TYPE
 
 
-def test_moves_on_every_axis_polled_to_the_target_and_registers_per_motor(sim, kind) -> None:
-    with connect(sim, "pty") as iface:
+@pytest.mark.parametrize("path", ["pty", "tcp"])
+def test_moves_on_every_axis_polled_to_the_target_and_registers_per_motor(sim, kind, path) -> None:
+    with connect(sim, path) as iface:
         module = PYTRINAMIC[kind](iface)
         targets = [(-1) ** n * 12_345 * (n + 1) for n in range(len(module.motors))]
         for motor, target in zip(module.motors, targets, strict=True):
