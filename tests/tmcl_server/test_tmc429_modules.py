@@ -229,3 +229,26 @@ def test_a_program_on_the_tmcm_6110_gets_the_interrupt_of_input_7() -> None:
         module.set_digital_input(7, level)
     module.advance_to(40_000_000)
     assert command(Opcode.GGP, 46, 2) == 3
+
+
+# == profile details at the module ============================================================
+
+
+def test_end_switch_polarity_pull_ups_and_analogue_channels_of_the_tmcm_3110() -> None:
+    module = TMCLModule(kind="tmcm-3110")
+
+    def send(opcode: int, type_: int = 0, motor: int = 0, value: int = 0):
+        return module.execute(Request(1, opcode, type_, motor, value))
+
+    module.set_switch(1, "left", 0, side="above")  # axis 1 stands on its left switch
+    assert send(Opcode.GAP, AP.LEFT_SWITCH, 1).value == 1
+    assert send(Opcode.SGP, 79, 0, 1).status == Status.OK  # GP 79: the limit switches inverted
+    assert [send(Opcode.GAP, AP.LEFT_SWITCH, n).value for n in range(3)] == [1, 0, 1]
+    assert [send(Opcode.GAP, AP.RIGHT_SWITCH, n).value for n in range(3)] == [1, 1, 1]
+    assert send(Opcode.SIO, 0, 0, 0).status == Status.OK and module.pullups == [0]  # pull-ups off
+    assert send(Opcode.SIO, 1, 0, 0).status == Status.WRONG_TYPE  # one pull-up switch only
+    module.set_analog_input(4, 3000)
+    assert send(Opcode.GIO, 4, 1).value == 3000 and send(Opcode.GIO, 4, 0).value == 1
+    assert send(Opcode.GIO, 1, 1).status == Status.WRONG_TYPE  # IN1 is digital only
+    with pytest.raises(ValueError):
+        module.set_analog_input(0, 4096)  # a 12-bit ADC
