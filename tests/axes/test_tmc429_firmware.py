@@ -17,7 +17,13 @@ from axes.tmc42x import MotorReg, RampMode
 from axes.tmc429 import EN_REFR, EN_SD, SDO_INT, TYPE_VERSION, GlobalReg, motor_address
 from axes.tmc429_firmware import TMC429Axis
 from axes.tmc4210_firmware import TMC4210Axis
-from axes.units import a_max_lower_limit, a_max_upper_limit, pmul_pdiv, step_rate
+from axes.units import (
+    a_max_lower_limit,
+    a_max_upper_limit,
+    acceleration_rate,
+    pmul_pdiv,
+    step_rate,
+)
 from axes.world import AxisWorld, LoadZone, Switch
 from tmcl_spec.numbers import NS_PER_S
 from tmcl_spec.parameters import AP
@@ -169,7 +175,9 @@ def _random_moves_case(setting: tuple[int, int, int, int], targets: list[int]) -
         start = axis.get_parameter(AP.ACTUAL_POSITION)
         axis.set_world(sentinel(target, start))
         axis.move_to(target)
-        seconds = 10 + abs(target - start) / step_rate(v_max, pulse_div, 16_000_000)
+        speed = step_rate(v_max, pulse_div, 16_000_000)
+        seconds = 10 + abs(target - start) / speed + 2 * speed / acceleration_rate(
+            a_max, pulse_div, ramp_div, 16_000_000)
         events = axis.advance_to(now := now + int(seconds * NS_PER_S))
         assert axis.get_parameter(AP.ACTUAL_POSITION) == target
         assert not [e for e in events if e.kind is AxisEventKind.HOME_SWITCH], "passed the target"
