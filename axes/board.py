@@ -67,6 +67,11 @@ class AxisBoard:
         self.mech_base = mechanical
         self.steps_base = motor_position
 
+    def load(self, motor_position: int) -> int:
+        """The world's load value with the motor at ``motor_position`` (what a modelled
+        driver's stallGuard2 measures, axes/tmc262.py)."""
+        return self.world.load_at(self.mechanical(motor_position))
+
     def pins(self, motor_position: int) -> tuple[bool, bool, bool]:
         mech = self.mechanical(motor_position)
         left = self.world.level("left", mech)

@@ -184,11 +184,12 @@ class World:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], number_of_axes: int | None = None,
-                  number_of_inputs: int | None = None) -> World:
+                  number_of_inputs: int | None = None, analog_full_scale: int = ANALOG_MAX) -> World:
         """The world a dict (a parsed world file) describes; anything unknown is an error.
 
         ``number_of_axes`` / ``number_of_inputs`` bound the axis indices and input lists if
-        given.  Errors are :class:`WorldError` naming the key path.
+        given, ``analog_full_scale`` the analogue values (the module's ADC: 4095 on the TMC429
+        modules).  Errors are :class:`WorldError` naming the key path.
         """
         _table(data, (), _TOP_KEYS)
         world = cls()
@@ -214,7 +215,7 @@ class World:
                                  f"{number_of_inputs}", at)
             for port, value in enumerate(values):
                 if kind == "analog":
-                    world.analog_inputs[port] = _integer(value, (*at, port), 0, ANALOG_MAX)
+                    world.analog_inputs[port] = _integer(value, (*at, port), 0, analog_full_scale)
                 else:
                     world.digital_inputs[port] = _boolean(value, (*at, port))
         chip = _table(data.get("chip", {}), ("chip",), _CHIP_KEYS)
@@ -228,7 +229,7 @@ class World:
 
 
 def load_world(path: str | Path, number_of_axes: int | None = None,
-               number_of_inputs: int | None = None) -> World:
+               number_of_inputs: int | None = None, analog_full_scale: int = ANALOG_MAX) -> World:
     """Read a TOML world file; errors name the file, the line (when it can be found) and the key."""
     import tomllib  # only when there is a world file to read
 
@@ -241,7 +242,7 @@ def load_world(path: str | Path, number_of_axes: int | None = None,
     except tomllib.TOMLDecodeError as exc:  # its message ends with "(at line L, column C)"
         raise ValueError(f"world file {path}: {exc}") from exc
     try:
-        return World.from_dict(data, number_of_axes, number_of_inputs)
+        return World.from_dict(data, number_of_axes, number_of_inputs, analog_full_scale)
     except WorldError as exc:
         line = locate_key(text, exc.where)
         at = f", line {line}" if line is not None else ""

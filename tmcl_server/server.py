@@ -99,8 +99,8 @@ def build_simulation(config: ServerConfig) -> Simulation:
     for slot in config.addresses:
         directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
         # each module gets its own copy: the simulator API changes worlds per module
-        world = (load_world(config.world, kind.number_of_axes, kind.analog_inputs) if config.world
-                 else World())
+        world = (load_world(config.world, kind.number_of_axes, kind.analog_inputs,
+                            kind.analog_full_scale) if config.world else World())
         module = TMCLModule(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world,
                             kind=kind, chip_core=config.axis_core)
         modules.append(module)
