@@ -18,6 +18,7 @@ from tmcl_spec.registry import resolve
 #: Core name -> "module:class" of its firmware layer (an :class:`axes.interface.Axis`).
 CHIP_CORES: dict[str, str] = {
     "tmc4210": "axes.tmc4210_firmware:TMC4210Axis",
+    "tmc4361a": "axes.tmc4361a_firmware:TMC4361AAxis",
 }
 DEFAULT_CORE = "tmc4210"
 

@@ -50,6 +50,10 @@ DriverFactory = Callable[[Mapping[int, int], AxisBoard], ChipDriver]
 _UNKNOWN = object()  # lookahead not computed since the last change
 _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
 
+#: Parameters that shape the ramp: a change re-plans the motion in flight (driver).
+_RAMP_PARAMETERS = frozenset({AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.A1, AP.V1,
+                              AP.MAX_DECELERATION, AP.D1, AP.VSTART, AP.VSTOP, AP.RAMP_WAIT,
+                              AP.UNIT_MODE})
 #: Parameters whose value depends on the motion (read from the chip at the present time).
 _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_SPEED,
                               AP.POSITION_REACHED, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
@@ -73,6 +77,8 @@ class AxisFirmware:
         self.board = AxisBoard(world)
         self._params = {n: spec.default for n, spec in parameters.items()}
         self.driver = make_driver(self._params, self.board)
+        #: How far the look-ahead runs the chip; a driver may ask for another horizon.
+        self._lookahead_ns: int = getattr(self.driver, "lookahead_ns", LOOKAHEAD_NS)
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
         #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
@@ -119,7 +125,7 @@ class AxisFirmware:
         if self._lookahead_cache is not _UNKNOWN:
             return self._lookahead_cache  # type: ignore[return-value]
         twin = self.chip.clone()
-        horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + LOOKAHEAD_NS
+        horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + self._lookahead_ns
         stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))
@@ -610,7 +616,7 @@ class AxisFirmware:
         self._after_command()
 
     def _parameter_side_effects(self, number: int) -> None:
-        if number in (AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.VSTOP, AP.UNIT_MODE):
+        if number in _RAMP_PARAMETERS:
             if self._rfs is None:
                 self.driver.limits_changed(self._positioning, self._velocity_command)
         elif number in (AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP):

@@ -96,8 +96,9 @@ class TMCLModule:
                  chip_core: str | None = None) -> None:
         #: The module type (profile): tables, I/O, identity, chip core.
         self.type = module_type(kind) if kind is None or isinstance(kind, str) else kind
-        #: The motion-controller core of the axes: the profile's unless chosen otherwise.
-        self.chip_core = chip_core or self.type.chip_core
+        #: The motion-controller core of the axes: the profile's unless chosen otherwise
+        #: (``chip_core``, e.g. ``--axis-core``, before the world file's ``[chip] core``).
+        self.chip_core = chip_core or (world.chip_core if world else None) or self.type.chip_core
         #: The address the module was created with; names its state directory.
         self.slot = slot
         self.eeprom = eeprom if eeprom is not None else Eeprom()
