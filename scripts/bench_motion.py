@@ -13,6 +13,10 @@ each next move issued at the target-reached instant (as WAIT POS would):
 * ``hops`` (stress): the same, but axis 5 makes 20 000-step hops at 200 000 pps and
   1 000 000 pps², so ramps dominate.  Braking follows the chip's distance law one ramp tick
   at a time (it has no closed form), so time goes with the number of ramp ticks.
+* ``sramp`` (TMC4361A only): the ``program`` workload with S-shaped ramps, chosen through
+  command 146 (RAMPMODE profile 2, BOW1..4 = 400 000 pps³) on every axis, AP 20 = 0; the
+  moving axes at 200 000 pps and 100 000 pps².  S-ramps go through the firmware's look-ahead
+  (a clone run with a work budget), so this shows what they cost there.
 
 Each workload runs on every chip core (``--cores``, default tmc4210 and tmc4361a).
 
@@ -67,6 +71,15 @@ def run(hours: float, workload: str = "program", core: str = "tmc4210") -> tuple
         targets[5] = 20_000
         for parameter, value in ((4, 200_000), (5, 1_000_000), (17, 1_000_000)):
             command(module, Opcode.SAP, parameter, 5, value)
+    elif workload == "sramp":
+        for axis in range(6):
+            command(module, Opcode.WRITE_MC, 0x20, axis, 0b10)  # RAMPMODE: S-shaped profile
+            for bow in range(0x2D, 0x31):  # BOW1..BOW4
+                command(module, Opcode.WRITE_MC, bow, axis, 400_000)
+            command(module, Opcode.SAP, 20, axis, 0)
+        for axis in targets:
+            for parameter, value in ((4, 200_000), (5, 100_000), (17, 100_000)):
+                command(module, Opcode.SAP, parameter, axis, value)
     else:
         for parameter, value in ((4, 102_400), (5, 102_400), (17, 102_400)):
             command(module, Opcode.SAP, parameter, 5, value)
@@ -105,20 +118,26 @@ def main() -> int:
     args = parser.parse_args()
     simulated = args.hours * 3600
     cores = [c for c in args.cores.split(",") if c]
-    for workload in ("program", "hops"):
+    reference = None  # the first core's time on the program workload
+    for workload in ("program", "hops", "sramp"):
         baseline = None
-        for core in cores:
-            # interleaved runs: both cores see the same machine load
+        for core in cores if workload != "sramp" else [c for c in cores if c == "tmc4361a"]:
+            # the cores of one workload run one after the other: they see similar machine load
             results = [run(args.hours, workload, core) for _ in range(args.repeat)]
             walls = sorted(r[0] for r in results)
             wall = statistics.median(walls)
-            baseline = wall if baseline is None else baseline
             _, moves, events = results[0]
             print(f"{workload} on {core}: six axes, {simulated:.0f} simulated s, {moves} moves, "
                   f"{events} events")
+            if baseline is None:
+                baseline = (core, wall)
+            if reference is None:
+                reference = (core, wall)
+            ratio_to = reference if baseline[0] == core else baseline
             print(f"  wall time median {wall:.3f} s (min {walls[0]:.3f}, max {walls[-1]:.3f}, "
                   f"{args.repeat} runs): {simulated / wall:,.0f} simulated s per wall s; "
-                  f"{wall / baseline:.2f} x {cores[0]}")
+                  f"{wall / ratio_to[1]:.2f} x {ratio_to[0]}"
+                  + ("" if ratio_to is baseline else " on program"))
     print(f"goal: one simulated hour in < 2 s wall ({3600 / 2:,.0f} simulated s per wall s)")
     return 0
 

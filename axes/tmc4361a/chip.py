@@ -720,7 +720,8 @@ class TMC4361A:
                     self._home_latched = False  # armed again by a 0 -> 1 write
         self.regs[address] = data
         if address in RAMP_REGISTERS:
-            ramp.set_params(self._params())
+            if data != old:  # the same value leaves the parameters (and their caches) as they are
+                ramp.set_params(self._params())
             if address == Reg.RAMPMODE and data != old:
                 ramp.mode_changed()
             elif (address == Reg.VMAX and data != old) or address == Reg.BOW3:

@@ -758,6 +758,27 @@ def test_clone_is_independent_and_at_rest_knows_when_nothing_will_happen() -> No
     assert chip.motor_position == 5 and twin.motor_position == 1000
 
 
+def test_a_budget_bounds_the_work_of_one_run_and_the_rest_continues_exactly() -> None:
+    """run(until, budget): out of budget it returns None short of ``until``; running on from
+    there gives the very motion one unbounded run gives.  adopt() takes the twin itself."""
+    chip = chip_with(rampmode=6, vmax=velocity_register(200_000), amax=acceleration_register(
+        100_000), dmax=acceleration_register(80_000), bow1=400_000, bow2=300_000,
+        bow3=250_000, bow4=350_000, xtarget=712_000)
+    twin = chip.clone()
+    end = chip.t + 20 * MHZ16
+    whole = chip.run(end)
+    short, calls = None, 0
+    while True:
+        calls += 1
+        short = twin.run(end, budget=2)
+        if short is not None or twin.t >= end:
+            break
+        assert twin.t < end
+    assert calls > 2  # the budget did cut the run into pieces
+    assert (short, twin.t, twin.ramp.p, twin.ramp.w) == (whole, chip.t, chip.ramp.p, chip.ramp.w)
+    assert chip.adopt(twin) is twin
+
+
 def test_positions_are_32_bit_and_targets_go_the_short_way() -> None:
     chip = chip_with(rampmode=4, vmax=velocity_register(100_000))
     chip.write(Reg.XACTUAL, 0x7FFF_FF00)
