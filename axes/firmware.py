@@ -50,6 +50,9 @@ DriverFactory = Callable[[Mapping[int, int], AxisBoard], ChipDriver]
 _UNKNOWN = object()  # lookahead not computed since the last change
 _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
 
+#: Parameters the firmware layer reads after every command (a module type's table must have
+#: them: another firmware's table, e.g. the evaluation board's, is refused at once).
+_REQUIRED_PARAMETERS = frozenset({AP.POWER_DOWN_DELAY, AP.STOP_ON_STALL, AP.MAX_DEVIATION})
 #: Parameters that shape the ramp: a change re-plans the motion in flight (driver).
 _RAMP_PARAMETERS = frozenset({AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.A1, AP.V1,
                               AP.MAX_DECELERATION, AP.D1, AP.VSTART, AP.VSTOP, AP.RAMP_WAIT,
@@ -74,6 +77,10 @@ class AxisFirmware:
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec], world: AxisWorld | None,
                  make_driver: DriverFactory) -> None:
         self.index = index
+        missing = sorted(_REQUIRED_PARAMETERS - parameters.keys())
+        if missing:
+            raise ValueError(f"a TMCL firmware axis needs a TMCL module's axis parameters "
+                             f"(missing {missing}); is the chip core right for the module type?")
         self.board = AxisBoard(world)
         self._params = {n: spec.default for n, spec in parameters.items()}
         self.driver = make_driver(self._params, self.board)

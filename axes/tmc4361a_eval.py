@@ -79,6 +79,11 @@ class TMC4361AEvalAxis:
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec] | None = None,
                  world: AxisWorld | None = None, clock_hz: int = DEFAULT_CLOCK_HZ) -> None:
         self.index = index
+        unknown = sorted(set(parameters or ()) - _SERVED)
+        if unknown:
+            raise ValueError(f"the tmc4361a-eval core is the evaluation firmware's axis: it does "
+                             f"not serve axis parameters {unknown} (module type "
+                             f"landungsbruecke-tmc4361a)")
         self.board = EvalBoardInputs(world)
         self.chip = TMC4361A(clock_hz, self.board)
         self._now_ns = 0
@@ -278,3 +283,5 @@ _PLAIN = {0: Reg.XTARGET, 1: Reg.XACTUAL, 22: Reg.BOW1, 23: Reg.BOW2, 24: Reg.BO
 _ACCELERATIONS = {5: Reg.AMAX, 16: Reg.ASTART, 17: Reg.DMAX, 19: Reg.DFINAL}
 #: VSTART, VBREAK, VSTOP: the firmware writes value / 256 and reads register * 256.
 _SCALED_VELOCITIES = {15: Reg.VSTART, 18: Reg.VBREAK, 20: Reg.VSTOP}
+#: Every axis parameter the evaluation firmware serves (tmcl_spec/landungsbruecke.py's table).
+_SERVED = frozenset({2, 3, 4, 8, 14, 21, 214, *_PLAIN, *_ACCELERATIONS, *_SCALED_VELOCITIES})
