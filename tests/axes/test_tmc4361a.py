@@ -213,12 +213,12 @@ def _pair(regs: Registers, quantum: int) -> tuple[TMC4361A, ReferenceRamp]:
     return chip, ReferenceRamp(dataclasses.replace(regs), quantum)
 
 
-def _run_both(chip: TMC4361A, ref: ReferenceRamp, until: int, seen: list[tuple[int, Stop]]
-              ) -> None:
+def _run_both(chip: TMC4361A, ref: ReferenceRamp, until: int, seen: list[tuple[int, Stop]],
+              budget: int | None = None) -> None:
     while ref.t < until:
         ref.tick()
     while chip.t < until:
-        stop = chip.run(until)
+        stop = chip.run(until, budget)  # out of budget: None short of until, go on from there
         if stop is not None:
             seen.append((chip.t, stop))
     ramp = chip.ramp
@@ -226,16 +226,16 @@ def _run_both(chip: TMC4361A, ref: ReferenceRamp, until: int, seen: list[tuple[i
 
 
 def _compare(regs: Registers, quantum: int, changes: list[tuple[int, str, int]],
-             tail: int) -> None:
+             tail: int, budget: int | None = None) -> None:
     chip, ref = _pair(regs, quantum)
     seen: list[tuple[int, Stop]] = []
     t = 0
     for gap, name, value in changes:
         t += gap
-        _run_both(chip, ref, t, seen)
+        _run_both(chip, ref, t, seen, budget)
         chip.write(Reg[name.upper()], value & MASK32)
         ref.write(name, value & MASK32)
-    _run_both(chip, ref, t + tail, seen)
+    _run_both(chip, ref, t + tail, seen, budget)
     assert [t for t, stop in seen if stop is Stop.ARRIVED] == ref.arrivals
     assert [t for t, stop in seen if stop is Stop.STOPPED] == ref.stops
 
@@ -315,6 +315,16 @@ def test_s_ramps_with_the_datasheet_quantum_match_the_reference(target: int, bow
         400), dmax=acceleration_register(dmax), bow1=bows[0], bow2=bows[1], bow3=bows[2],
         bow4=bows[3], xtarget=target)
     _compare(regs, 64, [(1500, "xtarget", target // 2)], tail=9000)
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(regs=ramp_registers((0, 1, 2)), quantum=st.sampled_from([1, 4, 64]),
+       changes=st.lists(change, max_size=3), budget=st.integers(1, 3))
+def test_runs_cut_short_by_a_work_budget_match_the_reference(regs: Registers, quantum: int,
+                                                            changes: list, budget: int) -> None:
+    """run(until, budget) as the firmware's look-ahead calls it: the same motion, stops and
+    clocks as the reference, however often the budget cuts a run short."""
+    _compare(regs, quantum, changes, tail=4000, budget=budget)
 
 
 @pytest.mark.soak
