@@ -45,7 +45,7 @@ from tmcl_spec.commands import (
 )
 from tmcl_spec.modules import ModuleType, module_type
 from tmcl_spec.numbers import NS_PER_MS, to_int32
-from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, ParamSpec
+from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, EvalGP, ParamSpec
 
 log = logging.getLogger(__name__)
 
@@ -870,7 +870,7 @@ class TMCLModule:
     def _cmd_drivers_enable(self, req: Request, sink: ReplySink | None,
                             interface: Interface) -> None:
         """UF0: all drivers on or off (GP 2 reads it back)."""
-        self.globals[0][2] = int(req.value != 0)
+        self.globals[0][EvalGP.DRIVERS_ENABLE] = int(req.value != 0)
 
     def _eeprom_channel(self, req: Request) -> bytearray | None:
         if req.type not in (1, 2):

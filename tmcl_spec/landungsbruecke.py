@@ -18,7 +18,7 @@ from enum import IntEnum
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.modules import ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
-from tmcl_spec.parameters import GP, ParamSpec
+from tmcl_spec.parameters import GP, EvalGP, ParamSpec
 from tmcl_spec.tmcm6212 import BANK0_PARAMETERS
 
 
@@ -162,11 +162,11 @@ _HIDDEN[GP.BAUD_RATE] = dataclasses.replace(_HIDDEN[GP.BAUD_RATE], default=7)  #
 BANK0_PARAMETERS_EVAL: dict[int, ParamSpec] = {
     **_HIDDEN,
     **{s.number: s for s in (
-        _g(1, "Vital signs error mask", "RW"),
-        _g(2, "Drivers enable", "RW", 0, 1, 1),
-        _g(3, "Debug mode", "RW", 0, 1, 0),
-        _g(4, "Board assignment", "R", default=TMC4361A_EVAL.supported),
-        _g(5, "Hardware id", "R", default=TMC4361A_EVAL.hardware_id),
+        _g(EvalGP.ERROR_MASK, "Vital signs error mask", "RW"),
+        _g(EvalGP.DRIVERS_ENABLE, "Drivers enable", "RW", 0, 1, 1),
+        _g(EvalGP.DEBUG_MODE, "Debug mode", "RW", 0, 1, 0),
+        _g(EvalGP.BOARD_ASSIGNMENT, "Board assignment", "R", default=TMC4361A_EVAL.supported),
+        _g(EvalGP.HARDWARE_ID, "Hardware id", "R", default=TMC4361A_EVAL.hardware_id),
     )},
 }
 
