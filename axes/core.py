@@ -109,6 +109,8 @@ class ChipDriver(Protocol):
     chip: ChipModel
     #: AP 1 as of the last :meth:`read_position`.
     position: int
+    # Optional: ``lookahead_ns``, how far the firmware runs a look-ahead copy (default
+    # axes.firmware.LOOKAHEAD_NS, which keeps 24-bit position registers unambiguous).
 
     def power_up(self) -> None:
         """Initialise the chip as the firmware does after reset."""

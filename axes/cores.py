@@ -24,6 +24,8 @@ from tmcl_spec.registry import resolve
 CHIP_CORES: dict[str, str] = {
     "tmc4210": "axes.tmc4210_firmware:TMC4210Axis",
     "tmc429": "axes.tmc429_firmware:TMC429Axis",
+    "tmc4361a": "axes.tmc4361a_firmware:TMC4361AAxis",
+    "tmc4361a-eval": "axes.tmc4361a_eval:TMC4361AEvalAxis",
 }
 DEFAULT_CORE = "tmc4210"
 

@@ -67,15 +67,23 @@ PRESCALER_FUNCTION_BITS = 0x1F
 _UNKNOWN = object()  # lookahead not computed since the last change
 _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
 
+#: Parameters every TMCL module's table has (the others may be missing and count as off,
+#: FIRMWARE_DEFAULTS): another firmware's table, e.g. the evaluation board's, is refused.
+_REQUIRED_PARAMETERS = frozenset({AP.POWER_DOWN_DELAY, AP.MAX_CURRENT, AP.STANDBY_CURRENT,
+                                  AP.RFS_MODE, AP.MICROSTEPS})
+#: Parameters that shape the ramp or its limits: a change re-plans the motion in flight
+#: (the driver), among them the TMC429 modules' chip settings (minimum speed, divisors).
+_RAMP_PARAMETERS = frozenset({AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.A1, AP.V1,
+                              AP.MAX_DECELERATION, AP.D1, AP.VSTART, AP.VSTOP, AP.RAMP_WAIT,
+                              AP.UNIT_MODE, AP.MINIMUM_SPEED, AP.PULSE_DIVISOR,
+                              AP.RAMP_DIVISOR})
 #: Parameters whose value depends on the motion (read from the chip at the present time).
 _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_SPEED,
                               AP.POSITION_REACHED, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
                               AP.HOME_SWITCH, AP.LOAD, AP.ERROR_FLAGS, AP.ENCODER_POSITION,
                               AP.SMARTENERGY_ACTUAL_CURRENT, AP.MEASURED_SPEED,
                               AP.DRIVER_ERROR_FLAGS})
-#: Parameters whose writes re-plan the speed limits, or the stop switches.
-_LIMIT_PARAMETERS = frozenset({AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.VSTOP, AP.UNIT_MODE,
-                               AP.MINIMUM_SPEED, AP.PULSE_DIVISOR, AP.RAMP_DIVISOR})
+#: Parameters whose writes re-plan the stop switches.
 _STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, AP.SOFT_STOP_FLAG,
                               AP.REFERENCE_SWITCH_TOLERANCE})
 
@@ -93,6 +101,10 @@ class AxisFirmware:
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec], world: AxisWorld | None,
                  make_driver: DriverFactory) -> None:
         self.index = index
+        missing = sorted(_REQUIRED_PARAMETERS - parameters.keys())
+        if missing:
+            raise ValueError(f"a TMCL firmware axis needs a TMCL module's axis parameters "
+                             f"(missing {missing}); is the chip core right for the module type?")
         self.board = AxisBoard(world)
         self._params = {**FIRMWARE_DEFAULTS, **{n: spec.default for n, spec in parameters.items()}}
         self.driver = make_driver(self._params, self.board)
@@ -105,6 +117,8 @@ class AxisFirmware:
             getattr(self.driver, "live_parameters", frozenset()) & parameters.keys())
         #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
         self._encoder_prescaler = AP.FULLSTEPS not in parameters
+        #: How far the look-ahead runs the chip; a driver may ask for another horizon.
+        self._lookahead_ns: int = getattr(self.driver, "lookahead_ns", LOOKAHEAD_NS)
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
         #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
@@ -152,7 +166,7 @@ class AxisFirmware:
         if self._lookahead_cache is not _UNKNOWN:
             return self._lookahead_cache  # type: ignore[return-value]
         twin = self.chip.clone()
-        horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + LOOKAHEAD_NS
+        horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + self._lookahead_ns
         stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))
@@ -697,7 +711,7 @@ class AxisFirmware:
     def _parameter_side_effects(self, number: int) -> None:
         if self.motor_driver is not None and number in self.motor_driver.parameters:
             self.motor_driver.configure(number)
-        if number in _LIMIT_PARAMETERS:
+        if number in _RAMP_PARAMETERS:
             if self._rfs is None:
                 self.driver.limits_changed(self._positioning, self._velocity_command)
         elif number in _STOP_PARAMETERS:

@@ -12,6 +12,7 @@ it and :meth:`World.from_dict` builds the same from a dict (used by the run-time
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -179,17 +180,21 @@ class World:
     analog_inputs: dict[int, int] = field(default_factory=dict)
     digital_inputs: dict[int, bool] = field(default_factory=dict)
     clock_hz: int | None = None
+    #: The chip core the axes run on (``[chip] core``); None: the module type's.
+    chip_core: str | None = None
     #: Supply voltage in volts (``GIO 8, 1``); None: the module type's nominal voltage.
     supply_voltage: float | None = None
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], number_of_axes: int | None = None,
-                  number_of_inputs: int | None = None, analog_full_scale: int = ANALOG_MAX) -> World:
+                  number_of_inputs: int | None = None, analog_full_scale: int = ANALOG_MAX,
+                  chip_cores: Iterable[str] | None = None) -> World:
         """The world a dict (a parsed world file) describes; anything unknown is an error.
 
         ``number_of_axes`` / ``number_of_inputs`` bound the axis indices and input lists if
         given, ``analog_full_scale`` the analogue values (the module's ADC: 4095 on the TMC429
-        modules).  Errors are :class:`WorldError` naming the key path.
+        modules), ``chip_cores`` the names ``[chip] core`` may take.  Errors are
+        :class:`WorldError` naming the key path.
         """
         _table(data, (), _TOP_KEYS)
         world = cls()
@@ -221,6 +226,13 @@ class World:
         chip = _table(data.get("chip", {}), ("chip",), _CHIP_KEYS)
         if "clock_hz" in chip:
             world.clock_hz = _integer(chip["clock_hz"], ("chip", "clock_hz"), 1)
+        if "core" in chip:
+            core = _text(chip["core"], ("chip", "core"))
+            known = None if chip_cores is None else sorted(chip_cores)
+            if known is not None and core.lower() not in known:
+                raise WorldError(f"chip.core {core!r} is not a chip core (known: "
+                                 f"{', '.join(known)})", ("chip", "core"))
+            world.chip_core = core.lower()
         supply = _table(data.get("supply", {}), ("supply",), _SUPPLY_KEYS)
         if "voltage" in supply:
             world.supply_voltage = check_supply_voltage(
@@ -229,7 +241,8 @@ class World:
 
 
 def load_world(path: str | Path, number_of_axes: int | None = None,
-               number_of_inputs: int | None = None, analog_full_scale: int = ANALOG_MAX) -> World:
+               number_of_inputs: int | None = None, analog_full_scale: int = ANALOG_MAX,
+               chip_cores: Iterable[str] | None = None) -> World:
     """Read a TOML world file; errors name the file, the line (when it can be found) and the key."""
     import tomllib  # only when there is a world file to read
 
@@ -242,7 +255,8 @@ def load_world(path: str | Path, number_of_axes: int | None = None,
     except tomllib.TOMLDecodeError as exc:  # its message ends with "(at line L, column C)"
         raise ValueError(f"world file {path}: {exc}") from exc
     try:
-        return World.from_dict(data, number_of_axes, number_of_inputs, analog_full_scale)
+        return World.from_dict(data, number_of_axes, number_of_inputs, analog_full_scale,
+                               chip_cores)
     except WorldError as exc:
         line = locate_key(text, exc.where)
         at = f", line {line}" if line is not None else ""
@@ -259,7 +273,7 @@ _AXIS_KEYS = frozenset({"index", *SWITCH_NAMES, "load", "load_zone", "encoder_sl
 _SWITCH_KEYS = frozenset({"position", "width", "side", "normally_closed"})
 _ZONE_KEYS = frozenset({"from", "to", "load"})
 _INPUT_KEYS = frozenset({"analog", "digital"})
-_CHIP_KEYS = frozenset({"clock_hz"})
+_CHIP_KEYS = frozenset({"clock_hz", "core"})
 _SUPPLY_KEYS = frozenset({"voltage"})
 
 

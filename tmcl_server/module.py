@@ -45,7 +45,7 @@ from tmcl_spec.commands import (
 )
 from tmcl_spec.modules import ModuleType, module_type
 from tmcl_spec.numbers import NS_PER_MS, to_int32
-from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, ParamSpec
+from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, EvalGP, ParamSpec
 
 log = logging.getLogger(__name__)
 
@@ -96,8 +96,9 @@ class TMCLModule:
                  chip_core: str | None = None) -> None:
         #: The module type (profile): tables, I/O, identity, chip core.
         self.type = module_type(kind) if kind is None or isinstance(kind, str) else kind
-        #: The motion-controller core of the axes: the profile's unless chosen otherwise.
-        self.chip_core = chip_core or self.type.chip_core
+        #: The motion-controller core of the axes: the profile's unless chosen otherwise
+        #: (``chip_core``, e.g. ``--axis-core``, before the world file's ``[chip] core``).
+        self.chip_core = chip_core or (world.chip_core if world else None) or self.type.chip_core
         #: The address the module was created with; names its state directory.
         self.slot = slot
         self.eeprom = eeprom if eeprom is not None else Eeprom()
@@ -119,6 +120,8 @@ class TMCLModule:
             for opcode, handler in owner.COMMANDS.items()
             if opcode in self.type.commands
         }
+        for opcode, name in self.type.handlers.items():  # the module type's own meanings
+            self.handlers[opcode] = self.VARIANT_COMMANDS[name].__get__(self)
         self.power_up()
 
     # == power-up and factory reset ============================================================
@@ -163,6 +166,10 @@ class TMCLModule:
         self.analog_inputs = [0] * self.type.analog_inputs
         if bank0.get(GP.END_SWITCH_POLARITY):
             self._apply_switch_polarity()
+        boards = self.type.eval_boards
+        #: Evaluation system: the boards' ID EEPROMs by channel (kept in RAM).
+        self.id_eeproms: dict[int, bytearray] = (
+            {} if boards is None else {ch: bytearray(image) for ch, image in boards.id_eeproms.items()})
         self.apply_world(self.world)
         self._tick_origin_ms = self.now_ns // NS_PER_MS
         self._random = random.Random(0)
@@ -227,6 +234,8 @@ class TMCLModule:
         return address == self.address or (secondary != 0 and address == secondary)
 
     def accepts_can(self, can_id: int) -> bool:
+        if not self.type.has_can:
+            return False
         secondary = self.globals[0][GP.CAN_SECONDARY_ID]
         return can_id == self.can_id or (secondary != 0 and can_id == secondary)
 
@@ -552,7 +561,7 @@ class TMCLModule:
     def _axis_spec(self, number: int) -> ParamSpec:
         spec = self.type.axis_parameters.get(number)
         if spec is None:
-            raise CommandError(Status.WRONG_TYPE)
+            raise CommandError(Status(self.type.unknown_parameter_status))
         return spec
 
     def _global_spec(self, number: int, bank: int) -> ParamSpec:
@@ -619,7 +628,7 @@ class TMCLModule:
         spec = self._axis_spec(req.type)
         axis = self._axis(req.motor)
         if not spec.writable:
-            raise CommandError(Status.WRONG_TYPE)
+            raise CommandError(Status(self.type.unknown_parameter_status))
         if not spec.accepts(req.value):
             raise CommandError(Status.INVALID_VALUE)
         if req.type == 0:
@@ -706,7 +715,8 @@ class TMCLModule:
         self.write_global(req.type, req.motor, spec.normalise(req.value))
 
     def _cmd_ggp(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
-        self._global_spec(req.type, req.motor)
+        if not self._global_spec(req.type, req.motor).readable:
+            raise CommandError(Status.WRONG_TYPE)  # a setting the module keeps to itself
         return self.read_global(req.type, req.motor)
 
     def _storable_global(self, req: Request) -> ParamSpec:
@@ -901,6 +911,89 @@ class TMCLModule:
     def _cmd_user_function(self, req: Request, sink: ReplySink | None,
                            interface: Interface) -> None:
         """UF0..UF7 (§3.6.34): this firmware has no customer extension; "100 - OK"."""
+
+    # == the evaluation system (tmcl_spec/landungsbruecke.py, docs/tmc4361a.md) =================
+
+    def _cmd_mvp_eval(self, req: Request, sink: ReplySink | None, interface: Interface) -> int | None:
+        """MVP on the evaluation firmware: ABS, or REL from XACTUAL (the reply carries the
+        absolute target); it has no coordinates (type 2: status 2)."""
+        axis = self._axis(req.motor)
+        if req.type == MoveType.ABS:
+            axis.move_to(req.value)
+            return None
+        if req.type == MoveType.REL:
+            target = to_int32(axis.get_parameter(AP.ACTUAL_POSITION) + req.value)
+            axis.move_to(target)
+            return target
+        if req.type == MoveType.COORD:
+            raise CommandError(Status.INVALID_COMMAND)
+        raise CommandError(Status.WRONG_TYPE)
+
+    def _cmd_drivers_enable(self, req: Request, sink: ReplySink | None,
+                            interface: Interface) -> None:
+        """UF0: all drivers on or off (GP 2 reads it back)."""
+        self.globals[0][EvalGP.DRIVERS_ENABLE] = int(req.value != 0)
+
+    def _eeprom_channel(self, req: Request) -> bytearray | None:
+        if req.type not in (1, 2):
+            raise CommandError(Status.WRONG_TYPE)
+        return self.id_eeproms.get(req.type)
+
+    def _cmd_read_id_eeprom(self, req: Request, sink: ReplySink | None,
+                            interface: Interface) -> int:
+        """UF1: four bytes of a board's ID EEPROM from address ``value``, little endian (a
+        channel without an EEPROM reads 0)."""
+        image = self._eeprom_channel(req)
+        if image is None:
+            return 0
+        data = bytes(image[(req.value + i) % len(image)] for i in range(4))
+        return to_int32(int.from_bytes(data, "little"))
+
+    def _cmd_write_id_eeprom(self, req: Request, sink: ReplySink | None,
+                             interface: Interface) -> None:
+        """UF2: the motor field is the byte written to address ``value``."""
+        image = self._eeprom_channel(req)
+        if image is None:
+            raise CommandError(Status.EEPROM_LOCKED)  # no EEPROM answers on that channel
+        image[req.value % len(image)] = req.motor
+
+    def _cmd_board_assignment(self, req: Request, sink: ReplySink | None,
+                              interface: Interface) -> int | None:
+        """Command 143: type 0 detects the boards again (the motion controller is reset and
+        configured anew) and answers what was found; 4 asks which ids are supported; 5
+        re-checks board types (nothing to do for these boards)."""
+        boards = self.type.eval_boards
+        if req.type == 0:
+            for index in range(len(self.axes)):
+                reset = getattr(self.axis(index), "reset_board", None)
+                if reset is not None:
+                    reset()
+            return boards.detected
+        if req.type == 4:
+            return boards.supported
+        if req.type == 5:
+            return None
+        if req.type in (1, 2, 3):  # assigning ids by hand: the boards stay what they are
+            return boards.supported
+        raise CommandError(Status.WRONG_TYPE)
+
+    def _cmd_write_drv(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        """147 on the evaluation firmware: a register of the driver board (none here)."""
+
+    def _cmd_read_drv(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        """149: no driver board answers; the reply carries the request's value back."""
+
+    #: Handlers a module type assigns to opcodes itself (ModuleType.handlers), by name: the
+    #: evaluation firmware's commands, whose numbers mean other things on the TMCL modules.
+    VARIANT_COMMANDS: ClassVar[dict[str, Callable[..., Any]]] = {
+        "mvp_eval": _cmd_mvp_eval,
+        "drivers_enable": _cmd_drivers_enable,
+        "read_id_eeprom": _cmd_read_id_eeprom,
+        "write_id_eeprom": _cmd_write_id_eeprom,
+        "board_assignment": _cmd_board_assignment,
+        "write_drv": _cmd_write_drv,
+        "read_drv": _cmd_read_drv,
+    }
 
     # == the dispatch table ====================================================================
 

@@ -107,7 +107,7 @@ class ProgramSupport:
         self._dirty = False
         for key, fields in self.module.eeprom.items(EEPROM_SECTION):
             self.interpreter.store(int(key), Instruction(*fields))
-        for number, value in self.module.globals[3].items():
+        for number, value in self.module.globals.get(3, {}).items():
             self.global_written(3, number, value)
         if self.module.globals[0][GP.AUTO_START] == 1 and self.interpreter.program():
             self.interpreter.start(now, 0)

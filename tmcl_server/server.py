@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from axes.cores import CHIP_CORES
 from axes.world import World, load_world
 from tmcl_server.clock import Clock, LockstepClock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
@@ -100,7 +101,7 @@ def build_simulation(config: ServerConfig) -> Simulation:
         directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
         # each module gets its own copy: the simulator API changes worlds per module
         world = (load_world(config.world, kind.number_of_axes, kind.analog_inputs,
-                            kind.analog_full_scale) if config.world else World())
+                            kind.analog_full_scale, CHIP_CORES) if config.world else World())
         module = TMCLModule(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world,
                             kind=kind, chip_core=config.axis_core)
         modules.append(module)

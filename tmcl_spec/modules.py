@@ -10,11 +10,16 @@ when asked for.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from tmcl_spec.parameters import ParamSpec
 from tmcl_spec.registry import resolve
+
+if TYPE_CHECKING:
+    from tmcl_spec.landungsbruecke import EvalBoards
 
 
 @dataclass(frozen=True)
@@ -53,6 +58,17 @@ class ModuleType:
     supply_voltage_per_volt: int = 10
     #: The supply voltage (V) when the world file does not say.
     nominal_supply_voltage: float = 24.0
+    #: Opcodes this module type serves with a handler of its own instead of the standard
+    #: one (opcode -> a name in ``TMCLModule.VARIANT_COMMANDS``): commands whose number
+    #: means something else on other modules (the evaluation firmware's 147, UF0..UF2).
+    handlers: Mapping[int, str] = dataclasses.field(default_factory=dict)
+    #: Reply status for an axis parameter the firmware does not serve (unknown, or written
+    #: while read-only): 3 on the TMCL modules, 2 on the evaluation firmware.
+    unknown_parameter_status: int = 3
+    #: Whether the module has a CAN interface (it ignores the CAN bus if not).
+    has_can: bool = True
+    #: Evaluation system only: the boards on the base board (tmcl_spec/landungsbruecke.py).
+    eval_boards: EvalBoards | None = None
 
     @property
     def version_string(self) -> bytes:
@@ -73,6 +89,7 @@ MODULE_TYPES: dict[str, str] = {
     "tmcm-1110": "tmcl_spec.tmc429_modules:TMCM_1110",
     "tmcm-3110": "tmcl_spec.tmc429_modules:TMCM_3110",
     "tmcm-6110": "tmcl_spec.tmc429_modules:TMCM_6110",
+    "landungsbruecke-tmc4361a": "tmcl_spec.landungsbruecke:LANDUNGSBRUECKE_TMC4361A",
 }
 DEFAULT_MODULE_TYPE = "tmcm-6212"
 

@@ -186,6 +186,17 @@ class GP:
     SUPPRESS_REPLY = 255
 
 
+class EvalGP:
+    """Global parameters of Trinamic's evaluation firmware (the Landungsbruecke: a different
+    numbering from the modules'; pytrinamic's ``Landungsbruecke.GP``)."""
+
+    ERROR_MASK = 1
+    DRIVERS_ENABLE = 2
+    DEBUG_MODE = 3
+    BOARD_ASSIGNMENT = 4
+    HARDWARE_ID = 5
+
+
 #: The banks of global parameters (§4.2): 0 module settings, 2 user variables, 3 interrupts.
 BANK_MODULE = 0
 BANK_USER_VARIABLES = 2

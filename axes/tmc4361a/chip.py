@@ -16,6 +16,7 @@ Every modelling choice is written down in ``docs/tmc4361a.md``.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Protocol, runtime_checkable
 
 from axes.core import Board, Stop
@@ -34,6 +35,7 @@ from axes.tmc4361a.registers import (
     MASK32,
     POWER_ON,
     RAMP_REGISTERS,
+    READ_COMPUTED,
     READ_ONLY,
     RESET_KEY,
     VERSION,
@@ -60,8 +62,17 @@ HOME_LOW_ACTIVE = {13: "left", 11: "right", 9: "centre"}
 ENC_SEL_DECIMAL = 1 << 0
 INVERT_ENC_DIR = 1 << 29
 MANUAL_ENC_CONST = 1 << 31
+#: The registers read most (plain ints for the hot path of SPI reads).
+_STATUS = int(Reg.STATUS)
+_XACTUAL = int(Reg.XACTUAL)
 #: CURRENTA (8..0) = 0, CURRENTB (24..16) = 247: the sine table's start values.
 CURRENT_AB_POWER_ON = 0x00F7_0000
+
+
+@lru_cache(maxsize=16)
+def _status_bits(selection: int) -> tuple[int, ...]:
+    """The event bits an SPI_STATUS_SELECTION puts into the status byte (at most 8)."""
+    return tuple(bit for bit in range(32) if selection >> bit & 1)[:8]
 
 
 @runtime_checkable
@@ -171,7 +182,11 @@ class TMC4361A:
         self._update_flags()
         self._check_stops()
 
-    def run(self, until: int) -> Stop | None:
+    def adopt(self, twin: TMC4361A) -> TMC4361A:
+        """Continue with the state a :meth:`clone` reached (one chip, one motor: the clone)."""
+        return twin
+
+    def run(self, until: int, budget: int | None = None) -> Stop | None:
         """Advance to clock tick ``until``; return early (``t < until``) at a notable instant.
 
         Returns ARRIVED when a positioning move ends at XTARGET, STOPPED when the velocity
@@ -179,10 +194,18 @@ class TMC4361A:
         position the board asked about (the pins are updated first), and EVENT when an event
         selected in INTR_CONF, or one of :data:`WAKE_ALWAYS`, newly latched.  At one instant
         the first of ARRIVED, STOPPED, MARK, EVENT in that order is returned.
+
+        ``budget`` bounds the work of this call: every clock the law must do by itself (a
+        segment boundary, one horizon search and one literal tick) costs one unit; when the
+        budget is spent the call returns None with ``t < until``.  None: no bound.
         """
         self._wake = 0
         ramp = self._ramp
         while self.t < until:
+            if budget is not None:
+                if budget <= 0:
+                    return None  # out of budget, short of until
+                budget -= 1
             ctx = self._context()
             limit = until - self.t
             action = ramp.decide(ctx)
@@ -307,7 +330,7 @@ class TMC4361A:
     def _check_stops(self) -> None:
         """Stop a motion that runs into an active (virtual) stop switch (digest §9.1, §9.2)."""
         ramp = self._ramp
-        if ramp.w == 0 or ramp.stopping:
+        if ramp.w == 0:
             return
         flags = self._flags
         conf = self.regs.get(Reg.REFERENCE_CONF, 0)
@@ -315,18 +338,19 @@ class TMC4361A:
             switch, virtual = Status.STOPL_ACTIVE_F, Status.VSTOPL_ACTIVE_F
         else:
             switch, virtual = Status.STOPR_ACTIVE_F, Status.VSTOPR_ACTIVE_F
-        if flags & switch:
-            soft = bool(conf & RefConf.SOFT_STOP_EN)
-        elif flags & virtual:
-            soft = (conf & RefConf.VIRT_STOP_MODE) >> 8 == 2
-        else:
+        active_switch = flags & switch
+        active_virtual = flags & virtual
+        if not (active_switch or active_virtual):
             return
-        if soft:
-            ramp.stopping = True
-            ramp.braking = False
-        else:
+        # a hard stop from either source acts at once, even while a soft stop runs
+        hard = ((active_switch and not conf & RefConf.SOFT_STOP_EN)
+                or (active_virtual and (conf & RefConf.VIRT_STOP_MODE) >> 8 != 2))
+        if hard:
             ramp.hard_stop()
             self._update_flags()
+        elif not ramp.stopping:
+            ramp.stopping = True
+            ramp.braking = False
 
     def _home_kind(self) -> int:
         return (self.regs.get(Reg.REFERENCE_CONF, 0) & RefConf.HOME_EVENT) >> 16
@@ -465,16 +489,12 @@ class TMC4361A:
 
     def spi_status(self) -> int:
         """The 8 status bits of every reply: the first 8 events selected (ascending bit order)."""
-        selection = self.regs.get(Reg.SPI_STATUS_SELECTION, 0)
+        events = self.events
+        if not events:
+            return 0
         status = 0
-        out_bit = 0
-        bit = 0
-        while selection and out_bit < 8:
-            if selection & 1:
-                status |= (self.events >> bit & 1) << out_bit
-                out_bit += 1
-            selection >>= 1
-            bit += 1
+        for out_bit, bit in enumerate(_status_bits(self.regs.get(Reg.SPI_STATUS_SELECTION, 0))):
+            status |= (events >> bit & 1) << out_bit
         return status
 
     # == encoder ===============================================================================
@@ -590,6 +610,12 @@ class TMC4361A:
 
     def _read(self, address: int) -> int:
         g = self.regs.get
+        if address not in READ_COMPUTED:
+            return g(address, 0)  # the read view is what was written
+        if address == _STATUS:
+            return self._flags & MASK32
+        if address == _XACTUAL:
+            return self.xactual
         ramp = self._ramp
         match address:
             case Reg.EVENTS:
@@ -694,7 +720,8 @@ class TMC4361A:
                     self._home_latched = False  # armed again by a 0 -> 1 write
         self.regs[address] = data
         if address in RAMP_REGISTERS:
-            ramp.set_params(self._params())
+            if data != old:  # the same value leaves the parameters (and their caches) as they are
+                ramp.set_params(self._params())
             if address == Reg.RAMPMODE and data != old:
                 ramp.mode_changed()
             elif (address == Reg.VMAX and data != old) or address == Reg.BOW3:

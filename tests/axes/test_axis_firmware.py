@@ -1,4 +1,9 @@
-"""The TMCM-6212 firmware layer over the emulated TMC4210, driven like the module drives it."""
+"""The TMCM-6212 firmware layer over its chip cores, driven like the module drives it.
+
+The tests of what every TMCL axis does (switches, stall, encoder, current, time) run on every
+core (``core``); those of the TMC4210's units and 24-bit positions on the TMC4210 only.  The
+TMC4361A core's own tests are in tests/axes/test_tmc4361a_firmware.py.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +11,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from axes.firmware import AxisFirmware
 from axes.interface import AxisEvent, AxisEventKind
 from axes.tmc4210_firmware import TMC4210Axis
+from axes.tmc4361a_firmware import TMC4361AAxis
 from axes.units import acceleration_rate, step_rate
 from axes.world import AxisWorld, LoadZone, Switch
 
@@ -15,11 +22,16 @@ NS = 1_000_000_000
 MS = 1_000_000
 
 
+#: The chip cores whose firmware layer the generic tests run on.
+CORES = {"tmc4210": TMC4210Axis, "tmc4361a": TMC4361AAxis}
+
+
 class Harness:
     """One axis on a virtual clock that jumps from event to event, as the module does."""
 
-    def __init__(self, world: AxisWorld | None = None) -> None:
-        self.axis = TMC4210Axis(0, world=world)
+    def __init__(self, world: AxisWorld | None = None,
+                 axis_class: type[AxisFirmware] = TMC4210Axis) -> None:
+        self.axis = axis_class(0, world=world)
         self.events: list[AxisEvent] = []
         self.now = 0
 
@@ -73,8 +85,9 @@ def test_move_arrives_exactly_and_the_event_marks_the_instant() -> None:
     assert replay.gap(3) != 0
 
 
-def test_move_to_the_current_position_reports_arrival_at_once() -> None:
-    h = Harness()
+@pytest.mark.parametrize("core", CORES)
+def test_move_to_the_current_position_reports_arrival_at_once(core: str) -> None:
+    h = Harness(axis_class=CORES[core])
     h.axis.move_to(0)
     h.advance(0)
     assert h.kinds() == [AxisEventKind.TARGET_REACHED]
@@ -240,8 +253,9 @@ def _world(**switches: Switch) -> AxisWorld:
     return AxisWorld(switches=dict(switches))
 
 
-def test_limit_switch_events_and_hard_stop() -> None:
-    h = Harness(_world(left=Switch.place(-1000, side="below")))
+@pytest.mark.parametrize("core", CORES)
+def test_limit_switch_events_and_hard_stop(core: str) -> None:
+    h = Harness(_world(left=Switch.place(-1000, side="below")), CORES[core])
     h.axis.rotate(-20000)
     event = h.until(AxisEventKind.LEFT_SWITCH)
     assert event.active is True
@@ -255,21 +269,22 @@ def test_limit_switch_events_and_hard_stop() -> None:
     assert event.active is False and h.gap(11) == 0
 
 
-def test_soft_stop_polarity_swap_and_disable() -> None:
-    soft = Harness(_world(left=Switch.place(-1000, side="below")))
+@pytest.mark.parametrize("core", CORES)
+def test_soft_stop_polarity_swap_and_disable(core: str) -> None:
+    soft = Harness(_world(left=Switch.place(-1000, side="below")), CORES[core])
     soft.sap(26, 1)
     soft.axis.rotate(-200_000)
     soft.until(AxisEventKind.LEFT_SWITCH)
     soft.advance(2)
     assert soft.gap(1) < -1000 and soft.gap(3) == 0  # ramped down past the switching point
 
-    inverted = Harness(_world(left=Switch.place(-1000, side="below")))
+    inverted = Harness(_world(left=Switch.place(-1000, side="below")), CORES[core])
     inverted.sap(25, 1)
     assert inverted.gap(11) == 1
     assert inverted.events == [] and inverted.axis.advance_to(0)[0].active is True
 
     # The switch at the right end is wired to the left input; AP 14 puts it right again.
-    swapped = Harness(_world(left=Switch.place(500, side="above")))
+    swapped = Harness(_world(left=Switch.place(500, side="above")), CORES[core])
     swapped.sap(14, 1)
     swapped.axis.rotate(10000)
     event = swapped.until(AxisEventKind.RIGHT_SWITCH, timeout_s=1)
@@ -277,7 +292,7 @@ def test_soft_stop_polarity_swap_and_disable() -> None:
     assert event.active is True and swapped.gap(10) == 1 and swapped.gap(11) == 0
     assert swapped.gap(1) == 500 and swapped.gap(3) == 0  # the right stop function acts
 
-    passing = Harness(_world(left=Switch.place(-10_000, 200, side="below")))
+    passing = Harness(_world(left=Switch.place(-10_000, 200, side="below")), CORES[core])
     passing.sap(13, 1)
     passing.axis.rotate(-20000)
     first = passing.until(AxisEventKind.LEFT_SWITCH)
@@ -286,8 +301,9 @@ def test_soft_stop_polarity_swap_and_disable() -> None:
     assert second.time_ns - first.time_ns == pytest.approx(201 / 20000 * NS, rel=0.01)
 
 
-def test_home_switch_is_reported_on_gp_in() -> None:
-    h = Harness(_world(home=Switch.place(3000, 100)))
+@pytest.mark.parametrize("core", CORES)
+def test_home_switch_is_reported_on_gp_in(core: str) -> None:
+    h = Harness(_world(home=Switch.place(3000, 100)), CORES[core])
     h.axis.move_to(6000)
     on = h.until(AxisEventKind.HOME_SWITCH)
     off = h.until(AxisEventKind.HOME_SWITCH)
@@ -299,8 +315,9 @@ def test_home_switch_is_reported_on_gp_in() -> None:
 # == stallGuard, encoder, current ==============================================================
 
 
-def test_stall_stops_the_motor_and_sets_the_error_flag() -> None:
-    h = Harness(AxisWorld(load_zones=[LoadZone(10_000, 11_000, 0)]))
+@pytest.mark.parametrize("core", CORES)
+def test_stall_stops_the_motor_and_sets_the_error_flag(core: str) -> None:
+    h = Harness(AxisWorld(load_zones=[LoadZone(10_000, 11_000, 0)]), CORES[core])
     h.sap(181, 10_000)
     h.axis.move_to(50_000)
     event = h.until(AxisEventKind.STALL)
@@ -325,8 +342,9 @@ def test_a_stall_found_by_the_timer_stays_stopped() -> None:
     assert AxisEventKind.TARGET_REACHED not in h.kinds()
 
 
-def test_slow_motion_through_a_load_zone_does_not_stall() -> None:
-    h = Harness(AxisWorld(load_zones=[LoadZone(100, 300, 0)]))
+@pytest.mark.parametrize("core", CORES)
+def test_slow_motion_through_a_load_zone_does_not_stall(core: str) -> None:
+    h = Harness(AxisWorld(load_zones=[LoadZone(100, 300, 0)]), CORES[core])
     h.sap(181, 50_000)
     h.sap(4, 20_000)
     h.axis.move_to(1000)
@@ -334,14 +352,15 @@ def test_slow_motion_through_a_load_zone_does_not_stall() -> None:
     assert AxisEventKind.STALL not in h.kinds()
 
 
-def test_encoder_follows_and_slip_trips_the_deviation_stop() -> None:
-    h = Harness()
+@pytest.mark.parametrize("core", CORES)
+def test_encoder_follows_and_slip_trips_the_deviation_stop(core: str) -> None:
+    h = Harness(axis_class=CORES[core])
     h.axis.move_to(10_000)
     h.until(AxisEventKind.TARGET_REACHED)
     assert h.gap(209) == 10_000
     h.sap(209, 0)
     assert h.gap(209) == 0
-    slipping = Harness(AxisWorld(encoder_slip=0.1))
+    slipping = Harness(AxisWorld(encoder_slip=0.1), CORES[core])
     slipping.sap(212, 500)  # encoder counts (51200 per revolution = one per microstep)
     slipping.axis.move_to(100_000)
     slipping.until(AxisEventKind.DEVIATION)
@@ -355,8 +374,9 @@ def test_encoder_follows_and_slip_trips_the_deviation_stop() -> None:
     assert slipping.gap(207) == 0
 
 
-def test_standby_current_after_the_power_down_delay() -> None:
-    h = Harness()
+@pytest.mark.parametrize("core", CORES)
+def test_standby_current_after_the_power_down_delay(core: str) -> None:
+    h = Harness(axis_class=CORES[core])
     h.sap(6, 200)
     h.sap(7, 20)
     h.sap(214, 50)  # 500 ms
@@ -371,16 +391,18 @@ def test_standby_current_after_the_power_down_delay() -> None:
     assert h.events[-1].kind is AxisEventKind.CURRENT_CHANGED and h.axis.current == 200
 
 
-def test_chopper_parameters_are_stored_and_read_back() -> None:
-    h = Harness()
+@pytest.mark.parametrize("core", CORES)
+def test_chopper_parameters_are_stored_and_read_back(core: str) -> None:
+    h = Harness(axis_class=CORES[core])
     for number, value in ((162, 3), (167, 5), (174, -10), (187, 4), (16, 1000), (19, 100)):
         h.sap(number, value)
         assert h.gap(number) == value
 
 
-def test_lookahead_and_direct_runs_agree() -> None:
+@pytest.mark.parametrize("core", CORES)
+def test_lookahead_and_direct_runs_agree(core: str) -> None:
     """Jumping from event to event and crawling in 1 ms steps give the same motion."""
-    jump, crawl = Harness(), Harness()
+    jump, crawl = Harness(axis_class=CORES[core]), Harness(axis_class=CORES[core])
     for h in (jump, crawl):
         h.sap(4, 120_000)
         h.axis.move_to(77_777)

@@ -1,4 +1,5 @@
-"""Every reference-search mode (AP 193) against a world with switches, through the module.
+"""Every reference-search mode (AP 193) against a world with switches, through the module,
+on both chip cores (the search is the generic firmware's; the cores only start and stop).
 
 World (mechanical positions = microsteps at power-on):
   left limit cam  active on [-24000, -20000]    (switching point -20000 seen from inside)
@@ -14,29 +15,33 @@ from __future__ import annotations
 import pytest
 
 from axes.world import AxisWorld, Switch, World
-from tmcl_server.module import TMCM6212, ModuleEvent
+from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import Request
 from tmcl_spec.commands import Opcode
 
 NS = 1_000_000_000
 
 
-def make_module(home_normally_closed: bool = False, home_at: int = 5000) -> TMCM6212:
+CORES = ("tmc4210", "tmc4361a")
+
+
+def make_module(home_normally_closed: bool = False, home_at: int = 5000,
+                core: str = "tmc4210") -> TMCLModule:
     world = World(axes={0: AxisWorld(switches={
         "left": Switch.place(-20_000, 4000, "below"),
         "right": Switch.place(30_000, 4000, "above"),
         "home": Switch.place(home_at, 2000, "centre", normally_closed=home_normally_closed),
     })})
-    return TMCM6212(world=world)
+    return TMCLModule(world=world, kind="tmcm-6212", chip_core=core)
 
 
-def command(module: TMCM6212, opcode: int, type_: int, value: int = 0) -> int:
+def command(module: TMCLModule, opcode: int, type_: int, value: int = 0) -> int:
     reply = module.execute(Request(1, opcode, type_, 0, value))
     assert reply is not None and reply.status == 100
     return reply.value
 
 
-def search(module: TMCM6212, mode: int, start: int = 0) -> list[ModuleEvent]:
+def search(module: TMCLModule, mode: int, start: int = 0) -> list[ModuleEvent]:
     events: list[ModuleEvent] = []
     module.listeners.append(events.append)
     command(module, Opcode.SAP, 193, mode)
@@ -55,7 +60,7 @@ def search(module: TMCM6212, mode: int, start: int = 0) -> list[ModuleEvent]:
     return events
 
 
-def mechanical(module: TMCM6212) -> int:
+def mechanical(module: TMCLModule) -> int:
     return module.axis(0).status().mechanical_position
 
 
@@ -75,9 +80,10 @@ CASES = [
 ]
 
 
+@pytest.mark.parametrize("core", CORES)
 @pytest.mark.parametrize(("mode", "zero", "distance"), CASES)
-def test_zero_point_of_every_mode(mode: int, zero: int, distance: int | None) -> None:
-    module = make_module()
+def test_zero_point_of_every_mode(mode: int, zero: int, distance: int | None, core: str) -> None:
+    module = make_module(core=core)
     events = search(module, mode)
     assert mechanical(module) == zero
     assert command(module, Opcode.GAP, 1) == 0  # the counter is zero at the reference point
@@ -107,11 +113,12 @@ def test_plus_128_inverts_the_home_switch(inverted: int, base: int) -> None:
     assert mechanical(closed) == mechanical(plain)
 
 
-def test_starting_on_the_switch_and_from_the_far_side() -> None:
-    inside = make_module()
+@pytest.mark.parametrize("core", CORES)
+def test_starting_on_the_switch_and_from_the_far_side(core: str) -> None:
+    inside = make_module(core=core)
     search(inside, 4, start=-22_500)  # starts inside the left cam
     assert mechanical(inside) == -22_000
-    beyond = make_module()
+    beyond = make_module(core=core)
     events = search(beyond, 6, start=8000)  # home is behind: right switch, turn, find home
     assert mechanical(beyond) == 6000  # the edge seen coming back from the right
     assert ("right_switch", True) in [(e.kind, e.data.get("active")) for e in events]
@@ -125,8 +132,9 @@ def test_limit_switch_disable_does_not_influence_the_search() -> None:
     assert command(module, Opcode.GAP, 13) == 1
 
 
-def test_rfs_stop_aborts_and_motion_commands_cancel() -> None:
-    module = make_module()
+@pytest.mark.parametrize("core", CORES)
+def test_rfs_stop_aborts_and_motion_commands_cancel(core: str) -> None:
+    module = make_module(core=core)
     command(module, Opcode.SAP, 193, 1)
     command(module, Opcode.RFS, 0)
     module.advance_to(module.now_ns + NS // 10)

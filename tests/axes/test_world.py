@@ -160,3 +160,17 @@ def test_supply_voltage_in_the_world_and_at_run_time(tmp_path: Path) -> None:
     module.execute(Request(1, 137, 0, 0, 1234))  # the supply is the world's, not the EEPROM's
     assert module.supply_voltage == 23.96
     assert TMCM6212().execute(Request(1, 15, 8, 1, 0)).value == 240  # nominal 24.0 V
+
+
+def test_the_chip_core_from_the_world_file_and_the_command_line_wins(tmp_path: Path) -> None:
+    path = tmp_path / "core.toml"
+    path.write_text("[chip]\ncore = \"tmc4361a\"\n")
+    simulation = build_simulation(ServerConfig(clock="virtual", world=str(path)))
+    assert simulation.modules[0].chip_core == "tmc4361a"
+    assert type(simulation.modules[0].axes[0]).__name__ == "TMC4361AAxis"
+    chosen = build_simulation(ServerConfig(clock="virtual", world=str(path), axis_core="tmc4210"))
+    assert chosen.modules[0].chip_core == "tmc4210"
+    path.write_text("[chip]\nclock_hz = 16000000\ncore = \"tmc4631a\"\n")
+    with pytest.raises(ValueError, match=r"core\.toml, line 3: chip\.core 'tmc4631a' is not a "
+                                         r"chip core \(known: .*tmc4361a"):
+        build_simulation(ServerConfig(clock="virtual", world=str(path)))

@@ -119,6 +119,23 @@ def test_argument_parsing(argv, addresses, endpoints):
     assert config.endpoints == endpoints
 
 
+def test_the_tmc4361a_core_and_the_evaluation_board_from_the_command_line(tmp_path):
+    core = ServerProcess(tmp_path, "--tcp", "127.0.0.1:0", "--axis-core", "tmc4361a")
+    board = ServerProcess(tmp_path, "--tcp", "127.0.0.1:0",
+                          "--module-type", "landungsbruecke-tmc4361a")
+    try:
+        client = RawClient(core.endpoints["tcp"][0])
+        assert client.request(1, Opcode.SAP, 4, 0, 7_999_774).status == 100
+        assert client.request(1, Opcode.READ_MC, 0x7F).value == 2  # TMC4361A VERSION_NO
+        client.close()
+        client = RawClient(board.endpoints["tcp"][0])
+        assert client.request(1, Opcode.GGP, 4, 0).value == 0x0600_020B  # TMC4361A on channel 1
+        client.close()
+    finally:
+        assert core.stop()[0] == 0
+        assert board.stop()[0] == 0
+
+
 def test_no_transport_is_refused():
     with pytest.raises(SystemExit):
         config_from_args(build_parser().parse_args(["--no-tcp"]))

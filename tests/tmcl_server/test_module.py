@@ -6,9 +6,9 @@ import pytest
 
 from tests.conftest import Bench
 from tmcl_server.eeprom import Eeprom
-from tmcl_server.module import TMCM6212
-from tmcl_server.protocol import RawReply, Request
-from tmcl_spec.commands import Opcode, Status
+from tmcl_server.module import TMCM6212, TMCLModule
+from tmcl_server.protocol import RawReply, Reply, Request
+from tmcl_spec.commands import MoveType, Opcode, Status
 from tmcl_spec.numbers import UINT32_MAX
 from tmcl_spec.parameters import GP
 from tmcl_spec.tmcm6212 import AXIS_PARAMETERS, BANK_PARAMETERS, TMCM_6212
@@ -350,3 +350,30 @@ def test_checksum_error_for_us_gets_status_1_others_silence(bench: Bench):
     assert bench.ok(Opcode.GAP, 4, 0) != 999  # nothing was executed
     frame[0] = 9
     assert bench.simulation.handle_serial_frame(bytes(frame)) == []
+
+
+# -- the evaluation system (module type landungsbruecke-tmc4361a) ------------------------------
+
+
+def test_the_landungsbruecke_answers_with_its_own_command_set() -> None:
+    module = TMCLModule(kind="landungsbruecke-tmc4361a")
+
+    def send(opcode: int, type_: int = 0, motor: int = 0, value: int = 0) -> Reply:
+        reply = module.execute(Request(1, opcode, type_, motor, value))
+        assert isinstance(reply, Reply)
+        return reply
+
+    assert send(Opcode.MVP, MoveType.REL, 0, 1000).value == 1000  # the absolute target
+    assert send(Opcode.MVP, MoveType.COORD, 0, 1).status == Status.INVALID_COMMAND
+    assert send(Opcode.GGP, GP.SERIAL_ADDRESS).status == Status.WRONG_TYPE  # kept to itself
+    assert send(Opcode.GGP, 2).value == 1  # drivers enabled
+    send(64, 0, 0, 0)  # UF0: drivers off
+    assert send(Opcode.GGP, 2).value == 0
+    assert send(147, 0x10, 0, 55).value == 55  # WRITE_DRV: no driver board, accepted
+    assert send(65, 2, 0, 0).value == 0  # no ID EEPROM on channel 2
+    assert send(66, 2, 0x12, 0).status == Status.EEPROM_LOCKED
+    assert send(66, 1, 0x42, 3).status == Status.OK  # channel 1's EEPROM takes the byte
+    assert send(65, 1, 0, 0).value & 0xFF00_0000 == 0x4200_0000
+    assert send(Opcode.RFS, 0).status == Status.INVALID_COMMAND
+    assert not module.accepts_can(module.can_id)  # the Landungsbruecke has no CAN
+    assert TMCLModule(kind="tmcm-6212").accepts_can(1)

@@ -1,5 +1,8 @@
 """Standalone mode on the module model: the manual's example programs on the virtual clock,
-control commands 128-135, download mode, EEPROM, GP 77/81 and interrupts from module events."""
+control commands 128-135, download mode, EEPROM, GP 77/81 and interrupts from module events.
+
+The examples that move motors run on both chip cores (``core``: TMC4210 and TMC4361A).
+"""
 
 from __future__ import annotations
 
@@ -15,7 +18,7 @@ from interpreter.isa import Instruction, decode_program
 from interpreter.machine import Interpreter
 from tmcl_server.clock import VirtualClock
 from tmcl_server.eeprom import Eeprom
-from tmcl_server.module import TMCM6212, ModuleEvent
+from tmcl_server.module import TMCM6212, ModuleEvent, TMCLModule
 from tmcl_server.protocol import RawReply, Reply, Request, checksum
 from tmcl_server.simulation import Simulation
 from tmcl_spec.commands import ApplicationStatus, CalcOp, ErrorFlag, Opcode, Status
@@ -24,13 +27,16 @@ from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
 
 S = 1_000_000_000
 MS = 1_000_000
+#: The chip cores the manual's motion examples run on.
+CORES = ("tmc4210", "tmc4361a")
 
 
 class Bench:
     """One module on a virtual clock, driven through its command interface."""
 
-    def __init__(self, module: TMCM6212 | None = None) -> None:
-        self.module = module or TMCM6212()
+    def __init__(self, module: TMCLModule | None = None, core: str | None = None) -> None:
+        self.module = module or (TMCM6212() if core is None
+                                 else TMCLModule(kind="tmcm-6212", chip_core=core))
         self.sim = Simulation([self.module], VirtualClock())
         self.events: list[ModuleEvent] = []
         self.module.listeners.append(self.events.append)
@@ -73,9 +79,10 @@ class Bench:
 
 # -- the manual's example programs ------------------------------------------------------------
 
-def test_first_steps_position_loop_runs_ten_minutes_of_program() -> None:
+@pytest.mark.parametrize("core", CORES)
+def test_first_steps_position_loop_runs_ten_minutes_of_program(core: str) -> None:
     """§2.4: rotate both ways, then shuttle between +-512000 forever."""
-    bench = Bench()
+    bench = Bench(core=core)
     bench.download("""
         ROL 0, 51200
         WAIT TICKS, 0, 500
@@ -144,9 +151,10 @@ def test_timer_interrupt_output_toggler() -> None:
     assert len(out3) == 9
 
 
-def test_subroutine_example() -> None:
+@pytest.mark.parametrize("core", CORES)
+def test_subroutine_example(core: str) -> None:
     """§3.6.18: move, call SubW (wait for arrival, then 500 ms), move back, forever."""
-    bench = Bench()
+    bench = Bench(core=core)
     bench.download("""
     Loop:
         MVP ABS, 0, 10000
@@ -192,9 +200,10 @@ def test_potentiometer_follower_aap_loop() -> None:
     assert bench.cmd(Opcode.GAP, 1, 0).value == 10000
 
 
-def test_host_callable_function_table() -> None:
+@pytest.mark.parametrize("core", CORES)
+def test_host_callable_function_table(core: str) -> None:
     """§7.6: JA entries at 0/1/2 started with command 129 from those addresses."""
-    bench = Bench()
+    bench = Bench(core=core)
     bench.download("""
     Func1: JA Func1Start
     Func2: JA Func2Start
@@ -239,10 +248,11 @@ def test_host_callable_function_table() -> None:
     assert bench.gp(GP.APPLICATION_STATUS) == ApplicationStatus.STOP
 
 
-def test_pytrinamic_vector_interrupts_revector_each_other() -> None:
+@pytest.mark.parametrize("core", CORES)
+def test_pytrinamic_vector_interrupts_revector_each_other(core: str) -> None:
     """The IDE binary: target-reached handlers re-vector interrupt 3 to each other."""
     vector = Path(__file__).resolve().parents[1] / "vectors" / "pytrinamic_test.bin"
-    bench = Bench()
+    bench = Bench(core=core)
     for address, ins in enumerate(decode_program(vector.read_bytes())):
         bench.interpreter.store(address, ins)
     bench.run()
@@ -254,9 +264,10 @@ def test_pytrinamic_vector_interrupts_revector_each_other() -> None:
     assert bench.interpreter.pc == 4 and not bench.interpreter.in_interrupt
 
 
-def test_main_loop_example() -> None:
+@pytest.mark.parametrize("core", CORES)
+def test_main_loop_example(core: str) -> None:
     """§7.2: initialise, then run between two positions forever."""
-    bench = Bench()
+    bench = Bench(core=core)
     bench.download("""
         SAP 4, 0, 50000
         SAP 5, 0, 10000
@@ -276,7 +287,8 @@ def test_main_loop_example() -> None:
     assert arrivals == [5000, 0] * (len(arrivals) // 2) + [5000] * (len(arrivals) % 2)
 
 
-def test_comp_jc_example() -> None:
+@pytest.mark.parametrize("core", CORES)
+def test_comp_jc_example(core: str) -> None:
     """§3.6.15/16: jump when the position of motor 0 is at least 1000."""
     source = """
         GAP 1, 0
@@ -287,7 +299,7 @@ def test_comp_jc_example() -> None:
         STOP
     """
     for position, rotating in ((1500, True), (1000, True), (999, False)):
-        bench = Bench()
+        bench = Bench(core=core)
         bench.cmd(Opcode.SAP, 1, 0, position)
         bench.download(source)
         bench.run()
@@ -666,8 +678,9 @@ def test_wait_rfs_and_limit_switch_through_the_module() -> None:
     assert not bench.interpreter.error_flag(ErrorFlag.ETO)
 
 
-def test_target_reached_interrupt_from_the_motion_axis() -> None:
-    bench = Bench()
+@pytest.mark.parametrize("core", CORES)
+def test_target_reached_interrupt_from_the_motion_axis(core: str) -> None:
+    bench = Bench(core=core)
     bench.download("""
         VECT 5, Arrived    // target position reached, axis 2
         EI 5

@@ -1,0 +1,393 @@
+"""The TMC4361A core: the chip-specific half of the TMCL firmware, and the axis built on it.
+
+:class:`TMC4361ADriver` is what the module's microcontroller does with a TMC4361A, and only
+that: it talks to the chip through 40-bit :meth:`TMC4361A.spi` datagrams, writes the ramp
+parameters the axis parameters describe (AP 4/5 and the six-point ramp of AP 15-21) in the
+chip's real units (or the manual's internal units in unit mode 0), and reads positions (32
+bit, so no rolling targets) and speeds back.  Everything a TMCL axis does whatever its chip
+is in :class:`axes.firmware.AxisFirmware`; :class:`TMC4361AAxis` joins the two.  Every
+mapping choice is explained in docs/motion.md ("The TMC4361A core") and docs/tmc4361a.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from axes.board import AxisBoard
+from axes.firmware import AxisFirmware
+from axes.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
+from axes.tmc4361a.registers import MASK32, signed32
+from axes.world import AxisWorld
+from tmcl_spec.numbers import NS_PER_S, to_int32
+from tmcl_spec.parameters import AP, ParamSpec
+from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
+
+DEFAULT_CLOCK_HZ = 16_000_000
+
+#: RAMPMODE bits: positioning mode (bit 2) and the ramp profile (bits 1..0).
+POSITIONING = 0b100
+PROFILE_MASK = 0b011
+TRAPEZOID = 0b01
+S_SHAPED = 0b10
+#: Real-unit accelerations are 22.2 fixed point in 24 bits: at most this many pps².
+REAL_ACCELERATION_MAX = 0xFF_FFFF / 4
+#: Direct acceleration values (GENERAL_CONF.1) may not exceed 2^20 (datasheet).
+DIRECT_ACCELERATION_MAX = 1 << 20
+#: The largest VMAX/VSTART/VSTOP/VBREAK register value (23.8 fixed point, positive).
+VELOCITY_REGISTER_MAX = 0x7FFF_FFFF
+#: AP 21 counts 32 µs (manual Table 14: "0.000032 s").
+RAMP_WAIT_UNIT_S = 32e-6
+#: Unit mode 0: the manual's internal units (the TMC5130's, "used directly", Table 14 AP 255):
+#: a velocity unit is f/2^24 pps and an acceleration unit f^2/2^41 pps^2 at clock f.
+INTERNAL_VELOCITY_SHIFT = 24
+INTERNAL_ACCELERATION_SHIFT = 41
+
+_VEL_STATE = Status.VEL_STATE_POS | Status.VEL_STATE_NEG
+_SWITCH_EVENTS = Event.STOPL | Event.STOPR
+#: The REFERENCE_CONF bits the firmware owns (the rest is left as a host wrote it via 146).
+_FIRMWARE_REF_BITS = (RefConf.STOP_LEFT_EN | RefConf.STOP_RIGHT_EN | RefConf.POL_STOP_LEFT
+                      | RefConf.POL_STOP_RIGHT | RefConf.INVERT_STOP_DIRECTION
+                      | RefConf.SOFT_STOP_EN)
+#: Ramp registers the firmware writes through a shadow (a repeated value is not sent again).
+_SHADOWED = frozenset({Reg.AMAX, Reg.DMAX, Reg.ASTART, Reg.DFINAL, Reg.DSTOP, Reg.VSTART,
+                       Reg.VSTOP, Reg.VBREAK, Reg.TZEROWAIT, Reg.GENERAL_CONF})
+
+_READ_XACTUAL = datagram(Reg.XACTUAL)
+_READ_STATUS = datagram(Reg.STATUS)
+
+
+class TMC4361ADriver:
+    """The firmware's TMC4361A routines for one axis (an :class:`axes.core.ChipDriver`)."""
+
+    #: XACTUAL is the whole 32-bit AP 1: the look-ahead need not stop every 4 s to read it.
+    lookahead_ns = 60 * NS_PER_S
+
+    def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard,
+                 clock_hz: int = DEFAULT_CLOCK_HZ) -> None:
+        self.index = index
+        #: The axis parameters (the firmware's dict, read here, never written).
+        self.params = params
+        self.board = board
+        self.chip = TMC4361A(clock_hz, board)
+        #: AP 1, as of the last read of XACTUAL.
+        self.position = 0
+        self._searching = False
+        #: Last value written to each shadowed register (None: unknown, send it).
+        self._shadow: dict[int, int] = {}
+
+    # == chip access ===========================================================================
+
+    def _write(self, reg: int, value: int) -> None:
+        value &= MASK32
+        if reg in _SHADOWED:
+            if self._shadow.get(reg) == value:
+                return
+            self._shadow[reg] = value
+        self.chip.spi(datagram(reg, value, write=True))
+
+    def _read(self, reg: int) -> int:
+        """The 32 data bits of a register: the read is answered one datagram later."""
+        frame = datagram(reg)
+        self.chip.spi(frame)
+        return self.chip.spi(frame) & MASK32
+
+    def power_up(self) -> None:
+        """What the firmware does at power-up: clock, switch inputs, an idle velocity ramp.
+
+        CLK_FREQ is set to the module's clock (all real units depend on it); the switch inputs
+        are high-active, because the module's input stage hands the chip logical levels
+        (polarity AP 24/25 and swap AP 14 are applied before the chip, as on the TMC4210
+        core); EVENTS is read once to clear the reset event.
+        """
+        self._shadow.clear()
+        self.chip.spi(datagram(Reg.CLK_FREQ, self.chip.clock_hz, write=True))
+        self._write_reference_conf()
+        self._set_mode(positioning=False)
+        self._write(Reg.VMAX, 0)
+        self._write_ramp(positioning=False)
+        self._read(Reg.EVENTS)
+
+    def register_access(self, address: int, value: int | None = None) -> int:
+        """Commands 146/147: one register, its 32 data bits as TMCL's 32-bit value.
+
+        A write sends one datagram with the value as its data; a read sends the read datagram
+        twice (the answer comes one datagram later) and returns the data, so the SPI status
+        byte of the 40-bit answer is not part of the reply.  Writes bypass the firmware.
+        """
+        if value is None:
+            answer = self._read(address)
+        else:
+            self.chip.spi(datagram(address, value, write=True))
+            self._shadow.clear()  # the host may have changed what the firmware wrote
+            answer = value & MASK32
+        self.read_position()
+        return to_int32(answer)
+
+    # == readings ==============================================================================
+
+    def read_position(self) -> int:
+        self.chip.spi(_READ_XACTUAL)
+        self.position = signed32(self.chip.spi(_READ_XACTUAL))
+        return self.position
+
+    def _status(self) -> int:
+        self.chip.spi(_READ_STATUS)
+        return self.chip.spi(_READ_STATUS) & MASK32
+
+    def moving(self) -> bool:
+        """In motion, or about to move by itself (the zero of a U-turn, TZEROWAIT, a restart
+        toward the target): the standstill of a TMCL axis is a chip that stays at rest."""
+        status = self._status()
+        if status & _VEL_STATE:
+            return True
+        direction = self._direction_ahead()
+        if direction > 0:
+            return not status & (Status.STOPR_ACTIVE_F | Status.VSTOPR_ACTIVE_F)
+        if direction < 0:
+            return not status & (Status.STOPL_ACTIVE_F | Status.VSTOPL_ACTIVE_F)
+        return False
+
+    def actual_speed(self) -> int:
+        """AP 3: VACTUAL (integer pps), or in unit mode 0 the manual's internal units."""
+        return self._speed_from_pps(signed32(self._read(Reg.VACTUAL)))
+
+    def levels(self) -> tuple[bool, bool, bool]:
+        """Logical (left, right, home) levels, read from the input stage.
+
+        The TMC4361A has no register with the raw levels of its STOPL/STOPR/HOME_REF inputs
+        (STATUS shows a stop switch only while it is enabled), so the firmware reads the
+        module's input stage directly, as the microcontroller's inputs wired in parallel.
+        """
+        return self.board.pins(self.chip.motor_position)
+
+    def take_switch_stop(self) -> bool:
+        """Whether a stop switch latched its event since the last call (reading clears it)."""
+        return bool(self._read(Reg.EVENTS) & _SWITCH_EVENTS)
+
+    def mode_name(self) -> str:
+        return "position" if self._read(Reg.RAMPMODE) & POSITIONING else "velocity"
+
+    def heading(self) -> int:
+        """Direction of travel, or of the travel about to start (-1, 0, +1)."""
+        status = self._status()
+        if status & Status.VEL_STATE_POS:
+            return 1
+        if status & Status.VEL_STATE_NEG:
+            return -1
+        return self._direction_ahead()
+
+    def _direction_ahead(self) -> int:
+        """At rest: where the ramp heads (sign of VMAX, or toward XTARGET), 0 if nowhere."""
+        if self._read(Reg.RAMPMODE) & POSITIONING:
+            if not self._read(Reg.VMAX):
+                return 0
+            ahead = signed32(self._read(Reg.XTARGET) - self._read(Reg.XACTUAL))
+        else:
+            ahead = signed32(self._read(Reg.VMAX))
+        return (ahead > 0) - (ahead < 0)
+
+    # == units =================================================================================
+
+    @property
+    def _pps_units(self) -> bool:
+        return self.params[AP.UNIT_MODE] == 1
+
+    def _pps(self, speed: int) -> float:
+        """A speed parameter in pps (unit mode 0: internal units of f/2^24 pps)."""
+        if self._pps_units:
+            return float(speed)
+        return speed * self.chip.clock_hz / (1 << INTERNAL_VELOCITY_SHIFT)
+
+    def _speed_from_pps(self, pps: int) -> int:
+        if self._pps_units:
+            return pps
+        return round(pps * (1 << INTERNAL_VELOCITY_SHIFT) / self.chip.clock_hz)
+
+    def _velocity_register(self, speed: int) -> int:
+        """VMAX/VSTART/VSTOP/VBREAK register (24.8 pps) for a speed parameter, sign kept."""
+        if self._pps_units:
+            magnitude = abs(speed) << 8  # exact: whole pps
+        else:
+            magnitude = round(abs(speed) * self.chip.clock_hz / (1 << (INTERNAL_VELOCITY_SHIFT - 8)))
+        magnitude = min(magnitude, VELOCITY_REGISTER_MAX)
+        return -magnitude if speed < 0 else magnitude
+
+    def _pps2(self, acceleration: int) -> float:
+        """An acceleration parameter in pps² (unit mode 0: internal units of f²/2^41 pps²)."""
+        if self._pps_units:
+            return float(acceleration)
+        f = self.chip.clock_hz
+        return acceleration * f * f / (1 << INTERNAL_ACCELERATION_SHIFT)
+
+    def _acceleration_registers(self, accelerations: dict[int, int]) -> tuple[bool, dict[int, int]]:
+        """(direct mode?, register -> value) for accelerations given as parameters.
+
+        Real units (22.2 pps²) reach 4 194 303 pps²; the manual allows up to 7 629 278, so when
+        any acceleration of the ramp is beyond the real-unit range the firmware switches the
+        chip to direct values (GENERAL_CONF.1, f²/2^37 pps² per LSB, ~1862.6 pps² at 16 MHz)
+        for all of them.
+        """
+        pps2 = {reg: self._pps2(value) for reg, value in accelerations.items()}
+        direct = any(value > REAL_ACCELERATION_MAX for value in pps2.values())
+        f = self.chip.clock_hz
+        out = {}
+        for reg, value in pps2.items():
+            if direct:
+                out[reg] = min(round(value * (1 << 37) / (f * f)), DIRECT_ACCELERATION_MAX)
+            else:
+                out[reg] = round(value * 4)
+        return direct, out
+
+    def _ramp_wait_clocks(self) -> int:
+        """TZEROWAIT for AP 21 (units of 32 µs; 512 clocks at 16 MHz)."""
+        return round(self.params[AP.RAMP_WAIT] * RAMP_WAIT_UNIT_S * self.chip.clock_hz)
+
+    # == the ramp ==============================================================================
+
+    def _set_mode(self, positioning: bool) -> None:
+        """RAMPMODE: the operation mode; the profile bits stay as they are (trapezoid after
+        power-up, S-shaped if a host chose it through command 146)."""
+        rampmode = self._read(Reg.RAMPMODE)
+        profile = rampmode & PROFILE_MASK or TRAPEZOID
+        self._write(Reg.RAMPMODE, profile | (POSITIONING if positioning else 0))
+
+    def _write_ramp(self, positioning: bool) -> None:
+        """The ramp registers for a move (AP 5, 15-21) or a rotation (AP 5 both ways).
+
+        Positioning uses the six-point ramp of Table 14: AMAX = AP 5, DMAX = AP 17, and with
+        V1 (AP 16) > 0: VBREAK = V1, ASTART = A1 (AP 15), DFINAL = D1 (AP 18); VSTART = AP 19,
+        VSTOP = AP 20.  Velocity mode ("in position mode only" for the rest) accelerates and
+        decelerates with AP 5 and starts and stops from 0.  A soft stop (AP 26) brakes with
+        DSTOP = the deceleration in force.  AP 21 is TZEROWAIT (direction reversals).
+        """
+        p = self.params
+        accelerations = {Reg.AMAX: p[AP.MAX_ACCELERATION]}
+        if positioning:
+            accelerations[Reg.DMAX] = p[AP.MAX_DECELERATION]
+            six_point = p[AP.V1] > 0
+            accelerations[Reg.ASTART] = p[AP.A1] if six_point else 0
+            accelerations[Reg.DFINAL] = p[AP.D1] if six_point else 0
+            vbreak = self._velocity_register(p[AP.V1]) if six_point else 0
+            vstart = self._velocity_register(p[AP.VSTART])
+            vstop = self._velocity_register(p[AP.VSTOP])
+        else:
+            accelerations[Reg.DMAX] = p[AP.MAX_ACCELERATION]
+            accelerations[Reg.ASTART] = accelerations[Reg.DFINAL] = 0
+            vbreak = vstart = vstop = 0
+        direct, registers = self._acceleration_registers(accelerations)
+        general = self._shadow.get(Reg.GENERAL_CONF)
+        if general is None:
+            general = self._read(Reg.GENERAL_CONF)
+        general = (general | GeneralConf.DIRECT_ACC_VAL_EN if direct
+                   else general & ~GeneralConf.DIRECT_ACC_VAL_EN)
+        self._write(Reg.GENERAL_CONF, general)
+        for reg, value in registers.items():
+            self._write(reg, value)
+        self._write(Reg.DSTOP, registers[Reg.DMAX])
+        self._write(Reg.VBREAK, vbreak)
+        self._write(Reg.VSTART, vstart)
+        self._write(Reg.VSTOP, vstop)
+        self._write(Reg.TZEROWAIT, self._ramp_wait_clocks())
+
+    def limits_changed(self, positioning: bool, velocity_command: int) -> None:
+        """A speed, acceleration, ramp or unit parameter changed: the ramp in flight follows."""
+        in_positioning_mode = bool(self._read(Reg.RAMPMODE) & POSITIONING)
+        if positioning and in_positioning_mode:
+            self._write_ramp(positioning=True)
+            self._write(Reg.VMAX, self._velocity_register(self.params[AP.MAX_SPEED]))
+        elif not in_positioning_mode:
+            self._write_ramp(positioning=False)
+            self._write(Reg.VMAX, self._velocity_register(velocity_command))
+
+    # == switches ==============================================================================
+
+    def _write_reference_conf(self) -> None:
+        p = self.params
+        conf = self._read(Reg.REFERENCE_CONF) & ~_FIRMWARE_REF_BITS
+        conf |= RefConf.POL_STOP_LEFT | RefConf.POL_STOP_RIGHT
+        if not (self._searching or p[AP.LEFT_DISABLE]):
+            conf |= RefConf.STOP_LEFT_EN
+        if not (self._searching or p[AP.RIGHT_DISABLE]):
+            conf |= RefConf.STOP_RIGHT_EN
+        if p[AP.SOFT_STOP]:
+            conf |= RefConf.SOFT_STOP_EN
+        self._write(Reg.REFERENCE_CONF, conf)
+
+    def configure_stops(self, searching: bool) -> None:
+        """Stop switches as AP 12/13/26 say; a reference search drives through them."""
+        self._searching = searching
+        self._write_reference_conf()
+
+    # == motion ================================================================================
+
+    def start_velocity(self, speed: int) -> None:
+        self._write_ramp(positioning=False)
+        self._set_mode(positioning=False)
+        self._write(Reg.VMAX, self._velocity_register(speed))
+
+    def start_positioning(self, target: int, top_speed: int) -> None:
+        self._write_ramp(positioning=True)
+        self._write(Reg.VMAX, self._velocity_register(top_speed))
+        self._set_mode(positioning=True)
+        self._write(Reg.XTARGET, target)
+
+    def continue_move(self, target: int) -> None:
+        """Nothing to do: XTARGET holds the whole 32-bit target."""
+
+    def refill_mark(self, target: int) -> int | None:
+        return None
+
+    def ramp_stop(self) -> None:
+        """MST: velocity mode, VMAX = 0, decelerating with AP 5."""
+        self._write_ramp(positioning=False)
+        self._set_mode(positioning=False)
+        self._write(Reg.VMAX, 0)
+
+    def hard_stop(self) -> None:
+        """Stop within the datagram: a hard virtual stop at the present position.
+
+        The chip has no "stop now" command; a virtual stop switch in hard mode
+        (VIRT_STOP_MODE 1) that becomes active in the direction of travel sets VACTUAL to 0
+        at once.  The firmware sets the limit to XACTUAL on the side the motor heads for,
+        enables it, then restores REFERENCE_CONF and the limit and clears the event it
+        latched; the chip is left in velocity mode with VMAX = 0.
+        """
+        status = self._status()
+        self._set_mode(positioning=False)
+        self._write(Reg.VMAX, 0)
+        if not status & _VEL_STATE:
+            return
+        if status & Status.VEL_STATE_POS:
+            limit, enable, event = Reg.VIRT_STOP_RIGHT, RefConf.VIRTUAL_RIGHT_LIMIT_EN, Event.VSTOPR_ACTIVE
+        else:
+            limit, enable, event = Reg.VIRT_STOP_LEFT, RefConf.VIRTUAL_LEFT_LIMIT_EN, Event.VSTOPL_ACTIVE
+        conf = self._read(Reg.REFERENCE_CONF)
+        old_limit = self._read(limit)
+        self._write(limit, self._read(Reg.XACTUAL))
+        self._write(Reg.REFERENCE_CONF, (conf & ~RefConf.VIRT_STOP_MODE) | 1 << 8 | enable)
+        self._write(Reg.REFERENCE_CONF, conf)
+        self._write(limit, old_limit)
+        self._write(Reg.EVENTS, event)
+
+    def set_position(self, value: int) -> bool:
+        """AP 1 write: XACTUAL and XTARGET := value (a move in flight ends with a ramped stop).
+
+        Returns True if a move in flight was turned into a ramped stop.
+        """
+        in_flight = bool(self._read(Reg.RAMPMODE) & POSITIONING) and self.moving()
+        if in_flight:
+            self.ramp_stop()
+        self._write(Reg.XACTUAL, value)
+        self._write(Reg.XTARGET, value)
+        self.position = to_int32(value)
+        return in_flight
+
+
+class TMC4361AAxis(AxisFirmware):
+    """One TMCM-6212 axis on a TMC4361A: the TMCL firmware layer over the TMC4361A driver."""
+
+    def __init__(self, index: int, clock_hz: int = DEFAULT_CLOCK_HZ,
+                 world: AxisWorld | None = None,
+                 parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS) -> None:
+        super().__init__(index, parameters, world,
+                         lambda params, board: TMC4361ADriver(index, params, board, clock_hz))

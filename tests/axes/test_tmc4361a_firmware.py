@@ -1,0 +1,195 @@
+"""The TMCM-6212 firmware layer over the emulated TMC4361A (``--axis-core tmc4361a``).
+
+What the TMC4361A core adds to the TMC4210's: the manual's whole speed and acceleration
+ranges, the six-point ramp of Table 14 (AP 15-21, AP 17 apart from AP 5), S-ramps chosen
+through command 146, the manual's internal units in unit mode 0, and 32-bit register access.
+Move times are held against the datasheet formulas of tests/axes/test_tmc4361a.py.  The
+generic behaviour (switches, stall, encoder, reference search) runs on both cores in
+tests/axes/test_axis_firmware.py and tests/axes/test_reference_search.py.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from axes.interface import AxisEventKind
+from axes.tmc4361a import Reg
+from axes.tmc4361a_firmware import TMC4361AAxis
+from tests.axes.test_axis_firmware import Harness
+from tests.axes.test_tmc4361a import _s_time, _sixpoint_time
+from tmcl_spec.parameters import AP
+from tmcl_spec.tmcm6212 import MAX_ACCELERATION_PPS2, MAX_VELOCITY_PPS
+
+NS = 1_000_000_000
+CLOCK = 16_000_000
+#: One chip clock, in ns: the ramp is updated every clock.
+CLOCK_NS = NS / CLOCK
+
+
+def harness() -> Harness:
+    return Harness(axis_class=TMC4361AAxis)
+
+
+def move(h: Harness, target: int, **parameters: int) -> float:
+    """Set axis parameters (AP_NAME=value), move, and return the move time in seconds."""
+    for name, value in parameters.items():
+        h.sap(getattr(AP, name.upper()), value)
+    start = h.now
+    h.axis.move_to(target)
+    event = h.until(AxisEventKind.TARGET_REACHED, timeout_s=600)
+    assert h.gap(AP.ACTUAL_POSITION) == target
+    return (event.time_ns - start) / NS
+
+
+# == speed and acceleration ======================================================================
+
+
+def test_cruise_at_two_million_pps_reads_back_on_ap3_and_ap29() -> None:
+    h = harness()
+    h.sap(AP.MAX_SPEED, 2_000_000)
+    h.sap(AP.MAX_ACCELERATION, 4_000_000)
+    h.sap(AP.MAX_DECELERATION, 4_000_000)
+    h.axis.move_to(8_000_000)
+    h.advance(1.0)
+    assert h.gap(AP.ACTUAL_SPEED) == 2_000_000
+    assert h.gap(AP.MEASURED_SPEED) == 2_000_000
+    assert h.axis.register_access(Reg.VMAX) == 2_000_000 << 8  # the chip's own unit
+
+
+def test_deceleration_follows_ap17_apart_from_ap5_and_the_move_time_matches() -> None:
+    h = harness()
+    d, v, a, dec = 3_000_000, 1_000_000, 2_000_000, 250_000
+    elapsed = move(h, d, max_speed=v, max_acceleration=a, max_deceleration=dec, vstop=0)
+    expected = d / v + v / (2 * a) + v / (2 * dec)  # trapezoid: 0.25 s up, 2 s down
+    # the ramp is updated every clock; the move ends within the landing margin past the
+    # formula: at most 1 + AMAX/DMAX clocks of VMAX travel (docs/tmc4361a.md), + 1 rounding
+    assert 0 <= elapsed - expected <= (2 + a / dec) * CLOCK_NS / NS
+    # the speed on the way down falls by AP 17 per second, not AP 5
+    replay = harness()
+    for number, value in ((AP.MAX_SPEED, v), (AP.MAX_ACCELERATION, a),
+                          (AP.MAX_DECELERATION, dec), (AP.VSTOP, 0)):
+        replay.sap(number, value)
+    replay.axis.move_to(d)
+    replay.advance(expected - 1.0)  # one second before the end: 1 s of braking left
+    assert replay.gap(AP.ACTUAL_SPEED) == pytest.approx(dec * 1.0, abs=2)
+
+
+def test_ap17_changed_in_flight_takes_effect_and_mst_brakes_with_ap5() -> None:
+    h = harness()
+    for number, value in ((AP.MAX_SPEED, 400_000), (AP.MAX_ACCELERATION, 800_000),
+                          (AP.MAX_DECELERATION, 100_000), (AP.VSTOP, 0)):
+        h.sap(number, value)
+    h.axis.move_to(10_000_000)
+    h.advance(1.0)
+    h.sap(AP.MAX_DECELERATION, 400_000)
+    arrived = move(h, 10_000_000)
+    # 0.5 s up, cruise, 1 s down at 400 000 pps² (4 s at the old 100 000)
+    assert arrived + 1.0 == pytest.approx(10_000_000 / 400_000 + 0.25 + 0.5, abs=1e-6)
+    h.axis.move_to(0)
+    h.advance(2.0)
+    h.axis.stop()  # MST: velocity mode, decelerating with AP 5 (800 000 pps²)
+    h.advance(0.25)
+    assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(-200_000, abs=2)
+    h.advance(0.3)
+    assert h.gap(AP.ACTUAL_SPEED) == 0
+
+
+def test_the_manuals_full_speed_and_acceleration_ranges() -> None:
+    h = harness()
+    h.sap(AP.MAX_SPEED, MAX_VELOCITY_PPS)
+    h.sap(AP.MAX_ACCELERATION, MAX_ACCELERATION_PPS2)
+    h.sap(AP.MAX_DECELERATION, MAX_ACCELERATION_PPS2)
+    h.axis.move_to(2_000_000_000)
+    h.advance(0.5)
+    # beyond the real-unit range (4 194 303 pps²) the chip runs on direct values: 4096 LSB of
+    # f²/2^37 = 7 629 394.5 pps², 0.0015 % off the parameter
+    assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(MAX_ACCELERATION_PPS2 * 0.5, rel=2e-5)
+    assert h.axis.register_access(Reg.GENERAL_CONF) & 0b10
+    h.advance(1.0)
+    assert h.gap(AP.ACTUAL_SPEED) == MAX_VELOCITY_PPS
+    h.axis.rotate(-MAX_VELOCITY_PPS)
+    h.advance(3.0)
+    assert h.gap(AP.ACTUAL_SPEED) == -MAX_VELOCITY_PPS
+
+
+# == the six-point ramp of Table 14 ==============================================================
+
+
+@pytest.mark.parametrize("case", [
+    # d, VSTART, V1, VMAX, VSTOP, A1, AP 5, AP 17, D1
+    (1_200_000, 500, 50_000, 200_000, 1_000, 100_000, 60_000, 80_000, 120_000),
+    (1_000_000, 5_000, 100_000, 400_000, 8_000, 400_000, 250_000, 300_000, 500_000),
+])
+def test_table_14_sixpoint_ramp_move_time(case: tuple) -> None:
+    d, vstart, v1, vmax, vstop, a1, amax, dmax, d1 = case
+    h = harness()
+    elapsed = move(h, d, vstart=vstart, v1=v1, max_speed=vmax, vstop=vstop, a1=a1,
+                   max_acceleration=amax, max_deceleration=dmax, d1=d1)
+    expected = _sixpoint_time(d, vstart, v1, vmax, vstop, a1, amax, dmax, d1)
+    assert 0 <= elapsed - expected <= 4 * CLOCK_NS / NS
+
+
+def test_v1_zero_turns_the_first_phase_off_and_ap21_waits_at_a_reversal() -> None:
+    h = harness()
+    elapsed = move(h, 512_000, max_speed=51_200, max_acceleration=51_200,
+                   max_deceleration=51_200, a1=1000, d1=1000, v1=0, vstop=0)
+    assert elapsed == pytest.approx(11.0, abs=1e-6)  # A1/D1 unused: the manual's trapezoid
+    h.sap(AP.RAMP_WAIT, 31_250)  # 31 250 x 32 µs = 1 s standstill at a direction reversal
+    h.axis.rotate(51_200)
+    h.advance(2.0)
+    h.axis.rotate(-51_200)  # 1 s down to 0, 1 s waiting, then up again
+    h.advance(1.5)
+    assert h.gap(AP.ACTUAL_SPEED) == 0
+    h.advance(1.0)
+    assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(-25_600, abs=2)
+    assert AxisEventKind.CURRENT_CHANGED not in h.kinds()  # the wait is no standstill
+
+
+def test_s_ramps_through_command_146_survive_the_next_move() -> None:
+    h = harness()
+    d, vmax, amax, dmax, bows = 712_000, 200_000, 100_000, 80_000, (400_000, 300_000, 250_000,
+                                                                    350_000)
+    rampmode = h.axis.register_access(Reg.RAMPMODE)
+    h.axis.register_access(Reg.RAMPMODE, (rampmode & ~0b11) | 0b10)  # S-shaped profile
+    for reg, bow in zip((Reg.BOW1, Reg.BOW2, Reg.BOW3, Reg.BOW4), bows, strict=True):
+        h.axis.register_access(reg, bow)
+    elapsed = move(h, d, max_speed=vmax, max_acceleration=amax, max_deceleration=dmax, vstop=0)
+    assert h.axis.register_access(Reg.RAMPMODE) == 0b110  # positioning, still S-shaped
+    # within half a bow quantum (32 clocks) of the datasheet's segment kinematics
+    assert abs(elapsed - _s_time(d, vmax, amax, dmax, bows)) <= 64 * CLOCK_NS / NS
+    h.axis.rotate(100_000)
+    h.advance(2)
+    assert h.gap(AP.ACTUAL_SPEED) == 100_000
+    assert h.axis.register_access(Reg.RAMPMODE) == 0b010  # velocity mode, S-shaped
+
+
+# == units ======================================================================================
+
+
+def test_unit_mode_0_uses_the_manuals_internal_units() -> None:
+    """Velocity unit f/2^24 pps (0.954 pps at 16 MHz), acceleration unit f²/2^41 pps²."""
+    h = harness()
+    h.sap(AP.UNIT_MODE, 0)
+    h.sap(AP.MAX_ACCELERATION, 8590)  # 8590 x 116.415 = 1 000 004 pps²
+    h.axis.rotate(1_048_576)  # 2^20 units = 1 000 000 pps
+    h.advance(0.5)
+    assert h.axis.register_access(Reg.VACTUAL) == pytest.approx(500_002, abs=2)
+    h.advance(1.0)
+    assert h.axis.register_access(Reg.VACTUAL) == 1_000_000
+    assert h.gap(AP.ACTUAL_SPEED) == 1_048_576
+    assert h.gap(AP.MEASURED_SPEED) == 1_048_576
+
+
+# == commands 146/147 ============================================================================
+
+
+def test_register_access_is_32_bit_data_and_writes_bypass_the_firmware() -> None:
+    h = harness()
+    assert h.axis.register_access(Reg.VERSION_NO) == 2
+    assert h.axis.register_access(Reg.CLK_FREQ) == CLOCK
+    h.axis.register_access(Reg.XACTUAL, -123_456)
+    assert h.gap(AP.ACTUAL_POSITION) == -123_456
+    assert h.axis.register_access(Reg.XACTUAL) == -123_456  # no status byte in the answer
+    h.axis.register_access(Reg.VMAX, 10_000 << 8)  # velocity mode after power-up: it runs
+    h.advance(1)
+    assert h.gap(AP.ACTUAL_SPEED) == 10_000

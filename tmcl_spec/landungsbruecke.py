@@ -1,0 +1,211 @@
+"""Trinamic's Landungsbruecke with a TMC4361A-EVAL: the evaluation setup as a module type.
+
+The Landungsbruecke is the base board of Trinamic's evaluation system; it runs the
+TMC-EvalSystem firmware and speaks TMCL on its USB port (and RS-232 / WLAN), with the
+motion-controller evaluation board on channel 1 and a driver board on channel 2.  This
+profile presents it with a TMC4361A-EVAL on channel 1 and no driver board, as the TMCL-IDE
+and pytrinamic's ``Landungsbruecke`` / ``TMC4361_eval`` classes see it.  Sources: the public
+TMC-EvalSystem firmware (v3.11, ``tmc/TMCL.c``, ``tmc/BoardAssignment.*``,
+``boards/TMC4361A_eval.c``) and pytrinamic 0.2.26; what could not be confirmed is listed in
+docs/tmc4361a.md ("The evaluation board").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from enum import IntEnum
+
+from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.modules import ModuleType
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN
+from tmcl_spec.parameters import GP, EvalGP, ParamSpec
+from tmcl_spec.tmcm6212 import BANK0_PARAMETERS
+
+
+class EvalOpcode(IntEnum):
+    """Commands of the evaluation firmware that the TMCL modules do not have (or use
+    otherwise: 147 reads a motion-controller register on the TMCM-6212)."""
+
+    DRIVERS_ENABLE = 64  # UF0: all drivers on (value != 0) or off
+    READ_ID_EEPROM = 65  # UF1: 4 bytes of a board's ID EEPROM (type = channel 1 or 2)
+    WRITE_ID_EEPROM = 66  # UF2: 1 byte (motor field) to a board's ID EEPROM
+    ASSIGNMENT = 143  # detect the boards (type 0) and report their ids
+    WRITE_DRV = 147  # write a register of the driver board (channel 2)
+    READ_MC = 148  # read a register of the motion controller (channel 1)
+    READ_DRV = 149  # read a register of the driver board
+
+
+class BoardId(IntEnum):
+    """Board ids of the evaluation system (``tmc/BoardAssignment.h``)."""
+
+    NONE = 0
+    TMC4361A = 11
+
+
+class IdState(IntEnum):
+    """The detection state of a channel (``tmc/IdDetection.h``)."""
+
+    DONE = 2  # detected, and supported by this firmware
+    NO_ANSWER = 4  # no board answered
+    NOT_IN_FW = 6  # an id this firmware does not support (also: id 0, no board)
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalBoards:
+    """What sits on the Landungsbruecke's two channels, as its firmware reports it."""
+
+    #: Channel 1 (motion controller) and channel 2 (driver) board ids.
+    mc_id: int
+    drv_id: int
+    #: ID EEPROM contents per channel (1, 2); a channel without an entry has no EEPROM.
+    id_eeproms: dict[int, bytes]
+    #: GP 5: the Landungsbruecke's hardware id (1: hardware 1.x, 2: 2.0 and later).
+    hardware_id: int
+
+    def word(self, mc_state: int, drv_state: int) -> int:
+        """The 32-bit id word: driver state, driver id, controller state, controller id."""
+        return drv_state << 24 | self.drv_id << 16 | mc_state << 8 | self.mc_id
+
+    @property
+    def detected(self) -> int:
+        """The reply to ASSIGNMENT type 0: what the detection found (no answer on an empty
+        channel)."""
+        return self.word(IdState.DONE if self.mc_id else IdState.NO_ANSWER,
+                         IdState.DONE if self.drv_id else IdState.NO_ANSWER)
+
+    @property
+    def supported(self) -> int:
+        """GP 4 (``Board_supported``): whether this firmware supports the assigned ids (an
+        empty channel, id 0, is "not in firmware")."""
+        return self.word(IdState.DONE if self.mc_id else IdState.NOT_IN_FW,
+                         IdState.DONE if self.drv_id else IdState.NOT_IN_FW)
+
+
+#: The ID EEPROM layout pytrinamic's IDEEPROM reads: description (16 bytes), board id (16
+#: bit), hardware version major and minor, magic number 0x3412 (all little endian).
+ID_EEPROM_SIZE = 256
+ID_EEPROM_MAGIC = 0x3412
+
+
+def id_eeprom(description: str, board_id: int, hardware: tuple[int, int]) -> bytes:
+    image = bytearray(b"\xff" * ID_EEPROM_SIZE)  # an erased EEPROM reads all ones
+    image[0:16] = description.encode("ascii").ljust(16, b"\0")
+    image[16:18] = board_id.to_bytes(2, "little")
+    image[18], image[19] = hardware
+    image[20:22] = ID_EEPROM_MAGIC.to_bytes(2, "little")
+    return bytes(image)
+
+
+TMC4361A_EVAL = EvalBoards(
+    mc_id=BoardId.TMC4361A, drv_id=BoardId.NONE,
+    id_eeproms={1: id_eeprom("TMC4361A-EVAL", BoardId.TMC4361A, (1, 3))},
+    hardware_id=2)
+
+
+# -- axis parameters: the TMC4361A-EVAL firmware's (boards/TMC4361A_eval.c) -----------------
+
+#: Accelerations (and DSTOP) are refused outside 22 bits: ``value & ~0x3FFFFF`` -> status 4.
+_ACCELERATION = (0, 0x3F_FFFF)
+
+
+def _p(number: int, name: str, access: str = "RW",
+       limits: tuple[int, int] = (INT32_MIN, INT32_MAX)) -> ParamSpec:
+    return ParamSpec(number, name, access, limits[0], limits[1], 0)
+
+
+#: The evaluation firmware's axis parameters (pytrinamic's ``TMC4361_eval._MotorTypeA.AP``
+#: lists 0-5, 8, 14-27, 214); each is a thin view of a TMC4361A register (docs/tmc4361a.md).
+AXIS_PARAMETERS: dict[int, ParamSpec] = {
+    spec.number: spec
+    for spec in (
+        _p(0, "Target position"),  # XTARGET
+        _p(1, "Actual position"),  # XACTUAL
+        _p(2, "Target velocity"),  # VMAX (pps, clamped to +-8 000 000)
+        _p(3, "Actual velocity", "R"),  # VACTUAL
+        _p(4, "Maximum velocity"),  # the VMAX a move uses
+        _p(5, "Maximum acceleration", limits=_ACCELERATION),  # AMAX
+        _p(8, "Position reached flag", "R"),  # STATUS bit 0
+        _p(14, "Ramp type"),  # RAMPMODE profile: 0 trapezoid, else S-shaped
+        _p(15, "Velocity VSTART"),  # VSTART (register = value / 256)
+        _p(16, "Acceleration AStart", limits=_ACCELERATION),  # ASTART
+        _p(17, "Maximum deceleration", limits=_ACCELERATION),  # DMAX
+        _p(18, "Velocity VBreak"),  # VBREAK (register = value / 256)
+        _p(19, "Deceleration DFinal", limits=_ACCELERATION),  # DFINAL
+        _p(20, "Velocity VSTOP"),  # VSTOP (register = value / 256)
+        _p(21, "Deceleration DStop", limits=_ACCELERATION),  # DSTOP (register = value / 4)
+        _p(22, "Bow 1"),
+        _p(23, "Bow 2"),
+        _p(24, "Bow 3"),
+        _p(25, "Bow 4"),
+        _p(26, "Virtual stop left"),
+        _p(27, "Virtual stop right"),
+        _p(209, "Encoder position"),  # ENC_POS
+        _p(214, "Power down delay"),  # STDBY_DELAY (register = value * 160 000)
+        _p(225, "Maximum encoder deviation"),  # ENC_POS_DEV_TOL
+    )
+}
+
+
+# -- global parameters (tmc/TMCL.c, Get/SetGlobalParameter) ---------------------------------
+
+def _g(number: int, name: str, access: str, lo: int = INT32_MIN, hi: int = INT32_MAX,
+       default: int = 0) -> ParamSpec:
+    return ParamSpec(number, name, access, lo, hi, default)
+
+
+#: The housekeeping parameters the module model keeps for every module type (addresses,
+#: reply delay, heartbeats, ...): fixed, and invisible on the wire (access "").  The
+#: Landungsbruecke answers as module 1 to host 2 and has no such settings.
+_HIDDEN = {n: dataclasses.replace(spec, access="") for n, spec in BANK0_PARAMETERS.items()}
+_HIDDEN[GP.BAUD_RATE] = dataclasses.replace(_HIDDEN[GP.BAUD_RATE], default=7)  # 115 200 bps
+
+BANK0_PARAMETERS_EVAL: dict[int, ParamSpec] = {
+    **_HIDDEN,
+    **{s.number: s for s in (
+        _g(EvalGP.ERROR_MASK, "Vital signs error mask", "RW"),
+        _g(EvalGP.DRIVERS_ENABLE, "Drivers enable", "RW", 0, 1, 1),
+        _g(EvalGP.DEBUG_MODE, "Debug mode", "RW", 0, 1, 0),
+        _g(EvalGP.BOARD_ASSIGNMENT, "Board assignment", "R", default=TMC4361A_EVAL.supported),
+        _g(EvalGP.HARDWARE_ID, "Hardware id", "R", default=TMC4361A_EVAL.hardware_id),
+    )},
+}
+
+
+# -- the profile -------------------------------------------------------------------------------
+
+#: Opcodes the firmware serves (tmc/TMCL.c); the others answer status 2, as on the board.
+COMMANDS = frozenset({
+    Opcode.ROR, Opcode.ROL, Opcode.MST, Opcode.MVP, Opcode.SAP, Opcode.GAP, Opcode.SGP,
+    Opcode.GGP, Opcode.GET_FIRMWARE_VERSION, Opcode.WRITE_MC, *EvalOpcode,
+})
+
+LANDUNGSBRUECKE_TMC4361A = ModuleType(
+    key="landungsbruecke-tmc4361a",
+    name="Landungsbruecke + TMC4361A-EVAL",
+    module_number=12,  # the Landungsbruecke's MODULE_ID: version string "0012V311"
+    firmware=(3, 11),
+    number_of_axes=1,
+    axis_parameters=AXIS_PARAMETERS,
+    global_parameters={0: BANK0_PARAMETERS_EVAL},
+    storable_axis_parameters=frozenset(),
+    storable_user_variables=0,
+    digital_inputs=0,
+    analog_inputs=0,
+    outputs=0,
+    coordinates=0,
+    program_memory=0,
+    chip_core="tmc4361a-eval",
+    commands=COMMANDS,
+    handlers={
+        Opcode.MVP: "mvp_eval",
+        EvalOpcode.DRIVERS_ENABLE: "drivers_enable",
+        EvalOpcode.READ_ID_EEPROM: "read_id_eeprom",
+        EvalOpcode.WRITE_ID_EEPROM: "write_id_eeprom",
+        EvalOpcode.ASSIGNMENT: "board_assignment",
+        EvalOpcode.WRITE_DRV: "write_drv",
+        EvalOpcode.READ_DRV: "read_drv",
+    },
+    unknown_parameter_status=Status.INVALID_COMMAND,
+    has_can=False,
+    eval_boards=TMC4361A_EVAL,
+)
