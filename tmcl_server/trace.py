@@ -64,6 +64,8 @@ _json_string = json.encoder.encode_basestring  # type: ignore[attr-defined]
 _Note = tuple[Any, ...]
 #: What a formatter returns: kind, endpoint, module address, text, JSON fields (or None).
 _Line = tuple[str, str, int, str, dict[str, Any] | None]
+#: A decoded line as listeners get it: wall time, simulated ns, kind, endpoint, module, text.
+TraceLine = tuple[float, int, str, str, int, str]
 
 
 def endpoint_of(sink: object) -> str:
@@ -115,14 +117,18 @@ class _TracedSink:
 
 
 class Tracer:
-    """Writes trace lines for one simulation to a text stream (``text`` or ``jsonl``)."""
+    """Writes trace lines for one simulation to a text stream (``text`` or ``jsonl``), and
+    hands them, decoded, to its :attr:`listeners` (the dashboard's wire view)."""
 
-    def __init__(self, stream: TextIO, fmt: str = "text",
+    def __init__(self, stream: TextIO | None, fmt: str = "text",
                  wall: Callable[[], float] = time.time) -> None:
         if fmt not in FORMATS:
             raise ValueError(f"trace format must be one of {', '.join(FORMATS)}, not {fmt!r}")
+        #: Where lines are written; None: only the listeners get them.
         self.stream = stream
         self.jsonl = fmt == "jsonl"
+        #: Called with every batch of decoded lines, in order.
+        self.listeners: list[Callable[[list[TraceLine]], None]] = []
         self._wall = wall
         self._simulation: Simulation | None = None
         self._listeners: list[tuple[TMCLModule, Callable[[ModuleEvent], None]]] = []
@@ -416,9 +422,17 @@ class Tracer:
         if not self._notes:
             return
         notes, self._notes = self._notes, []
-        lines = [self._render(note[1], note[2], note[0](*note[3:])) for note in notes]
+        decoded = [(note[1], note[2], note[0](*note[3:])) for note in notes]
+        if self.listeners:
+            batch = [(wall, sim, kind, endpoint, address, text) for wall, sim, lines in decoded
+                     for kind, endpoint, address, text, _ in lines]
+            for listener in list(self.listeners):
+                listener(batch)
+        if self.stream is None:
+            return
+        rendered = [self._render(wall, sim, lines) for wall, sim, lines in decoded]
         try:
-            self.stream.write("\n".join(lines) + "\n")
+            self.stream.write("\n".join(rendered) + "\n")
             self.stream.flush()
         except (OSError, ValueError):  # a closed pipe must not stop the simulator
             pass
