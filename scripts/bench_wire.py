@@ -6,16 +6,22 @@ Runs, in one go and on the same machine:
 * ``tmcl-server`` (TCP and a pty), each in its own process,
 * ``tmcl-server --trace FILE`` (text, and ``--trace-format jsonl``): the same with the
   telegram trace on, writing two lines per request to a file,
+* ``tmcl-server --http`` with a page open on the dashboard (``--page chromium``: a headless
+  Chromium showing the page; ``--page ws``: a WebSocket client that acknowledges every frame
+  at once, with the Parameters section open, so the server does its most work; ``--page
+  none``: no dashboard case),
 and measures, for 1 and 16 lockstep TCP clients and for one pty client, requests per second
 and p50/p99 round-trip latency.  Every figure is the median of ``--repeat`` runs.  The traced
-rates are reported as a ratio to the untraced one measured in the same run (goal >= 80%).
+rates and the rate with a dashboard page are reported as a ratio to the plain one measured in
+the same run (goal >= 80%).
 
-    .venv/bin/python scripts/bench_wire.py [--seconds 2] [--repeat 3]
+    .venv/bin/python scripts/bench_wire.py [--seconds 2] [--repeat 3] [--page chromium|ws|none]
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import os
 import socket
@@ -155,10 +161,54 @@ def start_simulator(tmp: Path, *extra: str, name: str = "plain"
     return proc, json.loads(ready.read_text())
 
 
+class DashboardPage:
+    """A page open on a simulator's dashboard for the whole benchmark (``--page``)."""
+
+    def __init__(self, kind: str, url: str) -> None:
+        self.kind = kind
+        self.frames = 0
+        self._stop = threading.Event()
+        self._browser = None
+        self._thread: threading.Thread | None = None
+        if kind == "chromium":
+            sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+            from tests.helpers.browser import HeadlessChromium
+
+            self._browser = HeadlessChromium(1400, 1000)
+            self._browser.driver.get(url)
+        else:
+            self._thread = threading.Thread(target=lambda: asyncio.run(self._acknowledge(url)),
+                                            daemon=True)
+            self._thread.start()
+
+    async def _acknowledge(self, url: str) -> None:
+        import aiohttp
+
+        async with aiohttp.ClientSession() as session, session.ws_connect(f"{url}ws") as ws:
+            await ws.receive_json()  # hello
+            await ws.send_json({"op": "view", "module": 1, "parameters": True})
+            while not self._stop.is_set():
+                await ws.receive_str()
+                self.frames += 1
+                await ws.send_json({"op": "ack"})
+
+    def frame_count(self) -> int:
+        if self._browser is not None:
+            return int(self._browser.driver.execute_script("return window.tmclDashboard.frames()"))
+        return self.frames
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._browser is not None:
+            self._browser.quit()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="length of one run")
     parser.add_argument("--repeat", type=int, default=3, help="runs per figure (median)")
+    parser.add_argument("--page", choices=["chromium", "ws", "none"], default="chromium",
+                        help="what is open on the --http dashboard (default chromium)")
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory() as tmpdir:
@@ -170,6 +220,12 @@ def main() -> None:
                                                    name="traced")
         jsonl, jsonl_endpoints = start_simulator(tmp, "--trace", str(tmp / "trace.jsonl"),
                                                  "--trace-format", "jsonl", name="jsonl")
+        processes = [echo, sim, traced, jsonl]
+        page = None
+        if args.page != "none":
+            http, http_endpoints = start_simulator(tmp, "--http", "127.0.0.1:0", name="http")
+            processes.append(http)
+            page = DashboardPage(args.page, http_endpoints["http"][0])
         try:
             cases = (
                 ("echo  tcp  1 client ", lockstep_tcp, echo_endpoint, 1),
@@ -183,6 +239,10 @@ def main() -> None:
                 ("sim   tcp  pytrinamic", lockstep_pytrinamic, endpoints["tcp"][0], 1),
                 ("trace tcp  pytrinamic", lockstep_pytrinamic, traced_endpoints["tcp"][0], 1),
             )
+            if page is not None:
+                cases += (("http  tcp  1 client ", lockstep_tcp, http_endpoints["tcp"][0], 1),
+                          ("http  tcp  pytrinamic", lockstep_pytrinamic, http_endpoints["tcp"][0], 1))
+                frames_before, page_began = page.frame_count(), time.perf_counter()
             # Interleave the cases (echo, sim, echo, sim, ...) so that drifting background
             # load hits both sides of every ratio alike.
             runs: dict[str, list[dict[str, float]]] = {label: [] for label, *_ in cases}
@@ -203,8 +263,17 @@ def main() -> None:
                           ("trace tcp  1 client ", "sim   tcp  1 client "),
                           ("jsonl tcp  1 client ", "sim   tcp  1 client "),
                           ("trace tcp  pytrinamic", "sim   tcp  pytrinamic"))]
+            if page is not None:
+                frame_rate = (page.frame_count() - frames_before) / (time.perf_counter() - page_began)
+                page_ratios = [statistics.median(h["rate"] / s["rate"] for h, s in
+                                                 zip(runs[http_label], runs[sim_label], strict=True))
+                               for http_label, sim_label in (
+                                   ("http  tcp  1 client ", "sim   tcp  1 client "),
+                                   ("http  tcp  pytrinamic", "sim   tcp  pytrinamic"))]
         finally:
-            for proc in (echo, sim, traced, jsonl):
+            if page is not None:
+                page.close()
+            for proc in processes:
                 proc.terminate()
                 proc.wait(10)
 
@@ -219,6 +288,10 @@ def main() -> None:
     print(f"ratio traced/untraced, 1 raw client: --trace text {text_trace:.0%}, "
           f"jsonl {jsonl_trace:.0%} (goal >= 80%); by p50 latency: text {latency_ratios[0]:.0%}, "
           f"jsonl {latency_ratios[1]:.0%}; 1 pytrinamic client, --trace text: {pytrinamic_trace:.0%}")
+    if page is not None:
+        print(f"ratio with a dashboard page open ({args.page}, {frame_rate:.1f} frames/s)/plain: "
+              f"1 raw client {page_ratios[0]:.0%}, 1 pytrinamic client {page_ratios[1]:.0%} "
+              "(goal >= 80%)")
 
 
 if __name__ == "__main__":

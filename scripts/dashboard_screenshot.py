@@ -44,7 +44,7 @@ def drive_host(tcp: str, stop: threading.Event) -> None:
             iface.set_axis_parameter(AP.MAX_SPEED, axis, speed)
             iface.set_axis_parameter(AP.MAX_ACCELERATION, axis, acceleration)
         iface.set_axis_parameter(AP.RFS_MODE, 4, 1)  # the left end switch
-        iface.set_axis_parameter(AP.RFS_SPEED, 4, 5000)  # still seeking when the picture is taken
+        iface.set_axis_parameter(AP.RFS_SPEED, 4, 3500)  # still seeking when the picture is taken
         iface.set_axis_parameter(AP.RFS_SWITCH_SPEED, 4, 2000)
         iface.send(Opcode.SIO, 1, 2, 1)  # OUT1 lamp on
         iface.send(Opcode.RFS, 0, 4, 0)
