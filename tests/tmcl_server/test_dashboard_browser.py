@@ -17,6 +17,7 @@ from tmcl_spec.commands import ApplicationStatus, Opcode
 from tmcl_spec.parameters import AP, GP
 
 pytest.importorskip("aiohttp")
+Keys = pytest.importorskip("selenium.webdriver.common.keys").Keys
 pytrinamic = pytest.importorskip("pytrinamic.connections")
 pytestmark = pytest.mark.skipif(missing_reason() is not None, reason=missing_reason() or "")
 
@@ -73,6 +74,14 @@ def until(condition: Callable[[], Any], timeout: float = 10.0) -> Any:
         time.sleep(0.02)
 
 
+def edit(cell: Any, text: str) -> None:
+    """Type into a table cell as a person does: select what is there, type, Enter (the cell
+    keeps the focus throughout, so live updates leave it alone)."""
+    cell.click()
+    cell.send_keys(Keys.CONTROL, "a")
+    cell.send_keys(text, Keys.ENTER)
+
+
 def plotted(page: Any, axis: int) -> dict[str, Any] | None:
     return page.execute_script(f"return window.tmclDashboard.plotted({axis})")
 
@@ -126,22 +135,24 @@ def test_a_parameter_edited_in_the_table_is_read_back_by_the_host(page: Any, sim
     page.find_element("css selector", "#parameters-panel > summary").click()
     cell = page.find_element("css selector", '#axis-parameters tr[data-number="4"] td:nth-child(5) input')
     until(lambda: cell.get_attribute("value") == "51200")  # live values arrived
-    cell.clear()
-    cell.send_keys("12345\n")
+    edit(cell, "12345")
     status = page.find_element("id", "parameter-status")
     until(lambda: "→ 100 OK" in status.text)
     assert status.text == "SAP 4 MaxPositioningSpeed m2 = 12345 → 100 OK"
     assert host.get_axis_parameter(AP.MAX_SPEED, 2) == 12345
     # validated like a host's: out of range is refused, and nothing changes
     current = page.find_element("css selector", '#axis-parameters tr[data-number="6"] td:nth-child(5) input')
-    current.clear()
-    current.send_keys("300\n")
+    edit(current, "300")
     until(lambda: "INVALID_VALUE" in status.text)
     assert host.get_axis_parameter(AP.MAX_CURRENT, 2) == 128
     # and traced like a host's: the wire shows the page as an http endpoint
-    rows = until(lambda: [r.text for r in page.find_elements("css selector", "#wire-table tbody tr")
-                          if "MaxPositioningSpeed m2 = 12345" in r.text])
-    assert " http 127.0.0.1:" in f" {rows[0]}"
+    rows = until(lambda: page.execute_script(
+        "return [...document.querySelectorAll('#wire-table tbody tr')]"
+        ".map(row => [...row.cells].map(cell => cell.textContent))"
+        ".filter(cells => cells[4].startsWith(arguments[0]))", "SAP 4 MaxPositioningSpeed m2 = 12345"))
+    (_, endpoint, module, kind, text), = rows
+    assert endpoint.startswith("http 127.0.0.1:") and (module, kind) == ("1", "cmd")
+    assert text == "SAP 4 MaxPositioningSpeed m2 = 12345 → 100 OK"
 
 
 def test_a_breakpoint_set_in_the_page_stops_the_program_and_step_advances_one_instruction(
