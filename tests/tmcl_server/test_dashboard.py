@@ -14,7 +14,7 @@ from axes.world import World
 from interpreter.assembler import assemble
 from tests.conftest import RawClient
 from tmcl_server.clock import VirtualClock
-from tmcl_server.dashboard.core import ActionError, Dashboard, Viewer
+from tmcl_server.dashboard.core import WIRE_PER_FRAME, ActionError, Dashboard, Viewer
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
@@ -93,6 +93,20 @@ def test_a_command_from_the_page_is_validated_answered_and_traced_like_a_hosts()
         (PAGE, "cmd", "SAP 6 MaxCurrent m0 = 300 → 4 INVALID_VALUE")]
     with pytest.raises(ActionError, match="unknown mnemonic"):
         dashboard.act({"op": "command", "cmd": "FLY"}, viewer)
+
+
+def test_a_flood_of_telegrams_is_counted_and_only_the_newest_are_decoded_for_the_page() -> None:
+    dashboard, simulation = make()
+    dashboard.watch()
+    viewer = Viewer(PAGE, 1)
+    dashboard.frame(viewer)
+    for value in range(250):
+        simulation.handle_serial_frame(Request(1, Opcode.SAP, AP.MAX_SPEED, 0, value).encode())
+    frame = dashboard.frame(viewer)
+    assert (len(frame["wire"]), frame["wire_skipped"]) == (WIRE_PER_FRAME, 250 - WIRE_PER_FRAME)
+    assert [line[5] for line in frame["wire"][-2:]] == [
+        "SAP 4 MaxPositioningSpeed m0 = 248 → 100 OK", "SAP 4 MaxPositioningSpeed m0 = 249 → 100 OK"]
+    assert dashboard.frame(viewer)["wire"] == []
 
 
 def test_the_page_watches_through_a_tracer_only_while_it_is_open() -> None:

@@ -39,14 +39,17 @@ from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, ParamSpec
 if TYPE_CHECKING:
     from tmcl_server.module import TMCLModule
     from tmcl_server.simulation import Simulation
-    from tmcl_server.trace import TraceLine, Tracer
+    from tmcl_server.trace import TraceNote, Tracer
 
 #: Samples are kept this many simulated seconds back (the page plots up to this window) ...
 KEEP_SAMPLES_S = 120.0
 #: ... and at most this many per module.
 MAX_SAMPLES = 6000
-#: Wire lines kept for pages (a new page gets them all).
-WIRE_LINES = 1000
+#: Telegrams (trace notes) kept for pages ...
+WIRE_KEPT = 1000
+#: ... and at most this many of the newest ones new to a page go out with a frame, decoded (a
+#: flood of requests is counted, not shown: nobody reads 10,000 lines a second).
+WIRE_PER_FRAME = 100
 #: Reads with a side effect: the page shows the value without the effect (AP 207 clears the
 #: error flags when read: the status shows them; GP 133 draws the next random number).
 _ERROR_FLAGS = AP.ERROR_FLAGS
@@ -66,15 +69,15 @@ class Viewer:
     slot: int
     #: The page's Parameters section is open: send parameter values (at a lower rate).
     parameters: bool = False
-    samples_seen: int = -1
-    wire_seen: int = -1
+    samples_seen: int = 0
+    wire_seen: int = 0
     listing_revision: int = -1
 
     def show(self, slot: int) -> None:
         """Switch to another module: its whole history is new to this page."""
         if slot != self.slot:
             self.slot = slot
-            self.samples_seen = -1
+            self.samples_seen = 0
             self.listing_revision = -1
 
 
@@ -122,7 +125,7 @@ class Dashboard:
         self._samples: dict[int, deque[_Sample]] = {slot: deque(maxlen=MAX_SAMPLES)
                                                     for slot in self.modules}
         self._sample_seq = 0
-        self._wire: deque[tuple[int, list[Any]]] = deque(maxlen=WIRE_LINES)
+        self._wire: deque[tuple[int, TraceNote]] = deque(maxlen=WIRE_KEPT)
         self._wire_seq = 0
         self._watchers = 0
         self._tracer: Tracer | None = None
@@ -167,11 +170,14 @@ class Dashboard:
     def watched(self) -> bool:
         return self._watchers > 0
 
-    def _on_trace(self, batch: list[TraceLine]) -> None:
-        for wall, sim_ns, kind, endpoint, address, text in batch:
-            self._wire_seq += 1
-            self._wire.append((self._wire_seq, [round(sim_ns / NS_PER_S, 6), round(wall, 6),
-                                                endpoint, address, kind, text]))
+    def _on_trace(self, notes: list[TraceNote]) -> None:
+        """Keep the notes as they are: only those a page is sent are ever decoded."""
+        wire = self._wire
+        seq = self._wire_seq
+        for note in notes:
+            seq += 1
+            wire.append((seq, note))
+        self._wire_seq = seq
 
     # == what a page gets ======================================================================
 
@@ -229,8 +235,8 @@ class Dashboard:
             "type": "frame", "t": self.simulation.now_ns / NS_PER_S, "module": module.slot,
             "address": module.address, "axes": self._axes(module), "io": self._io(module),
             "program": self._program(module), "samples": self._new_samples(viewer),
-            "wire": self._new_wire(viewer),
         }
+        out["wire"], out["wire_skipped"] = self._new_wire(viewer)
         if interp.memory_revision != viewer.listing_revision:
             viewer.listing_revision = interp.memory_revision
             out["listing"] = [list(line) for line in labelled(interp.program())]
@@ -346,15 +352,20 @@ class Dashboard:
                 "velocity": [list(axis) for axis in zip(*(s.velocity for s in new), strict=True)],
                 "target": [list(axis) for axis in zip(*(s.target for s in new), strict=True)]}
 
-    def _new_wire(self, viewer: Viewer) -> list[list[Any]]:
-        new = []
-        for seq, line in reversed(self._wire):
-            if seq <= viewer.wire_seen:
-                break
-            new.append(line)
-        new.reverse()
+    def _new_wire(self, viewer: Viewer) -> tuple[list[list[Any]], int]:
+        """The newest telegrams this page has not seen, decoded (at most WIRE_PER_FRAME), and
+        how many newer than its last frame it does not get."""
+        new = self._wire_seq - viewer.wire_seen  # some may have left the ring already
         viewer.wire_seen = self._wire_seq
-        return new
+        if new <= 0 or self._tracer is None:
+            return [], 0
+        wire = self._wire
+        shown = min(new, len(wire), WIRE_PER_FRAME)
+        decode = self._tracer.decode
+        lines = [[round(sim_ns / NS_PER_S, 6), round(wall, 6), endpoint, address, kind, text]
+                 for index in range(len(wire) - shown, len(wire))
+                 for wall, sim_ns, kind, endpoint, address, text in decode(wire[index][1])]
+        return lines, new - shown
 
     # == what a page does ======================================================================
 

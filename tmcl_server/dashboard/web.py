@@ -34,8 +34,9 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 STATIC = Path(__file__).resolve().parent / "static"
-#: A page gets at most one frame per this many wall seconds (20 per second) ...
-FRAME_PERIOD_S = 0.05
+#: A page gets at most one frame per this many wall seconds (10 per second: smooth enough for
+#: the plots, and a browser on the same small machine leaves the simulator its CPU) ...
+FRAME_PERIOD_S = 0.1
 #: ... and waits at most this long for its acknowledgement (a hidden tab draws nothing).
 ACK_TIMEOUT_S = 1.0
 #: The axes of every module a page shows are sampled this often (wall seconds).
@@ -171,7 +172,7 @@ class DashboardTransport(Transport):
 
     async def _feed(self, ws: web.WebSocketResponse, viewer: Viewer,
                     acknowledged: asyncio.Event) -> None:
-        """Frames for one page: each after the last was acknowledged, at most 20 a second."""
+        """Frames for one page: each after the last was acknowledged, at most 10 a second."""
         loop = asyncio.get_running_loop()
         parameters_due = 0.0
         try:

@@ -18,6 +18,17 @@
     return node;
   }
 
+  /** Write text only when it changed: every write makes the browser lay out and paint again. */
+  function setText(node, text) {
+    const value = String(text);
+    if (node.textContent !== value) node.textContent = value;
+  }
+
+  function setValue(input, value) {
+    const text = String(value);
+    if (document.activeElement !== input && input.value !== text) input.value = text;
+  }
+
   const KEEP_S = 120;          // samples kept (simulated seconds), as on the server
   const WIRE_KEEP = 1000;      // wire lines kept
   const WIRE_SHOWN = 400;      // wire rows in the table
@@ -35,6 +46,7 @@
     listing: [],              // [[address, label, text]]
     wire: [],                 // [[sim, wall, endpoint, module, kind, text]]
     endpoints: new Set(),
+    wireSkipped: 0,           // telegrams the server counted but did not send (a flood)
     replies: new Map(),
     nextId: 1,
     socket: null,
@@ -234,7 +246,7 @@
     frame.axes.forEach((axis, index) => {
       const card = $(`axis-${index}`);
       if (!card) return;
-      const set = (selector, text) => { card.querySelector(selector).textContent = text; };
+      const set = (selector, text) => setText(card.querySelector(selector), text);
       set(".mode", axis.mode);
       set(".reached", axis.reached ? "reached" : "");
       set(".position", axis.position);
@@ -252,7 +264,7 @@
         button.classList.toggle("held", axis.held.includes(name));
       }
       const load = card.querySelector(".load");
-      if (document.activeElement !== load) load.value = axis.free_load;
+      setValue(load, axis.free_load);
     });
   }
 
@@ -281,15 +293,15 @@
       button.classList.toggle("on", Boolean(io.inputs[button.dataset.port]));
     }
     for (const slider of $("analog-inputs").querySelectorAll("input")) {
-      if (document.activeElement !== slider) slider.value = io.analog[slider.dataset.port];
+      setValue(slider, io.analog[slider.dataset.port]);
     }
     for (const value of $("analog-inputs").querySelectorAll(".analog-value")) {
-      value.textContent = io.analog[value.dataset.port];
+      setText(value, io.analog[value.dataset.port]);
     }
     for (const lamp of $("outputs").children) {
       lamp.classList.toggle("on", Boolean(io.outputs[lamp.dataset.port]));
     }
-    $("supply").textContent = io.supply.toFixed(1);
+    setText($("supply"), io.supply.toFixed(1));
   }
 
   // -- parameters ------------------------------------------------------------------------------
@@ -396,17 +408,16 @@
   }
 
   function drawProgram(program) {
-    const text = (id, value) => { $(id).textContent = value; };
+    const text = (id, value) => setText($(id), value);
     text("reg-state", program.state + (program.protected ? " (read-protected: hosts read empty cells)" : ""));
     text("reg-pc", program.pc);
     text("reg-a", program.accumulator);
     text("reg-x", program.x);
     text("reg-wait", program.wait || "–");
     text("reg-executed", program.executed);
-    const chips = (id, names) => $(id).replaceChildren(...names.map((name) =>
-      el("span", {class: `chip flag${program.flags[name] ? " on" : ""}`, text: name})));
-    chips("reg-flags", ["ZE", "NZ", "EQ", "NE", "GT", "GE", "LT", "LE"]);
-    chips("reg-errors", ["ETO", "EAL", "EDV", "EPO", "ESD"]);
+    for (const id of ["reg-flags", "reg-errors"]) {
+      for (const chip of $(id).children) chip.classList.toggle("on", Boolean(program.flags[chip.textContent]));
+    }
     text("reg-stack", program.stack.length ? program.stack.join(" › ") : "empty");
     const vectors = state.description.vectors;
     const name = (v) => vectors[v] || v;
@@ -448,6 +459,12 @@
 
   // -- wire ------------------------------------------------------------------------------------
 
+  function buildFlags() {
+    const chips = (names) => names.map((name) => el("span", {class: "chip flag", text: name}));
+    $("reg-flags").replaceChildren(...chips(["ZE", "NZ", "EQ", "NE", "GT", "GE", "LT", "LE"]));
+    $("reg-errors").replaceChildren(...chips(["ETO", "EAL", "EDV", "EPO", "ESD"]));
+  }
+
   function wireMatches(line) {
     const endpoint = $("wire-endpoint").value;
     const filter = $("wire-filter").value.trim().toLowerCase();
@@ -482,7 +499,8 @@
     const body = $("wire-table").tBodies[0];
     body.append(...lines.slice(-WIRE_SHOWN).map(wireRow));
     while (body.rows.length > WIRE_SHOWN) body.deleteRow(0);
-    $("wire-count").textContent = `${body.rows.length} shown of ${state.wire.length} kept`;
+    $("wire-count").textContent = `${body.rows.length} shown of ${state.wire.length} kept` +
+      (state.wireSkipped ? `; ${state.wireSkipped} more not sent (too many to follow)` : "");
     if (atBottom) box.scrollTop = box.scrollHeight;
   }
 
@@ -520,6 +538,7 @@
       state.listing = frame.listing;
       renderListing();
     }
+    state.wireSkipped += frame.wire_skipped;
     addWire(frame.wire);
     if (frame.parameters) drawParameters(frame.parameters);
     if (!state.drawPending) {
@@ -532,7 +551,7 @@
     state.drawPending = false;
     const frame = state.frame;
     if (frame) {
-      $("sim-time").textContent = frame.t.toFixed(3);
+      setText($("sim-time"), frame.t.toFixed(3));
       drawAxes(frame);
       drawPlots();
       drawIo(frame.io);
@@ -552,6 +571,7 @@
   $("wire-endpoint").addEventListener("change", renderWire);
   $("wire-filter").addEventListener("input", renderWire);
   $("wire-pause").addEventListener("change", renderWire);
+  buildFlags();
   programButton("run", 129, 0);
   programButton("stop", 128);
   programButton("step", 130);
