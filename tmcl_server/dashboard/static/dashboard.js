@@ -31,7 +31,10 @@
 
   const KEEP_S = 120;          // samples kept (simulated seconds), as on the server
   const WIRE_KEEP = 1000;      // wire lines kept
-  const WIRE_SHOWN = 400;      // wire rows in the table
+  // The live wire view shows the newest rows twice a second (painting a table of text at
+  // frame rate cost a browser more CPU than the rest of the page); paused, it shows every
+  // kept line that matches, to scroll through.
+  const WIRE_LIVE_ROWS = 18, WIRE_PAUSED_ROWS = 1000, WIRE_REFRESH_MS = 500;
   const POSITION = "#1f6feb", TARGET = "#6ea8fe", VELOCITY = "#e8710a", LIMIT = "#f0a868";
 
   const state = {
@@ -47,6 +50,8 @@
     wire: [],                 // [[sim, wall, endpoint, module, kind, text]]
     endpoints: new Set(),
     wireSkipped: 0,           // telegrams the server counted but did not send (a flood)
+    wireDirty: false,
+    wireShownAt: 0,
     replies: new Map(),
     nextId: 1,
     socket: null,
@@ -490,23 +495,24 @@
         select.append(el("option", {value: line[2], text: line[2]}));
       }
     }
-    if (!$("wire-pause").checked) appendWireRows(lines.filter(wireMatches));
+    state.wireDirty = true;
   }
 
-  function appendWireRows(lines) {
-    const box = document.querySelector(".wire-box");
-    const atBottom = box.scrollTop + box.clientHeight >= box.scrollHeight - 4;
-    const body = $("wire-table").tBodies[0];
-    body.append(...lines.slice(-WIRE_SHOWN).map(wireRow));
-    while (body.rows.length > WIRE_SHOWN) body.deleteRow(0);
-    $("wire-count").textContent = `${body.rows.length} shown of ${state.wire.length} kept` +
-      (state.wireSkipped ? `; ${state.wireSkipped} more not sent (too many to follow)` : "");
-    if (atBottom) box.scrollTop = box.scrollHeight;
+  function drawWire() {
+    if (state.wireDirty && !$("wire-pause").checked &&
+        performance.now() - state.wireShownAt >= WIRE_REFRESH_MS) renderWire();
   }
 
   function renderWire() {
-    $("wire-table").tBodies[0].replaceChildren();
-    appendWireRows(state.wire.filter(wireMatches));
+    state.wireDirty = false;
+    state.wireShownAt = performance.now();
+    const matching = state.wire.filter(wireMatches);
+    const rows = matching.slice($("wire-pause").checked ? -WIRE_PAUSED_ROWS : -WIRE_LIVE_ROWS);
+    $("wire-table").tBodies[0].replaceChildren(...rows.map(wireRow));
+    setText($("wire-count"), `${rows.length} shown, ${matching.length} of ${state.wire.length} kept match` +
+      (state.wireSkipped ? `; ${state.wireSkipped} more not sent (too many to follow)` : ""));
+    const box = document.querySelector(".wire-box");
+    box.scrollTop = box.scrollHeight;
   }
 
   // -- frames ----------------------------------------------------------------------------------
@@ -557,6 +563,7 @@
       drawIo(frame.io);
       drawProgram(frame.program);
     }
+    drawWire();
     send({op: "ack"});  // drawn: the server may send the next frame
   }
 
