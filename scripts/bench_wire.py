@@ -118,22 +118,37 @@ def lockstep_pytrinamic(endpoint: str, seconds: float, latencies: list[int],
 ECHO_ENDPOINT: list[str] = [""]
 
 
-def measure(target, endpoint: str, clients: int, seconds: float) -> dict[str, float]:
+def cpu_seconds(pid: int | None) -> float:
+    """CPU time (user + system) a process has used so far (Linux; 0 elsewhere)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, TypeError):
+        return 0.0
+
+
+def measure(target, endpoint: str, clients: int, seconds: float,
+            pid: int | None = None) -> dict[str, float]:
     latencies: list[int] = []
     counts: list[int] = []
     threads = [threading.Thread(target=target, args=(endpoint, seconds, latencies, counts))
                for _ in range(clients)]
+    cpu_before = cpu_seconds(pid)
     start = time.perf_counter()
     for t in threads:
         t.start()
     for t in threads:
         t.join()
     elapsed = time.perf_counter() - start
+    cpu = cpu_seconds(pid) - cpu_before
     latencies.sort()
     return {
         "rate": sum(counts) / elapsed,
         "p50_us": latencies[len(latencies) // 2] / 1000,
         "p99_us": latencies[int(len(latencies) * 0.99)] / 1000,
+        # the server's CPU per request: steadier than the rate on a shared machine
+        "cpu_us": cpu / max(1, sum(counts)) * 1e6,
     }
 
 
@@ -239,7 +254,10 @@ def main() -> None:
                 ("sim   tcp  pytrinamic", lockstep_pytrinamic, endpoints["tcp"][0], 1),
                 ("trace tcp  pytrinamic", lockstep_pytrinamic, traced_endpoints["tcp"][0], 1),
             )
+            server_pid = {endpoints["tcp"][0]: sim.pid, traced_endpoints["tcp"][0]: traced.pid,
+                          jsonl_endpoints["tcp"][0]: jsonl.pid}
             if page is not None:
+                server_pid[http_endpoints["tcp"][0]] = http.pid
                 cases += (("http  tcp  1 client ", lockstep_tcp, http_endpoints["tcp"][0], 1),
                           ("http  tcp  pytrinamic", lockstep_pytrinamic, http_endpoints["tcp"][0], 1))
                 frames_before, page_began = page.frame_count(), time.perf_counter()
@@ -248,7 +266,8 @@ def main() -> None:
             runs: dict[str, list[dict[str, float]]] = {label: [] for label, *_ in cases}
             for _ in range(args.repeat):
                 for label, target, endpoint, clients in cases:
-                    runs[label].append(measure(target, endpoint, clients, args.seconds))
+                    runs[label].append(measure(target, endpoint, clients, args.seconds,
+                                               server_pid.get(endpoint)))
             rows = [(label, median_of(r)) for label, r in runs.items()]
             # p50 latency is steadier than the rate on a shared machine: report both
             latency_ratios = [statistics.median(s["p50_us"] / t["p50_us"] for s, t in
@@ -265,6 +284,8 @@ def main() -> None:
                           ("trace tcp  pytrinamic", "sim   tcp  pytrinamic"))]
             if page is not None:
                 frame_rate = (page.frame_count() - frames_before) / (time.perf_counter() - page_began)
+                page_cpu = [statistics.median(r["cpu_us"] for r in runs[label])
+                            for label in ("sim   tcp  1 client ", "http  tcp  1 client ")]
                 page_ratios = [statistics.median(h["rate"] / s["rate"] for h, s in
                                                  zip(runs[http_label], runs[sim_label], strict=True))
                                for http_label, sim_label in (
@@ -279,9 +300,10 @@ def main() -> None:
 
     print(f"machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}; "
           f"median of {args.repeat} runs of {args.seconds:g} s")
-    print(f"{'':22} {'req/s':>9} {'p50 us':>8} {'p99 us':>8}")
+    print(f"{'':22} {'req/s':>9} {'p50 us':>8} {'p99 us':>8} {'server CPU us/req':>18}")
     for label, r in rows:
-        print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f}")
+        cpu = f"{r['cpu_us']:18.1f}" if r["cpu_us"] else ""
+        print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f} {cpu}")
     one, many, pytri, text_trace, jsonl_trace, pytrinamic_trace = ratios
     print(f"ratio sim/echo (median of paired runs): 1 raw client {one:.0%}, 16 raw clients "
           f"{many:.0%}, 1 pytrinamic client {pytri:.0%} (goal: 1 client >= 80%)")
@@ -291,7 +313,8 @@ def main() -> None:
     if page is not None:
         print(f"ratio with a dashboard page open ({args.page}, {frame_rate:.1f} frames/s)/plain: "
               f"1 raw client {page_ratios[0]:.0%}, 1 pytrinamic client {page_ratios[1]:.0%} "
-              "(goal >= 80%)")
+              f"(goal >= 80%); server CPU per request, 1 raw client: {page_cpu[1]:.1f} us "
+              f"against {page_cpu[0]:.1f} us")
 
 
 if __name__ == "__main__":
