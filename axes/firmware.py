@@ -48,6 +48,7 @@ DriverFactory = Callable[[Mapping[int, int], AxisBoard], ChipDriver]
 
 
 _UNKNOWN = object()  # lookahead not computed since the last change
+_NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
 
 #: Parameters whose value depends on the motion (read from the chip at the present time).
 _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_SPEED,
@@ -127,12 +128,14 @@ class AxisFirmware:
 
     def _timer_due(self) -> int | None:
         """The firmware's own next deadline (standby current, stallGuard sampling)."""
-        times = []
+        due = None
         if self._standstill_since is not None and not self._standby:
-            times.append(self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS)
+            due = self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS
         if self._stall_watch:
-            times.append(self._now_ns + STALL_POLL_NS)
-        return min(times) if times else None
+            poll = self._now_ns + STALL_POLL_NS
+            if due is None or poll < due:
+                due = poll
+        return due
 
     def next_event_ns(self) -> int | None:
         if self._pending:
@@ -166,7 +169,10 @@ class AxisFirmware:
                 self._on_timer()
             else:
                 break
-        self._now_ns = max(self._now_ns, t_ns)
+        if t_ns > self._now_ns:
+            self._now_ns = t_ns
+        if not self._pending:
+            return _NO_EVENTS
         events, self._pending = self._pending, []
         return events
 

@@ -235,7 +235,9 @@ def main() -> None:
                                                    name="traced")
         jsonl, jsonl_endpoints = start_simulator(tmp, "--trace", str(tmp / "trace.jsonl"),
                                                  "--trace-format", "jsonl", name="jsonl")
-        processes = [echo, sim, traced, jsonl]
+        # the default loop is uvloop where installed (the fast extra); asyncio's for comparison
+        plain_loop, plain_endpoints = start_simulator(tmp, "--loop", "asyncio", name="asyncio")
+        processes = [echo, sim, traced, jsonl, plain_loop]
         page = None
         if args.page != "none":
             http, http_endpoints = start_simulator(tmp, "--http", "127.0.0.1:0", name="http")
@@ -245,6 +247,7 @@ def main() -> None:
             cases = (
                 ("echo  tcp  1 client ", lockstep_tcp, echo_endpoint, 1),
                 ("sim   tcp  1 client ", lockstep_tcp, endpoints["tcp"][0], 1),
+                ("asyncio-loop sim tcp", lockstep_tcp, plain_endpoints["tcp"][0], 1),
                 ("trace tcp  1 client ", lockstep_tcp, traced_endpoints["tcp"][0], 1),
                 ("jsonl tcp  1 client ", lockstep_tcp, jsonl_endpoints["tcp"][0], 1),
                 ("echo  tcp 16 clients", lockstep_tcp, echo_endpoint, 16),
@@ -255,7 +258,7 @@ def main() -> None:
                 ("trace tcp  pytrinamic", lockstep_pytrinamic, traced_endpoints["tcp"][0], 1),
             )
             server_pid = {endpoints["tcp"][0]: sim.pid, traced_endpoints["tcp"][0]: traced.pid,
-                          jsonl_endpoints["tcp"][0]: jsonl.pid}
+                          jsonl_endpoints["tcp"][0]: jsonl.pid, plain_endpoints["tcp"][0]: plain_loop.pid}
             if page is not None:
                 server_pid[http_endpoints["tcp"][0]] = http.pid
                 cases += (("http  tcp  1 client ", lockstep_tcp, http_endpoints["tcp"][0], 1),
@@ -273,6 +276,10 @@ def main() -> None:
             latency_ratios = [statistics.median(s["p50_us"] / t["p50_us"] for s, t in
                                                 zip(runs["sim   tcp  1 client "], runs[label], strict=True))
                               for label in ("trace tcp  1 client ", "jsonl tcp  1 client ")]
+            # the server's own cost per lockstep request: its p50 minus the bare echo's
+            overheads = [statistics.median(s["p50_us"] - e["p50_us"] for s, e in
+                                           zip(runs[label], runs["echo  tcp  1 client "], strict=True))
+                         for label in ("sim   tcp  1 client ", "asyncio-loop sim tcp")]
             ratios = [statistics.median(s["rate"] / e["rate"] for s, e in
                                         zip(runs[sim_label], runs[echo_label], strict=True))
                       for sim_label, echo_label in (
@@ -305,6 +312,9 @@ def main() -> None:
         cpu = f"{r['cpu_us']:18.1f}" if r["cpu_us"] else ""
         print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f} {cpu}")
     one, many, pytri, text_trace, jsonl_trace, pytrinamic_trace = ratios
+    print(f"p50 overhead over the bare asyncio echo (median of paired runs): "
+          f"{overheads[0]:+.1f} us on the default loop, {overheads[1]:+.1f} us on asyncio's "
+          f"(goal <= 2 us)")
     print(f"ratio sim/echo (median of paired runs): 1 raw client {one:.0%}, 16 raw clients "
           f"{many:.0%}, 1 pytrinamic client {pytri:.0%} (goal: 1 client >= 80%)")
     print(f"ratio traced/untraced, 1 raw client: --trace text {text_trace:.0%}, "

@@ -66,8 +66,8 @@ class Observers:
         period = max(RECORD_WAKE_S, self.config.record_resolution)
         while True:
             await asyncio.sleep(period)
-            if self.recorder is not None:
-                self.recorder.catch_up(self.simulation.now_ns)
+            while self.recorder is not None and self.simulation.run_due(0):
+                await asyncio.sleep(0)  # the recorder is behind: catch up in turns
             stream.flush()
 
     def close(self) -> None:

@@ -100,6 +100,8 @@ class Recorder:
         self.rows: list[Sample] = []
         self.marks: list[Mark] = []
         self.next_ns = simulation.now_ns
+        #: Instants a real clock made the recorder skip (it could not keep up).
+        self.skipped = 0
         self._last_velocity: dict[tuple[int, int], int] = {}
         self._listeners: list[tuple[TMCLModule, Callable[[ModuleEvent], None]]] = []
 
@@ -146,11 +148,21 @@ class Recorder:
 
     # -- sampling -----------------------------------------------------------------------------
 
-    def catch_up(self, t_ns: int) -> None:
-        """Take every sample due up to ``t_ns``, stepping the modules to each instant."""
+    def catch_up(self, t_ns: int, max_samples: int | None = None) -> int:
+        """Take every sample due up to ``t_ns``, stepping the modules to each instant.
+
+        With ``max_samples`` at most that many instants are taken (a real clock's server
+        bounds its work per turn); returns the time up to which every sample is taken:
+        ``t_ns``, or less when the budget ran out.
+        """
         if self.next_ns > t_ns:
-            return
+            return t_ns
+        taken = 0
         while self.next_ns <= t_ns:
+            if max_samples is not None and taken >= max_samples:
+                t_ns = self.next_ns - 1  # the rest next time
+                break
+            taken += 1
             instant = self.next_ns
             for module in self.modules:
                 due = module.next_event_ns()
@@ -161,6 +173,15 @@ class Recorder:
             self.next_ns = instant + self.step_ns
         for module in self.modules:
             self.simulation.replan(module)  # stepping may have handled or planned events
+        return t_ns
+
+    def skip_to(self, t_ns: int) -> None:
+        """A real clock ran away from the recorder: the instants before ``t_ns`` are not
+        taken (a gap in the record, counted in :attr:`skipped`)."""
+        if self.next_ns < t_ns:
+            missed = -(-(t_ns - self.next_ns) // self.step_ns)
+            self.skipped += missed
+            self.next_ns += missed * self.step_ns
 
     def _sample(self, module: TMCLModule, instant: int) -> None:
         t = instant / NS_PER_S

@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 #: Wall time the server's timer spends on simulation work before the loop gets a turn.
-SLICE_WALL_S = 0.0005
+SLICE_WALL_S = 0.0002
 
 
 @dataclass

@@ -37,6 +37,9 @@ Routed = tuple["TMCLModule", AnyReply]
 #: On a real clock a busy program runs this much simulated time before the transports get a
 #: turn (a request to its module waits at most one chunk, about 20 instructions).
 PROGRAM_CHUNK_NS = 200_000
+#: On a real clock the recorder takes at most this many sample instants per turn (a request,
+#: a timer slice): it catches up over several, like a busy program.
+RECORDER_SAMPLES_PER_TURN = 16
 #: On a real clock a program may fall this far behind before the rest is skipped, as on a
 #: CPU too slow for its work.
 MAX_LAG_NS = 50 * NS_PER_MS
@@ -106,11 +109,13 @@ class Simulation:
         """Run every module with an event due by ``t_ns`` (default: the clock) up to it.
 
         With ``chunk_ns`` a busy program advances at most that much (it catches up over
-        several calls).  Returns True if a module is still behind ``t_ns``.
+        several calls; 0: not at all, only the lag bound applies).  Returns True if a module
+        is still behind ``t_ns``.
         """
         t = self.clock.now_ns() if t_ns is None else t_ns
+        recording = self.recorder is not None and chunk_ns is not None
         if self.recorder is not None:  # it steps its modules to each sample instant up to t
-            self.recorder.catch_up(t)
+            t = self._record_up_to(t, RECORDER_SAMPLES_PER_TURN if chunk_ns is not None else None)
         queue, due = self._queue, self._due
         ran: list[int] = []
         while queue and queue[0][0] <= t:
@@ -126,18 +131,33 @@ class Simulation:
             behind |= module.now_ns < t
         if ran:
             self._changed()
-        return behind
+        return behind or (recording and t < self.clock.now_ns())
 
     def sync_module(self, module: TMCLModule) -> None:
-        """Bring one module to the clock (before a request to it, or a look at it)."""
+        """Bring one module to the clock (before a request to it, or a look at it).
+
+        On a real clock a busy program is not run here: the request is served at the
+        program's present (it is behind the clock by less than the lag bound), the way a
+        module's main loop serves the host between two instructions; the server's timer
+        keeps the program going.
+        """
         index = self._index[module]
         t = self.clock.now_ns()
         if self.recorder is not None:  # it steps its modules to each sample instant up to t
-            self.recorder.catch_up(t)
-        self._bring(module, index, t, None if self.clock.virtual else PROGRAM_CHUNK_NS)
+            t = self._record_up_to(t, None if self.clock.virtual else RECORDER_SAMPLES_PER_TURN)
+        self._bring(module, index, t, None if self.clock.virtual else 0)
         due = self._due[index]
         if (due is not None and due <= t) or module.program.busy:
             self.replan(module)  # events were handled or a program ran: its plan moved
+
+    def _record_up_to(self, t: int, max_samples: int | None) -> int:
+        """Let the recorder sample up to ``t`` (bounded on a real clock, where it may lag
+        like a busy program, at most :data:`MAX_LAG_NS`); the time it reached."""
+        recorder = self.recorder
+        assert recorder is not None
+        if max_samples is not None and t - recorder.next_ns > MAX_LAG_NS:
+            recorder.skip_to(t - MAX_LAG_NS)
+        return recorder.catch_up(t, max_samples)
 
     def sync(self) -> None:
         """Bring every module up to the clock's current time."""
@@ -154,7 +174,8 @@ class Simulation:
             log.debug("module %d: the TMCL program fell behind; %d ms skipped so far",
                       module.slot, self.skipped_ns[index] // NS_PER_MS)
             module.skip_program_to(resume)
-        module.advance_to(min(t, module.now_ns + chunk_ns))
+        if chunk_ns:
+            module.advance_to(min(t, module.now_ns + chunk_ns))
 
     def advance(self, seconds: float) -> None:
         """Virtual clock only: move time forward, stepping through every event in order."""

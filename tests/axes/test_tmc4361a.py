@@ -1,0 +1,852 @@
+"""The emulated TMC4361A: register file, SPI pipeline, events, switches, encoder, and motion.
+
+Motion is checked against ``tests.axes.reference_tmc4361a.ReferenceRamp``, a literal
+one-clock-at-a-time transcription of the motion law (docs/tmc4361a.md): the segment-jumping
+engine must land on the same exact position and velocity at every checked instant, and
+arrive or stop at the same clock tick.  Low clocks and modest values keep the reference fast;
+the long runs are marked ``soak`` (``--soak``, or ``TMCL_SIM_SOAK=1``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import random
+
+import pytest
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
+
+from axes.core import Stop
+from axes.tmc4361a import (
+    TMC4361A,
+    Event,
+    RefConf,
+    Reg,
+    Status,
+    acceleration_pps2,
+    acceleration_register,
+    bow_register,
+    datagram,
+    velocity_pps,
+    velocity_register,
+)
+from tests.axes.reference_tmc4361a import ReferenceRamp, Registers
+
+MASK32 = 0xFFFF_FFFF
+
+
+def signed(value: int) -> int:
+    return value - (1 << 32) if value & 0x8000_0000 else value
+MHZ16 = 16_000_000
+RESET = 0x525354 << 8
+
+
+@pytest.fixture(autouse=True)
+def _soak_gate(request: pytest.FixtureRequest) -> None:
+    if request.node.get_closest_marker("soak") and not (
+            request.config.getoption("--soak", default=False) or os.environ.get("TMCL_SIM_SOAK")):
+        pytest.skip("soak test: run with --soak (or TMCL_SIM_SOAK=1)")
+
+
+def chip_with(clock: int = MHZ16, quantum: int = 64, board=None, **registers: int) -> TMC4361A:
+    """A chip whose CLK_FREQ matches its clock, with registers written in the order given."""
+    chip = TMC4361A(clock_hz=clock, board=board, bow_quantum=quantum)
+    chip.write(Reg.CLK_FREQ, clock)
+    for name, value in registers.items():
+        chip.write(Reg[name.upper()], value & MASK32)
+    chip.read(Reg.EVENTS)  # clear RST_EV (and whatever the set-up latched)
+    return chip
+
+
+def run_until_stop(chip: TMC4361A, limit_s: float = 100.0) -> Stop | None:
+    return chip.run(chip.t + int(limit_s * chip.clock_hz))
+
+
+# == register file and SPI =======================================================================
+
+
+def test_power_on_values_and_the_reset_event() -> None:
+    chip = TMC4361A()
+    assert chip.read(Reg.VERSION_NO) == 0x0002
+    assert chip.read(Reg.GENERAL_CONF) == 0x0000_6020
+    assert chip.read(Reg.CLK_FREQ) == 16_000_000
+    assert chip.read(Reg.SPI_STATUS_SELECTION) == 0x8202_9805
+    assert chip.read(Reg.STEP_CONF) == 0x00FB_0C80  # 200 fullsteps, 256 microsteps
+    assert chip.read(Reg.ENC_IN_CONF) == 0x0000_0400
+    assert chip.read(Reg.GEAR_RATIO) == 0x0100_0000
+    for reg in (Reg.RAMPMODE, Reg.XACTUAL, Reg.VACTUAL, Reg.AACTUAL, Reg.VMAX, Reg.XTARGET,
+                Reg.REFERENCE_CONF, Reg.ENC_POS, Reg.BOW1):
+        assert chip.read(reg) == 0, reg.name
+    status = chip.spi(datagram(Reg.VERSION_NO)) >> 32
+    assert status == 0x80  # SPI status bit 7 = RST_EV with the default selection
+    assert chip.read(Reg.EVENTS) == Event.RST_EV  # read and cleared
+    assert chip.read(Reg.EVENTS) == 0
+    assert chip.spi(datagram(Reg.VERSION_NO)) >> 32 == 0
+
+
+def test_read_data_comes_one_frame_later_and_writes_echo() -> None:
+    """The digest's worked example (§1): reads are pipelined, writes echo their data."""
+    chip = TMC4361A()
+    chip.write(Reg.XACTUAL, 0x1234)
+    chip.spi(datagram(Reg.VERSION_NO))  # leaves VERSION in the pipeline
+    assert chip.spi(datagram(Reg.XACTUAL)) & MASK32 == 0x0002  # the previous read
+    assert chip.spi(datagram(Reg.XACTUAL)) & MASK32 == 0x1234
+    assert chip.spi(datagram(Reg.VACTUAL, 0x00AB_CDEF, write=True)) & MASK32 == 0x1234
+    assert chip.spi(datagram(Reg.VACTUAL, 0x0012_3456, write=True)) & MASK32 == 0x00AB_CDEF
+    assert chip.read(Reg.VACTUAL) == 0  # read-only: the write had no effect
+
+
+def test_shared_addresses_keep_separate_read_and_write_views() -> None:
+    chip = TMC4361A()
+    chip.write(Reg.X_RANGE, 300)  # 0x36 write
+    assert chip.read(Reg.X_LATCH) == 0  # 0x36 read
+    chip.write(Reg.ENC_IN_RES, 1000)  # 0x54 write: AB transitions per revolution
+    assert chip.read(Reg.ENC_CONST) == 51 << 16 | 2000  # 51200 / 1000 = 51.2, decimal
+    chip.write(Reg.CL_TR_TOLERANCE, 77)  # 0x52 write
+    assert chip.read(Reg.ENC_POS_DEV) == 0  # 0x52 read
+    chip.write(Reg.ENC_RESET_VAL, 5)  # 0x51 write
+    assert chip.read(Reg.ENC_LATCH) == 0
+    chip.write(Reg.TZEROWAIT, 1000)  # 0x7B write
+    assert chip.read(Reg.TZEROWAIT) == 0x00F7_0000  # 0x7B read: CURRENTA/B_SPI
+    chip.write(Reg.ENC_POS_DEV_TOL, 12)
+    assert chip.read(Reg.ENC_POS_DEV_TOL) == 0  # write-only
+
+
+@pytest.mark.parametrize(("reg", "written", "read_back"), [
+    (Reg.RAMPMODE, 0xFF, 0x07),
+    (Reg.VSTART, MASK32, 0x7FFF_FFFF),
+    (Reg.AMAX, MASK32, 0x00FF_FFFF),
+    (Reg.ASTART, MASK32, 0x80FF_FFFF),  # bit 31: sign after external control
+    (Reg.BOW2, MASK32, 0x00FF_FFFF),
+    (Reg.CLK_FREQ, MASK32, 0x01FF_FFFF),
+    (Reg.HOME_SAFETY_MARGIN, MASK32, 0xFFFF),
+    (Reg.VMAX, 0xFFFF_FF00, 0xFFFF_FF00),  # signed, all 32 bits
+    (Reg.XTARGET, 0x8000_0001, 0x8000_0001),
+])
+def test_field_widths(reg: Reg, written: int, read_back: int) -> None:
+    chip = TMC4361A()
+    chip.write(reg, written)
+    assert chip.read(reg) == read_back
+
+
+def test_software_reset_restores_power_on_values_and_keeps_the_motor_where_it_is() -> None:
+    chip = chip_with(rampmode=0, vmax=velocity_register(10_000))
+    chip.run(chip.t + MHZ16 // 100)
+    moved = chip.motor_position
+    assert moved == 100
+    chip.write(Reg.RESET_CLK_GATING, 0x123 << 8)  # wrong key: nothing happens
+    assert chip.read(Reg.VMAX) == velocity_register(10_000)
+    chip.write(Reg.RESET_CLK_GATING, RESET)
+    assert chip.read(Reg.VMAX) == 0
+    assert chip.read(Reg.CLK_FREQ) == 16_000_000
+    assert chip.read(Reg.XACTUAL) == 0
+    assert chip.read(Reg.VACTUAL) == 0
+    assert chip.motor_position == moved
+    assert chip.read(Reg.EVENTS) & Event.RST_EV
+
+
+def test_events_clear_on_read_except_protected_ones_which_clear_by_writing_one() -> None:
+    chip = TMC4361A()
+    chip.write(Reg.EVENT_CLEAR_CONF, Event.RST_EV)
+    chip.write(Reg.COVER_HIGH, 0)  # a cover datagram: COVER_DONE
+    assert chip.read(Reg.EVENTS) == Event.RST_EV | Event.COVER_DONE
+    assert chip.read(Reg.EVENTS) == Event.RST_EV  # protected
+    chip.write(Reg.EVENTS, Event.RST_EV)
+    assert chip.read(Reg.EVENTS) == 0
+
+
+def test_spi_status_byte_follows_the_selection_and_intr_follows_intr_conf() -> None:
+    chip = TMC4361A()
+    chip.read(Reg.EVENTS)
+    chip.write(Reg.SPI_STATUS_SELECTION, Event.COVER_DONE | Event.TARGET_REACHED)
+    chip.write(Reg.INTR_CONF, Event.COVER_DONE)
+    assert not chip.interrupt
+    chip.write(Reg.COVER_HIGH, 1)
+    assert chip.spi(datagram(Reg.VERSION_NO)) >> 32 == 0b10  # second selected event
+    assert chip.interrupt
+    chip.read(Reg.EVENTS)
+    assert not chip.interrupt
+
+
+def test_unit_helpers_match_the_digest_examples() -> None:
+    assert velocity_register(51_200) == 0x00C8_0000
+    assert acceleration_register(100_000) == 0x0006_1A80
+    assert velocity_register(-1) == 0xFFFF_FF00
+    assert velocity_pps(0xFFFF_FF00) == -1.0
+    assert acceleration_pps2(0x0006_1A80) == 100_000
+    assert bow_register(1_000_000) == 1_000_000
+
+
+def test_vactual_and_aactual_read_back_in_pps() -> None:
+    chip = chip_with(rampmode=1, vmax=velocity_register(-51_200), amax=acceleration_register(
+        100_000), dmax=acceleration_register(100_000))
+    chip.run(MHZ16 // 10)  # 0.1 s at 100 000 pps²: 10 000 pps
+    assert chip.read(Reg.VACTUAL) == -10_000 & MASK32
+    assert chip.read(Reg.AACTUAL) == -100_000 & MASK32  # world frame: accelerating negative
+    chip.run(MHZ16)
+    assert chip.read(Reg.VACTUAL) == -51_200 & MASK32
+    assert chip.read(Reg.AACTUAL) == 0
+    assert chip.read(Reg.STATUS) & Status.VEL_REACHED_F
+
+
+def test_clk_freq_is_what_the_chip_believes() -> None:
+    """With CLK_FREQ at half the real clock every real-unit velocity runs twice as fast."""
+    chip = TMC4361A(clock_hz=MHZ16)
+    chip.write(Reg.CLK_FREQ, MHZ16 // 2)
+    chip.write(Reg.VMAX, velocity_register(1000))
+    chip.run(MHZ16)  # one real second, no ramp
+    assert chip.motor_position == 2000
+
+
+# == motion against the tick-by-tick reference ===================================================
+
+RAMP_FIELDS = [f.name for f in dataclasses.fields(Registers)]
+
+
+def _pair(regs: Registers, quantum: int) -> tuple[TMC4361A, ReferenceRamp]:
+    chip = TMC4361A(clock_hz=regs.clk_freq, bow_quantum=quantum)
+    for name in RAMP_FIELDS:
+        if name != "xtarget":
+            chip.write(Reg[name.upper()], getattr(regs, name))
+    chip.write(Reg.XTARGET, regs.xtarget)
+    return chip, ReferenceRamp(dataclasses.replace(regs), quantum)
+
+
+def _run_both(chip: TMC4361A, ref: ReferenceRamp, until: int, seen: list[tuple[int, Stop]]
+              ) -> None:
+    while ref.t < until:
+        ref.tick()
+    while chip.t < until:
+        stop = chip.run(until)
+        if stop is not None:
+            seen.append((chip.t, stop))
+    ramp = chip.ramp
+    assert (ramp.p, ramp.w, ramp.s) == (ref.p, ref.w, ref.s), f"at clock {until}"
+
+
+def _compare(regs: Registers, quantum: int, changes: list[tuple[int, str, int]],
+             tail: int) -> None:
+    chip, ref = _pair(regs, quantum)
+    seen: list[tuple[int, Stop]] = []
+    t = 0
+    for gap, name, value in changes:
+        t += gap
+        _run_both(chip, ref, t, seen)
+        chip.write(Reg[name.upper()], value & MASK32)
+        ref.write(name, value & MASK32)
+    _run_both(chip, ref, t + tail, seen)
+    assert [t for t, stop in seen if stop is Stop.ARRIVED] == ref.arrivals
+    assert [t for t, stop in seen if stop is Stop.STOPPED] == ref.stops
+
+
+F_TEST = 500  # clock (and CLK_FREQ) of the reference comparisons
+V_TEST = 120  # top speed [pps]: 0.24 steps per clock
+
+
+@st.composite
+def ramp_registers(draw: st.DrawFn, profiles: tuple[int, ...]) -> Registers:
+    profile = draw(st.sampled_from(profiles))
+    positioning = draw(st.booleans())
+    v = draw(st.one_of(st.integers(30 * 256, V_TEST * 256), st.integers(256, V_TEST * 256)))
+    sign = 1 if positioning or draw(st.booleans()) else -1
+
+    def acc() -> int:  # 0.05 .. 1 s to reach full speed
+        return draw(st.integers(v // 64, v // 2))
+
+    regs = Registers(rampmode=(4 if positioning else 0) | profile, clk_freq=F_TEST,
+                     vmax=(sign * v) & MASK32, amax=acc(), dmax=acc(),
+                     xtarget=draw(st.integers(-250, 250)) & MASK32,
+                     tzerowait=draw(st.sampled_from([0, 0, 37, 400])))
+    if draw(st.booleans()):
+        regs.vstart = draw(st.integers(0, v // 2))
+    if draw(st.booleans()):
+        regs.vstop = draw(st.integers(0, v // 2))
+    if profile == 1 and draw(st.booleans()):
+        regs.vbreak = draw(st.integers(0, v))
+        regs.astart, regs.dfinal = acc(), acc()
+    if profile == 2:
+        regs.astart = draw(st.sampled_from([0, 0, acc()]))
+        regs.dfinal = draw(st.sampled_from([0, 0, acc()]))
+        for name in ("bow1", "bow2", "bow3", "bow4"):  # 20 .. 200 clocks of bow at full accel
+            setattr(regs, name, draw(st.integers(regs.amax * F_TEST // 800 + 1,
+                                                 regs.amax * F_TEST // 80 + 1)))
+        if draw(st.integers(0, 4)) == 0:
+            regs.bow4 = regs.bow2  # continuous zero crossing
+        regs.general_conf = draw(st.sampled_from([0, 0, 1]))
+    return regs
+
+
+change = st.one_of(
+    st.tuples(st.integers(1, 2500), st.just("xtarget"), st.integers(-300, 300)),
+    st.tuples(st.integers(1, 2500), st.just("vmax"), st.integers(-V_TEST * 256, V_TEST * 256)),
+    st.tuples(st.integers(1, 2500), st.just("rampmode"), st.sampled_from([0, 1, 2, 4, 5, 6])),
+    st.tuples(st.integers(1, 2500), st.just("amax"), st.integers(40, 8000)),
+    st.tuples(st.integers(1, 2500), st.just("dmax"), st.integers(40, 8000)),
+    st.tuples(st.integers(1, 2500), st.just("bow3"), st.integers(100, 20000)),
+)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(regs=Registers(rampmode=5, vmax=49251, vstart=1865, vstop=12969, amax=3181, dmax=2966,
+                        clk_freq=1000, xtarget=MASK32), quantum=2,  # arrival inside the step
+         changes=[(2110, "vmax", 1518), (2835, "xtarget", 13), (1615, "vmax", 35200)])
+@given(regs=ramp_registers((0, 1, 1)), quantum=st.just(64),
+       changes=st.lists(change, max_size=3))
+def test_trapezoid_and_sixpoint_ramps_match_the_reference(regs: Registers, quantum: int,
+                                                         changes: list) -> None:
+    _compare(regs, quantum, changes, tail=4000)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(regs=ramp_registers((2,)), quantum=st.sampled_from([1, 2, 4, 8]),
+       changes=st.lists(change, max_size=3))
+def test_s_ramps_match_the_reference(regs: Registers, quantum: int, changes: list) -> None:
+    """Short bow quanta (a test-only setting) put many bow phases into few clocks."""
+    _compare(regs, quantum, changes, tail=4000)
+
+
+@settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(target=st.integers(100, 400), bows=st.tuples(*[st.integers(2000, 6000)] * 4),
+       dmax=st.integers(500, 2000))
+def test_s_ramps_with_the_datasheet_quantum_match_the_reference(target: int, bows: tuple,
+                                                               dmax: int) -> None:
+    regs = Registers(rampmode=6, clk_freq=2000, vmax=100 * 256, amax=acceleration_register(
+        400), dmax=acceleration_register(dmax), bow1=bows[0], bow2=bows[1], bow3=bows[2],
+        bow4=bows[3], xtarget=target)
+    _compare(regs, 64, [(1500, "xtarget", target // 2)], tail=9000)
+
+
+@pytest.mark.soak
+@settings(max_examples=600, deadline=None, suppress_health_check=list(HealthCheck))
+@given(regs=ramp_registers((0, 1, 2)), quantum=st.sampled_from([1, 2, 4, 8, 64]),
+       changes=st.lists(change, max_size=5))
+def test_soak_all_ramps_match_the_reference(regs: Registers, quantum: int, changes: list) -> None:
+    _compare(regs, quantum, changes, tail=8000)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_running_in_pieces_changes_nothing(seed: int) -> None:
+    """Stopping at arbitrary instants (as a firmware polling the chip does) changes nothing."""
+    def fresh() -> TMC4361A:
+        return chip_with(rampmode=6, vmax=velocity_register(200_000), amax=acceleration_register(
+            100_000), dmax=acceleration_register(90_000), bow1=300_000, bow2=400_000,
+            bow3=350_000, bow4=250_000, xtarget=300_000)
+
+    whole = fresh()
+    assert run_until_stop(whole) is Stop.ARRIVED
+    pieces = fresh()
+    rng = random.Random(seed)
+    while pieces.t < whole.t:
+        pieces.run(min(pieces.t + rng.choice([1, 7, 64, 1000, 123_457, 9_999_999]), whole.t))
+        assert pieces.t <= whole.t
+    assert (pieces.ramp.p, pieces.ramp.w) == (whole.ramp.p, whole.ramp.w)
+    assert pieces.ramp.w == 0 and pieces.read(Reg.XACTUAL) == 300_000
+
+
+@settings(max_examples=25, deadline=None)
+@given(profile=st.sampled_from([1, 2]), vmax=st.integers(1_000, 2_000_000),
+       accel=st.tuples(st.integers(1_000, 4_000_000), st.integers(1_000, 4_000_000)),
+       bows=st.tuples(*[st.integers(10_000, 16_000_000)] * 4),
+       sixpoint=st.booleans(), distance=st.integers(1, 2_000_000), direction=st.sampled_from([1, -1]))
+def test_positioning_lands_in_the_target_step(profile: int, vmax: int, accel: tuple, bows: tuple,
+                                             sixpoint: bool, distance: int,
+                                             direction: int) -> None:
+    """Without VSTART (whose overshoot the datasheet warns about) every move ends at XTARGET
+    with one ARRIVED: the braking decision never leaves it short of the target step."""
+    amax, dmax = accel
+    registers = dict(rampmode=4 | profile, vmax=velocity_register(vmax),
+                     amax=acceleration_register(amax), dmax=acceleration_register(dmax))
+    if profile == 2:
+        registers.update(bow1=bows[0], bow2=bows[1], bow3=bows[2], bow4=bows[3])
+    elif sixpoint:
+        registers.update(vbreak=velocity_register(vmax // 3), vstop=velocity_register(vmax // 10),
+                         astart=acceleration_register(amax * 2), dfinal=acceleration_register(dmax * 2))
+    chip = chip_with(**registers, xtarget=direction * distance)
+    enough = 2 * distance / vmax + 4 * vmax / min(accel) + 10
+    assert run_until_stop(chip, enough) is Stop.ARRIVED
+    assert signed(chip.read(Reg.XACTUAL)) == direction * distance
+    assert chip.ramp.w == 0
+
+
+# == the datasheet's move times ==================================================================
+
+
+def _sixpoint_time(d: float, vstart: float, vbreak: float, vmax: float, vstop: float,
+                   astart: float, amax: float, dmax: float, dfinal: float) -> float:
+    """SixPoint move time (digest §5.3/§6.6): the four ramp phases plus the cruise."""
+    t = (vbreak - vstart) / astart + (vmax - vbreak) / amax + (vmax - vbreak) / dmax
+    t += (vbreak - vstop) / dfinal
+    ramps = ((vbreak ** 2 - vstart ** 2) / astart + (vmax ** 2 - vbreak ** 2) / amax
+             + (vmax ** 2 - vbreak ** 2) / dmax + (vbreak ** 2 - vstop ** 2) / dfinal) / 2
+    assert ramps < d, "the move must reach VMAX"
+    return t + (d - ramps) / vmax
+
+
+@pytest.mark.parametrize("case", [
+    (512_000, 0, 0, 51_200, 0, 1, 51_200, 51_200, 1),  # the manual's trapezoid
+    (1_200_000, 500, 50_000, 200_000, 1_000, 100_000, 60_000, 80_000, 120_000),
+    (100_000, 0, 20_000, 51_200, 0, 30_000, 51_200, 51_200, 20_000),
+    (1_000_000, 5_000, 100_000, 400_000, 8_000, 400_000, 250_000, 300_000, 500_000),
+])
+def test_sixpoint_move_time_matches_the_formula(case: tuple) -> None:
+    d, vstart, vbreak, vmax, vstop, astart, amax, dmax, dfinal = case
+    chip = chip_with(rampmode=5, vmax=velocity_register(vmax), vstart=velocity_register(vstart),
+                     vstop=velocity_register(vstop), vbreak=velocity_register(vbreak),
+                     astart=acceleration_register(astart), amax=acceleration_register(amax),
+                     dmax=acceleration_register(dmax), dfinal=acceleration_register(dfinal),
+                     xtarget=d)
+    assert run_until_stop(chip) is Stop.ARRIVED
+    assert chip.read(Reg.XACTUAL) == d
+    expected = _sixpoint_time(d, vstart, vbreak or vstart, vmax, vstop, astart, amax, dmax,
+                              dfinal) * MHZ16
+    # The velocity is updated every clock; the move ends a landing margin (docs) past the
+    # entry of the target step: within (1 + AMAX/DMAX) clocks of VMAX travel.
+    assert 0 <= chip.t - expected <= 4
+
+
+def _s_time(d: float, vmax: float, amax: float, dmax: float, bows: tuple[float, ...]) -> float:
+    """S-ramp move time from the datasheet's segment kinematics (digest §6.4), with cruise."""
+    j1, j2, j3, j4 = bows
+
+    def slope(a: float, j_up: float, j_down: float) -> list[tuple[float, float]]:
+        dv = a * a / (2 * j_up) + a * a / (2 * j_down)
+        if dv <= vmax:
+            return [(a / j_up, j_up), ((vmax - dv) / a, 0.0), (a / j_down, -j_down)]
+        peak = (vmax * 2 * j_up * j_down / (j_up + j_down)) ** 0.5
+        return [(peak / j_up, j_up), (peak / j_down, -j_down)]
+
+    def run(segments: list[tuple[float, float]]) -> tuple[float, float]:
+        x = v = a = t = 0.0
+        for duration, jerk in segments:
+            x += v * duration + a * duration ** 2 / 2 + jerk * duration ** 3 / 6
+            v += a * duration + jerk * duration ** 2 / 2
+            a += jerk * duration
+            t += duration
+        return x, t
+
+    x_up, t_up = run(slope(amax, j1, j2))
+    x_down, t_down = run(slope(dmax, j3, j4))  # the falling slope mirrors a rising one
+    x_down = vmax * t_down - x_down
+    assert x_up + x_down < d, "the move must cruise"
+    return t_up + t_down + (d - x_up - x_down) / vmax
+
+
+@pytest.mark.parametrize(("d", "vmax", "amax", "dmax", "bows"), [
+    (512_000, 200_000, 100_000, 100_000, (400_000,) * 4),
+    (712_000, 200_000, 100_000, 80_000, (400_000, 300_000, 250_000, 350_000)),
+    (900_000, 150_000, 50_000, 70_000, (100_000, 120_000, 90_000, 110_000)),
+    (300_000, 100_000, 200_000, 200_000, (300_000, 500_000, 400_000, 350_000)),  # no AMAX
+])
+def test_s_ramp_move_time_matches_the_formula_within_one_bow_quantum(
+        d: int, vmax: int, amax: int, dmax: int, bows: tuple) -> None:
+    chip = chip_with(rampmode=6, vmax=velocity_register(vmax), amax=acceleration_register(amax),
+                     dmax=acceleration_register(dmax), bow1=bows[0], bow2=bows[1],
+                     bow3=bows[2], bow4=bows[3], xtarget=d)
+    assert run_until_stop(chip) is Stop.ARRIVED
+    assert chip.read(Reg.XACTUAL) == d
+    assert abs(chip.t - _s_time(d, vmax, amax, dmax, bows) * MHZ16) <= 64
+
+
+# == a board for switches, marks and the encoder ================================================
+
+
+class LineBoard:
+    """Switches on a line of motor positions; levels are True while a switch is actuated.
+
+    ``left``: actuated at or below that position; ``right``: at or above; ``home``: a closed
+    interval.  ``slip``: the encoder (``counts`` AB transitions per microstep... per
+    ``encoder_res`` per revolution) loses that fraction of the motion.
+    """
+
+    def __init__(self, left: int | None = None, right: int | None = None,
+                 home: tuple[int, int] | None = None, encoder_res: int | None = None,
+                 slip: float = 0.0, usteps_per_rev: int = 51_200) -> None:
+        self.left, self.right, self.home = left, right, home
+        self.encoder_res, self.slip, self.usteps_per_rev = encoder_res, slip, usteps_per_rev
+        self.asked = 0
+
+    def pins(self, m: int) -> tuple[bool, bool, bool]:
+        return (self.left is not None and m <= self.left,
+                self.right is not None and m >= self.right,
+                self.home is not None and self.home[0] <= m <= self.home[1])
+
+    def _edges(self) -> list[int]:
+        """Positions p whose levels differ from those at p - 1."""
+        edges = []
+        if self.left is not None:
+            edges.append(self.left + 1)
+        if self.right is not None:
+            edges.append(self.right)
+        if self.home is not None:
+            edges += [self.home[0], self.home[1] + 1]
+        return sorted(edges)
+
+    def next_mark(self, m: int, direction: int) -> int | None:
+        self.asked += 1
+        if direction > 0:
+            return next((e for e in self._edges() if e > m), None)
+        return next((e - 1 for e in reversed(self._edges()) if e - 1 < m), None)
+
+
+class EncoderLineBoard(LineBoard):
+    def encoder_counts(self, m: int) -> int:
+        mech = m * (1 - self.slip)
+        return int(mech * self.encoder_res // self.usteps_per_rev)
+
+
+def velocity_chip(board=None, **registers: int) -> TMC4361A:
+    base = dict(rampmode=1, amax=acceleration_register(1_000_000),
+                dmax=acceleration_register(1_000_000))
+    base.update(registers)
+    return chip_with(board=board, **base)
+
+
+def first_stop(chip: TMC4361A, seconds: float) -> Stop | None:
+    return chip.run(chip.t + int(seconds * chip.clock_hz))
+
+
+def run_for(chip: TMC4361A, seconds: float) -> list[tuple[Stop, int, int]]:
+    """Run ``seconds``; returns (stop, clock, XACTUAL) at every early return."""
+    end = chip.t + int(seconds * chip.clock_hz)
+    seen = []
+    while chip.t < end:
+        stop = chip.run(end)
+        if stop is not None:
+            seen.append((stop, chip.t, signed(chip.read(Reg.XACTUAL))))
+    return seen
+
+
+# == switches and virtual stops ==================================================================
+
+
+def test_a_hard_stop_switch_stops_at_once_and_locks_its_direction_until_cleared() -> None:
+    board = LineBoard(left=-1000)
+    conf = RefConf.STOP_LEFT_EN | RefConf.POL_STOP_LEFT  # high active
+    chip = velocity_chip(board, reference_conf=conf, vmax=velocity_register(-100_000))
+    seen = run_for(chip, 1)
+    assert seen[0][0] is Stop.STOPPED and seen[0][2] == -1000  # stopped on the very step
+    assert chip.read(Reg.VACTUAL) == 0
+    assert chip.read(Reg.STATUS) & Status.STOPL_ACTIVE_F
+    run_for(chip, 0.1)
+    assert chip.motor_position == -1000 and chip.at_rest()  # no motion into the switch
+    chip.write(Reg.VMAX, velocity_register(50_000))  # away from it: allowed
+    run_for(chip, 0.1)
+    assert chip.motor_position > -1000
+    chip.write(Reg.VMAX, velocity_register(-50_000))
+    run_for(chip, 0.1)
+    assert chip.at_rest() and chip.motor_position > -990  # locked: the STOPL event is set
+    assert chip.read(Reg.EVENTS) & Event.STOPL  # reading clears it: free again
+    run_for(chip, 0.001)
+    assert chip.read(Reg.VACTUAL) == -50_000 & MASK32 or chip.ramp.s < 0
+
+
+def test_polarity_and_swapped_switches() -> None:
+    board = LineBoard(right=1000)
+    # STOPR wired low-active (pol 0): an actuated switch (level True) is *inactive*
+    chip = velocity_chip(board, reference_conf=RefConf.STOP_RIGHT_EN,
+                         vmax=velocity_register(100_000))
+    assert chip.read(Reg.STATUS) & Status.STOPR_ACTIVE_F  # level low at 0: active
+    assert run_for(chip, 0.01) == [] and chip.motor_position == 0  # locked from the start
+    swapped = velocity_chip(board, vmax=velocity_register(-100_000), reference_conf=(
+        RefConf.STOP_LEFT_EN | RefConf.POL_STOP_LEFT | RefConf.INVERT_STOP_DIRECTION))
+    swapped.set_pins(False, True, False)  # the STOPR pin now acts as the left switch
+    assert swapped.read(Reg.STATUS) & Status.STOPL_ACTIVE_F
+    assert run_for(swapped, 0.01) == [] and swapped.motor_position == 0
+
+
+def test_a_soft_stop_ramps_down_with_dstop() -> None:
+    board = LineBoard(right=20_000)
+    chip = velocity_chip(board, reference_conf=RefConf.STOP_RIGHT_EN | RefConf.POL_STOP_RIGHT
+                         | RefConf.SOFT_STOP_EN, dstop=acceleration_register(400_000),
+                         vmax=velocity_register(200_000))
+    seen = run_for(chip, 1)
+    assert [stop for stop, _, _ in seen] == [Stop.MARK, Stop.STOPPED]
+    _, t_mark, x_mark = seen[0]
+    _, t_stop, x_stop = seen[1]
+    assert x_mark == 20_000
+    assert (t_stop - t_mark) / MHZ16 == pytest.approx(0.5, abs=1e-6)  # 200 000 / 400 000
+    assert x_stop - x_mark == pytest.approx(50_000, abs=1)  # v² / 2 DSTOP
+    assert chip.read(Reg.EVENTS) & Event.STOPR
+
+
+@pytest.mark.parametrize("soft", [False, True])
+def test_virtual_stops(soft: bool) -> None:
+    mode = (2 if soft else 1) << 8
+    chip = velocity_chip(reference_conf=RefConf.VIRTUAL_LEFT_LIMIT_EN | mode,
+                         virt_stop_left=-5000 & MASK32, dstop=acceleration_register(1_000_000),
+                         vmax=velocity_register(-100_000))
+    seen = run_for(chip, 1)
+    if soft:
+        assert seen[0][0] is Stop.EVENT and seen[0][2] == -5000  # VSTOPL_ACTIVE wakes
+        assert seen[1][0] is Stop.STOPPED
+        assert seen[1][2] == pytest.approx(-5000 - 5000, abs=1)  # 100 000² / (2 * 1 000 000)
+    else:
+        assert [(stop, x) for stop, _, x in seen] == [(Stop.STOPPED, -5000)]
+    assert chip.read(Reg.STATUS) & Status.VSTOPL_ACTIVE_F
+    chip.write(Reg.VIRT_STOP_LEFT, -20_000 & MASK32)  # a new limit ...
+    assert run_for(chip, 0.01) == []  # ... but the event is still set
+    chip.read(Reg.EVENTS)
+    assert run_for(chip, 0.01) == [] and chip.ramp.w > 0  # free again
+
+
+def test_the_position_latch_follows_the_switch_edges() -> None:
+    board = LineBoard(right=3000)
+    chip = velocity_chip(board, reference_conf=RefConf.LATCH_X_ON_ACTIVE_R
+                         | RefConf.LATCH_X_ON_INACTIVE_R | RefConf.POL_STOP_RIGHT,
+                         vmax=velocity_register(100_000))
+    assert first_stop(chip, 0.1) is Stop.MARK and chip.read(Reg.XACTUAL) == 3000
+    assert chip.read(Reg.X_LATCH) == 3000
+    assert chip.read(Reg.EVENTS) & Event.XLATCH_DONE
+    chip.write(Reg.VMAX, velocity_register(-100_000))
+    run_for(chip, 0.5)
+    assert chip.read(Reg.X_LATCH) == 2999  # leaving the switch, moving down
+
+
+@pytest.mark.parametrize(("kind", "expected"), [(2, 100), (4, 201), (6, 150), (3, 100)])
+def test_home_tracking_latches_x_home_at_the_selected_edge(kind: int, expected: int) -> None:
+    board = LineBoard(home=(100, 200) if kind != 3 else (100, 10**9))
+    chip = velocity_chip(board, reference_conf=kind << 16 | RefConf.START_HOME_TRACKING,
+                         vmax=velocity_register(50_000))
+    run_for(chip, 0.1)
+    assert chip.read(Reg.X_HOME) == expected
+    events = chip.read(Reg.EVENTS)
+    assert events & Event.XLATCH_DONE
+    assert not chip.read(Reg.REFERENCE_CONF) & RefConf.START_HOME_TRACKING  # cleared with it
+
+
+def test_a_centred_home_needs_the_range_passed_and_tracking_rearms_on_a_new_write() -> None:
+    board = LineBoard(home=(100, 10_000))
+    conf = 6 << 16 | RefConf.START_HOME_TRACKING
+    chip = velocity_chip(board, reference_conf=conf, x_home=7, vmax=velocity_register(50_000))
+    run_for(chip, 0.05)  # into the range ...
+    chip.write(Reg.VMAX, velocity_register(-50_000))
+    run_for(chip, 0.2)  # ... and back out the same side: no centre
+    assert chip.read(Reg.X_HOME) == 7 and not chip.read(Reg.EVENTS) & Event.XLATCH_DONE
+    assert chip.motor_position < -3000
+    board.home = (-8000, -7000)  # ahead of the motor
+    run_for(chip, 0.2)  # through the new range, moving down
+    assert chip.read(Reg.X_HOME) == -7500 & MASK32
+    chip.write(Reg.X_HOME, 0)
+    chip.write(Reg.VMAX, velocity_register(50_000))
+    run_for(chip, 0.3)  # through it again: tracking was used up
+    assert chip.read(Reg.X_HOME) == 0
+    chip.read(Reg.EVENTS)  # clearing XLATCH_DONE ends the tracking ...
+    chip.write(Reg.REFERENCE_CONF, conf)  # ... and a new 0 -> 1 write arms it again
+    chip.write(Reg.VMAX, velocity_register(-50_000))
+    run_for(chip, 0.5)
+    assert chip.read(Reg.X_HOME) == -7500 & MASK32
+
+
+def test_home_error_flag_outside_the_safety_margin() -> None:
+    board = LineBoard(home=(300, 10**9))  # HOME_REF high above 300, but X_HOME says 0
+    chip = velocity_chip(board, reference_conf=3 << 16, home_safety_margin=50,
+                         intr_conf=Event.HOME_ERROR, vmax=velocity_register(50_000))
+    assert first_stop(chip, 0.1) is Stop.EVENT
+    assert chip.read(Reg.XACTUAL) == 51  # the level is low above X_HOME + margin
+    assert chip.read(Reg.STATUS) & Status.HOME_ERROR_F
+    run_for(chip, 0.05)  # past 300 the level is right again
+    assert not chip.read(Reg.STATUS) & Status.HOME_ERROR_F
+
+
+# == events and wake-ups =========================================================================
+
+
+def test_velocity_reached_and_target_reached_wake_the_firmware_when_selected() -> None:
+    chip = chip_with(rampmode=5, vmax=velocity_register(51_200), amax=acceleration_register(
+        51_200), dmax=acceleration_register(51_200),
+        intr_conf=Event.VEL_REACHED | Event.TARGET_REACHED, xtarget=100_000)
+    seen = run_for(chip, 5)
+    assert [stop for stop, _, _ in seen] == [Stop.EVENT, Stop.EVENT, Stop.ARRIVED]
+    assert seen[0][1] == MHZ16  # VMAX reached after one second
+    assert seen[1][2] == 100_000  # entering the target step, still moving
+    assert chip.read(Reg.EVENTS) & (Event.TARGET_REACHED | Event.VEL_REACHED | Event.VEL_STATE_ZERO)
+
+
+def test_passing_the_compare_position_latches_its_event_exactly() -> None:
+    chip = velocity_chip(pos_comp=12_345, intr_conf=Event.POS_COMP_REACHED,
+                         vmax=velocity_register(80_000))
+    seen = run_for(chip, 1)
+    assert seen[0][0] is Stop.EVENT and seen[0][2] == 12_345
+    assert chip.read(Reg.EVENTS) & Event.POS_COMP_REACHED
+    assert not chip.read(Reg.STATUS) & Status.POS_COMP_REACHED_F  # moved on
+
+
+def test_velocity_and_ramp_state_events() -> None:
+    chip = velocity_chip(vmax=velocity_register(10_000))
+    run_for(chip, 0.1)
+    chip.write(Reg.VMAX, 0)
+    run_for(chip, 0.1)
+    events = chip.read(Reg.EVENTS)
+    for event in (Event.VEL_STATE_POS, Event.VEL_STATE_ZERO, Event.RAMP_STATE_ACC,
+                  Event.RAMP_STATE_DEC, Event.RAMP_STATE_CONST, Event.VEL_REACHED):
+        assert events & event, Event.names(event)
+    assert not events & Event.VEL_STATE_NEG
+
+
+# == encoder =====================================================================================
+
+
+@pytest.mark.parametrize(("resolution", "constant"), [
+    (1024, 50 << 16),  # 51 200 / 1024 = 50
+    (4096, 12 << 16 | 32768),  # 12.5: binary
+    (4000, 12 << 16 | 8000),  # 12.8: decimal (8000 / 10000)
+    (0x8000_0000 | 3 << 16 | 7, 3 << 16 | 7),  # manual constant
+])
+def test_encoder_constant(resolution: int, constant: int) -> None:
+    chip = TMC4361A()
+    chip.write(Reg.ENC_IN_RES, resolution)
+    assert chip.read(Reg.ENC_CONST) == constant
+
+
+def test_an_ideal_encoder_follows_the_motor() -> None:
+    chip = velocity_chip(vmax=velocity_register(100_000))
+    assert chip.read(Reg.ENC_POS) == 0
+    chip.write(Reg.ENC_IN_RES, 4000)  # 12.8 microsteps per AB transition
+    run_for(chip, 0.1)
+    x = signed(chip.read(Reg.XACTUAL))
+    enc = signed(chip.read(Reg.ENC_POS))
+    assert x - 13 < enc <= x
+    assert signed(chip.read(Reg.ENC_POS_DEV)) == enc - x
+    chip.write(Reg.ENC_POS, 5)
+    assert chip.read(Reg.ENC_POS) == 5
+    chip.write(Reg.ENC_IN_CONF, 0x400 | 1 << 29)  # invert the direction
+    run_for(chip, 0.01)
+    assert signed(chip.read(Reg.ENC_POS)) < 5
+
+
+def test_encoder_deviation_event_at_the_exact_position() -> None:
+    board = EncoderLineBoard(encoder_res=4096, slip=0.02)
+    chip = velocity_chip(board, enc_in_res=4096, enc_pos_dev_tol=200,
+                         vmax=velocity_register(200_000))
+    assert first_stop(chip, 1) is Stop.EVENT  # ENC_FAIL wakes
+    m = chip.motor_position
+    assert abs(chip._enc_dev(m)) > 200 >= abs(chip._enc_dev(m - 1))
+    assert chip.read(Reg.STATUS) & Status.ENC_FAIL_F
+    assert chip.read(Reg.EVENTS) & Event.ENC_FAIL
+    run_for(chip, 0.5)
+    assert signed(chip.read(Reg.V_ENC)) == pytest.approx(200_000 * 0.98, rel=0.01)
+
+
+# == contract details ============================================================================
+
+
+def test_marks_stop_the_run_on_the_exact_step_with_the_pins_updated() -> None:
+    board = LineBoard(home=(777, 800))
+    chip = velocity_chip(board, vmax=velocity_register(300_000))
+    seen = run_for(chip, 0.05)
+    assert [(stop, x) for stop, _, x in seen] == [(Stop.MARK, 777), (Stop.MARK, 801)]
+    assert chip.pin_home is False and board.asked < 20
+
+
+def test_clone_is_independent_and_at_rest_knows_when_nothing_will_happen() -> None:
+    chip = chip_with(rampmode=5, vmax=velocity_register(51_200), amax=acceleration_register(
+        51_200), dmax=acceleration_register(51_200), xtarget=1000)
+    assert not chip.at_rest()
+    twin = chip.clone()
+    assert run_until_stop(twin) is Stop.ARRIVED and twin.at_rest()
+    assert chip.t == 0 and chip.motor_position == 0
+    chip.write(Reg.XTARGET, 5)
+    assert run_until_stop(chip) is Stop.ARRIVED
+    assert chip.motor_position == 5 and twin.motor_position == 1000
+
+
+def test_positions_are_32_bit_and_targets_go_the_short_way() -> None:
+    chip = chip_with(rampmode=4, vmax=velocity_register(100_000))
+    chip.write(Reg.XACTUAL, 0x7FFF_FF00)
+    chip.write(Reg.XTARGET, 0x8000_0100)  # 512 steps ahead through the wrap
+    assert run_until_stop(chip) is Stop.ARRIVED
+    assert chip.read(Reg.XACTUAL) == 0x8000_0100 and chip.motor_position == 512
+
+
+def test_vmax_zero_stops_a_positioning_move_and_any_vmax_resumes_it() -> None:
+    chip = chip_with(rampmode=5, vmax=velocity_register(50_000), amax=acceleration_register(
+        500_000), dmax=acceleration_register(500_000), xtarget=100_000)
+    run_for(chip, 0.5)
+    chip.write(Reg.VMAX, 0)
+    seen = run_for(chip, 0.5)
+    assert [stop for stop, _, _ in seen] == [Stop.STOPPED]
+    chip.write(Reg.VMAX, velocity_register(-80_000))  # the sign does not matter
+    assert run_until_stop(chip) is Stop.ARRIVED and chip.read(Reg.XACTUAL) == 100_000
+
+
+def test_a_velocity_reversal_waits_tzerowait_and_restarts_without_vstart_if_zero() -> None:
+    chip = velocity_chip(vmax=velocity_register(10_000), vstart=velocity_register(1_000),
+                         tzerowait=8000)
+    run_for(chip, 0.1)
+    chip.write(Reg.VMAX, velocity_register(-10_000))
+    assert first_stop(chip, 0.1) is Stop.STOPPED
+    stopped_at = chip.t
+    chip.run(stopped_at + 8000)
+    assert chip.ramp.w == 0  # still standing after TZEROWAIT clocks ...
+    chip.run(stopped_at + 8001)
+    assert chip.ramp.w == chip.ramp.P.VSTART + chip.ramp.P.AMAX  # ... then VSTART (+ a clock)
+    assert chip.read(Reg.VACTUAL) == -1000 & MASK32
+    quick = velocity_chip(vmax=velocity_register(10_000), vstart=velocity_register(1_000))
+    run_for(quick, 0.1)
+    quick.write(Reg.VMAX, velocity_register(-10_000))
+    assert first_stop(quick, 0.1) is Stop.STOPPED
+    quick.run(quick.t + 1)
+    assert quick.ramp.w == quick.ramp.P.AMAX and quick.ramp.s < 0  # no TZEROWAIT: from 0
+
+
+def test_s_ramps_with_bow2_equal_to_bow4_pass_through_zero() -> None:
+    def reversal(bow4: int) -> list[Stop]:
+        chip = chip_with(rampmode=2, vmax=velocity_register(50_000), amax=acceleration_register(
+            100_000), dmax=acceleration_register(100_000), bow1=400_000, bow2=400_000,
+            bow3=400_000, bow4=bow4)
+        run_for(chip, 1)
+        chip.write(Reg.VMAX, velocity_register(-50_000))
+        seen = [stop for stop, _, _ in run_for(chip, 2)]
+        assert chip.read(Reg.VACTUAL) == -50_000 & MASK32
+        return seen
+
+    assert reversal(400_000) == []  # continuous: v passes 0 with a != 0
+    assert reversal(300_000) == [Stop.STOPPED]
+
+
+def test_sixpoint_starts_at_vstart_and_ends_from_vstop() -> None:
+    chip = chip_with(rampmode=5, vmax=velocity_register(100_000), vstart=velocity_register(
+        5_000), vstop=velocity_register(8_000), vbreak=velocity_register(30_000),
+        astart=acceleration_register(200_000), amax=acceleration_register(100_000),
+        dmax=acceleration_register(100_000), dfinal=acceleration_register(200_000),
+        xtarget=200_000)
+    chip.run(1)
+    assert chip.read(Reg.VACTUAL) == 5_000  # the jump (plus 1/80 pps)
+    assert chip.read(Reg.AACTUAL) == 200_000  # ASTART below VBREAK
+    end = chip.clone()
+    assert run_until_stop(end) is Stop.ARRIVED
+    chip.run(end.t - 1)
+    assert 8_000 <= chip.read(Reg.VACTUAL) < 8_013  # DFINAL down to VSTOP, then 0
+    assert chip.read(Reg.AACTUAL) == -200_000 & MASK32
+
+
+def test_direct_acceleration_units() -> None:
+    chip = velocity_chip(general_conf=0x6020 | 2, amax=1 << 10, vmax=velocity_register(1e6))
+    chip.run(MHZ16 // 1000)  # 1 ms at 2^10 * f² / 2^37 = 1 907 348.6 pps²
+    assert chip.read(Reg.VACTUAL) == 1907
+
+
+def test_the_engine_jumps_segments_instead_of_walking_clocks() -> None:
+    chip = chip_with(rampmode=6, vmax=velocity_register(200_000), amax=acceleration_register(
+        100_000), dmax=acceleration_register(100_000), bow1=400_000, bow2=400_000,
+        bow3=400_000, bow4=400_000)
+    literal = 0
+    tick = chip._tick
+
+    def counted(ctx):  # type: ignore[no-untyped-def]
+        nonlocal literal
+        literal += 1
+        return tick(ctx)
+
+    chip._tick = counted  # type: ignore[method-assign]
+    target, moves = 512_000, 0
+    chip.write(Reg.XTARGET, target)
+    end = 600 * MHZ16
+    while chip.t < end:
+        if chip.run(end) is Stop.ARRIVED:
+            target = -target
+            chip.write(Reg.XTARGET, target & MASK32)
+            moves += 1
+    assert moves > 80
+    assert literal / moves < 20  # clocks done one by one per move (of ~10^8)
