@@ -124,6 +124,16 @@ def test_the_page_watches_through_a_tracer_only_while_it_is_open() -> None:
     assert simulation.tracer is own and len(own.listeners) == 1
     dashboard.unwatch()
     assert simulation.tracer is own and own.listeners == []
+    own.detach()
+    second = Dashboard(simulation)  # two --http endpoints share one stream-less tracer
+    dashboard.watch()
+    second.watch()
+    shared = simulation.tracer
+    assert shared is not None and len(shared.listeners) == 2
+    dashboard.unwatch()
+    assert simulation.tracer is shared
+    second.unwatch()
+    assert simulation.tracer is None
 
 
 def test_a_pressed_switch_is_held_and_letting_go_restores_the_world() -> None:

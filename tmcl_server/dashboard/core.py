@@ -129,7 +129,6 @@ class Dashboard:
         self._wire_seq = 0
         self._watchers = 0
         self._tracer: Tracer | None = None
-        self._own_tracer = False
 
     def module(self, slot: Any) -> TMCLModule:
         module = self.modules.get(slot) if isinstance(slot, int) else None
@@ -145,11 +144,10 @@ class Dashboard:
         if self._watchers > 1:
             return
         tracer = self.simulation.tracer
-        if tracer is None:  # no --trace: a tracer that only feeds the page
+        if tracer is None:  # no --trace: a tracer without a stream, only for listeners
             from tmcl_server.trace import Tracer
 
             tracer = Tracer(None).attach(self.simulation, loop)
-            self._own_tracer = True
         tracer.listeners.append(self._on_trace)
         self._tracer = tracer
 
@@ -158,11 +156,11 @@ class Dashboard:
         self._watchers = max(0, self._watchers - 1)
         if self._watchers or self._tracer is None:
             return
-        if self._on_trace in self._tracer.listeners:
-            self._tracer.listeners.remove(self._on_trace)
-        if self._own_tracer:
-            self._tracer.detach()
-        self._tracer, self._own_tracer = None, False
+        tracer, self._tracer = self._tracer, None
+        if self._on_trace in tracer.listeners:
+            tracer.listeners.remove(self._on_trace)
+        if tracer.stream is None and not tracer.listeners:  # nobody else reads it (--trace does)
+            tracer.detach()
         for samples in self._samples.values():
             samples.clear()
 

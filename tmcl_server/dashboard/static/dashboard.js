@@ -108,6 +108,8 @@
 
   function onHello(hello) {
     state.hello = hello;
+    state.wire = [];  // a new connection (or a reconnection) sends the kept lines again
+    state.wireSkipped = 0;
     const select = $("module");
     select.replaceChildren(...hello.modules.map(
       (m) => el("option", {value: m.slot, text: `${m.slot} (${m.type})`})));
