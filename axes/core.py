@@ -166,3 +166,43 @@ class ChipDriver(Protocol):
 
     def configure_stops(self, searching: bool) -> None:
         """Stop switches as the parameters say; a reference search drives through them."""
+
+    # Optional (AxisFirmware looks for them with getattr):
+    #   live_parameters: frozenset[int] -- chip-specific parameters read from the chip, through
+    #       read_parameter(number) -> int (the TMC42x drivers: AP 135, AP 138);
+    #   motor_driver: MotorDriverLink -- a modelled motor driver IC behind the chip driver;
+    #   set_positioning_mode() -- AP 138 changed during a move (TMC42x).
+
+
+class MotorDriverLink(Protocol):
+    """The firmware's routines for a modelled motor driver IC (the TMC262 on the TMC429
+    modules), reached by the chip driver: the current, microsteps, stallGuard2 and coolStep
+    parameters act on the driver chip's registers and are read back from it.  Without one,
+    :class:`axes.firmware.AxisFirmware` computes them itself (axes/stallguard.py)."""
+
+    #: Axis parameters whose writes go to the driver chip (:meth:`configure`).
+    parameters: frozenset[int]
+    #: True while the firmware lets coolStep regulate (then it is told the speed at every
+    #: position read, :meth:`regulate`).
+    regulating: bool
+
+    def configure(self, number: int | None = None) -> None:
+        """Write the driver registers parameter ``number`` is part of (None: all of them)."""
+
+    def set_current(self, value: int) -> None:
+        """Run or standby current now, 0..255 (AP 6 / AP 7)."""
+
+    def regulate(self, speed: int) -> None:
+        """The firmware's coolStep switch: on at or above AP 182 (and below AP 22), else off."""
+
+    def load(self) -> int:
+        """AP 206: the stallGuard2 value the driver measured."""
+
+    def stalled(self) -> bool:
+        """The driver's stallGuard2 flag: its last measurement read 0."""
+
+    def current_scale(self) -> int | None:
+        """AP 180: the current scale coolStep set (0..31), None while coolStep is off."""
+
+    def flags(self) -> int:
+        """AP 208: the driver's status flags."""

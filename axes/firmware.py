@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from axes import stallguard
 from axes.board import AxisBoard
-from axes.core import ChipDriver, ChipModel, StaleLookahead, Stop
+from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
 from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.stallguard import CoolStep
@@ -43,6 +43,23 @@ ERROR_DEVIATION = 2
 #: Builds the chip-specific half of the firmware for an axis: (parameters, board) -> driver.
 DriverFactory = Callable[[Mapping[int, int], AxisBoard], ChipDriver]
 
+#: What the firmware does for a parameter a module's table does not have: the value it acts
+#: as if it had (a feature a module lacks is off).  The TMC429 modules, for example, have no
+#: unit mode (AP 255): their speeds are the chip's own units, as with AP 255 = 0.
+FIRMWARE_DEFAULTS: dict[int, int] = {
+    AP.UNIT_MODE: 0, AP.VSTOP: 0, AP.SOFT_STOP: 0, AP.SWAP_SWITCHES: 0, AP.LEFT_POLARITY: 0,
+    AP.RIGHT_POLARITY: 0, AP.RELATIVE_POSITIONING_OPTION: 0, AP.COOLSTEP_THRESHOLD_SPEED: 0,
+    AP.SMARTENERGY_THRESHOLD_SPEED: 0, AP.FULLSTEPS: 200, AP.ENCODER_RESOLUTION: 512,
+    AP.MAX_DEVIATION: 0, AP.LAST_REFERENCE: 0, AP.SWITCH_DISTANCE: 0, AP.STOP_ON_STALL: 0,
+    AP.STALLGUARD_FILTER: 0, AP.STALLGUARD_THRESHOLD: 0, AP.SMARTENERGY_CURRENT_MINIMUM: 0,
+    AP.SMARTENERGY_CURRENT_DOWN_STEP: 0, AP.SMARTENERGY_HYSTERESIS: 0,
+    AP.SMARTENERGY_CURRENT_UP_STEP: 0, AP.SMARTENERGY_HYSTERESIS_START: 0,
+}
+#: An encoder prescaler's (AP 210 on modules without AP 202) unit: AP 209 = counts * p / 512;
+#: its low five bits select special encoder functions (not modelled).
+PRESCALER_UNIT = 512
+PRESCALER_FUNCTION_BITS = 0x1F
+
 
 # == the axis ==================================================================================
 
@@ -54,7 +71,13 @@ _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (n
 _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_SPEED,
                               AP.POSITION_REACHED, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
                               AP.HOME_SWITCH, AP.LOAD, AP.ERROR_FLAGS, AP.ENCODER_POSITION,
-                              AP.SMARTENERGY_ACTUAL_CURRENT, AP.MEASURED_SPEED})
+                              AP.SMARTENERGY_ACTUAL_CURRENT, AP.MEASURED_SPEED,
+                              AP.DRIVER_ERROR_FLAGS})
+#: Parameters whose writes re-plan the speed limits, or the stop switches.
+_LIMIT_PARAMETERS = frozenset({AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.VSTOP, AP.UNIT_MODE,
+                               AP.MINIMUM_SPEED, AP.PULSE_DIVISOR, AP.RAMP_DIVISOR})
+_STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, AP.SOFT_STOP_FLAG,
+                              AP.REFERENCE_SWITCH_TOLERANCE})
 
 
 @dataclass(slots=True)
@@ -71,8 +94,17 @@ class AxisFirmware:
                  make_driver: DriverFactory) -> None:
         self.index = index
         self.board = AxisBoard(world)
-        self._params = {n: spec.default for n, spec in parameters.items()}
+        self._params = {**FIRMWARE_DEFAULTS, **{n: spec.default for n, spec in parameters.items()}}
         self.driver = make_driver(self._params, self.board)
+        #: The modelled motor driver IC the chip driver reaches (the TMC262 of the TMC429
+        #: modules): stallGuard2, coolStep and the current act on it.  Without one, they come
+        #: from axes/stallguard.py (docs/motion.md, "stallGuard2 and coolStep").
+        self.motor_driver: MotorDriverLink | None = getattr(self.driver, "motor_driver", None)
+        #: Chip-specific parameters the driver reads from its chip (e.g. AP 135, AP 138).
+        self._chip_live: frozenset[int] = frozenset(
+            getattr(self.driver, "live_parameters", frozenset()) & parameters.keys())
+        #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
+        self._encoder_prescaler = AP.FULLSTEPS not in parameters
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
         #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
@@ -89,6 +121,7 @@ class AxisFirmware:
         self._encoder_offset = 0  # encoder counts added to what the mechanics give
         self._encoder_mech_base = 0  # mechanical position at which slip was last rebased
         self._stall_watch = False
+        self._motion_origin = 0  # motor position where the motion last started
         #: The current scale coolStep regulates (axes/stallguard.py).
         self._coolstep = CoolStep()
         self._travel_direction = 1  # of the last motion (the filtered stallGuard2 reading)
@@ -190,7 +223,8 @@ class AxisFirmware:
 
     def _read_position(self) -> None:
         self.driver.read_position()
-        if self._params[AP.SMARTENERGY_HYSTERESIS_START] or self._coolstep.scale is not None:
+        if (self._params[AP.SMARTENERGY_HYSTERESIS_START] or self._coolstep.scale is not None
+                or (self.motor_driver is not None and self.motor_driver.regulating)):
             self._update_coolstep()
 
     def _emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
@@ -224,6 +258,7 @@ class AxisFirmware:
         if (self._standstill_since is not None and not self._standby and self._now_ns
                 >= self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS):
             self._standby = True
+            self._current_changed()
             self._emit(AxisEventKind.CURRENT_CHANGED, False)
         self._check_stall()
 
@@ -238,8 +273,10 @@ class AxisFirmware:
 
     def _motion_started(self) -> None:
         self._standstill_since = None
+        self._motion_origin = self.chip.motor_position
         if self._standby:
             self._standby = False
+            self._current_changed()
             self._emit(AxisEventKind.CURRENT_CHANGED, True)
         self._errors = 0
 
@@ -289,6 +326,7 @@ class AxisFirmware:
     def _hard_stop(self) -> None:
         """Stop within one chip tick, at once (switch, stall, deviation, heartbeat)."""
         self.driver.hard_stop()
+        self._invalidate()  # a look-ahead made before (a timer's stall check) would move on
         self._positioning = False
         self._awaiting_arrival = False
         self._velocity_command = 0
@@ -427,6 +465,8 @@ class AxisFirmware:
 
     def _load(self) -> int:
         """AP 206: the stallGuard2 reading, after threshold (AP 174) and filter (AP 173)."""
+        if self.motor_driver is not None:
+            return self.motor_driver.load()
         threshold = self._params[AP.STALLGUARD_THRESHOLD]
         if not self._params[AP.STALLGUARD_FILTER]:
             return stallguard.reading(self.board.world.load_at(self._mechanical()), threshold)
@@ -443,26 +483,41 @@ class AxisFirmware:
 
         Where the load changes is an event of the world; in between, while a stall could
         still come (a zero reading below AP 181, or a filtered reading still falling towards
-        the zero under the motor), the firmware samples every :data:`STALL_POLL_NS`.
+        the zero under the motor), the firmware samples every :data:`STALL_POLL_NS`.  A
+        modelled motor driver measures at full steps only: it too is sampled while the load
+        under the motor reads 0.
         """
         threshold = self._params[AP.STOP_ON_STALL]
         watching = False
         if threshold and self._standstill_since is None:
-            load = self._load()
-            if load == 0 and abs(self._actual_speed()) >= threshold:
+            stalled = self._driver_stalled() if self.motor_driver is not None else self._load() == 0
+            if stalled and abs(self._actual_speed()) >= threshold:
                 self._abort_search()
                 self._hard_stop()
                 self._errors |= ERROR_STALL
                 self._emit(AxisEventKind.STALL)
-            elif load == 0 or (self._params[AP.STALLGUARD_FILTER] and stallguard.reading(
-                    self.board.world.load_at(self._mechanical()),
-                    self._params[AP.STALLGUARD_THRESHOLD]) == 0):
+            elif stalled or stallguard.reading(self.board.world.load_at(self._mechanical()),
+                                               self._params[AP.STALLGUARD_THRESHOLD]) == 0:
                 watching = True
         self._stall_watch = watching
+
+    def _driver_stalled(self) -> bool:
+        """The modelled driver's stallGuard2 flag, once it is from this motion: the driver
+        measures at full steps (four with the filter), so until the motor has made that
+        many since it started the flag is the last motion's and the firmware ignores it."""
+        full_step = 1 << self._params[AP.MICROSTEPS]
+        if self._params[AP.STALLGUARD_FILTER]:
+            full_step *= stallguard.FILTER_FULL_STEPS
+        if abs(self.chip.motor_position - self._motion_origin) < full_step:
+            return False
+        return self.motor_driver.stalled()  # type: ignore[union-attr]
 
     def _update_coolstep(self) -> None:
         """Bring coolStep's current scale up to the present (called at every position read)."""
         speed = abs(self._actual_speed()) if self._standstill_since is None else 0
+        if self.motor_driver is not None:
+            self.motor_driver.regulate(speed)
+            return
         self._coolstep.update(self._params, self._mechanical(), speed, self._load())
 
     def _encoder_counts(self) -> int:
@@ -473,6 +528,11 @@ class AxisFirmware:
         return self._encoder_offset + int(seen // per_count)
 
     def _counts_per_microstep(self) -> float:
+        """Encoder counts per unit of AP 209: AP 210 counts per revolution of AP 202 full
+        steps, or (modules without AP 202) AP 209 = counts * AP 210 / 512, a prescaler."""
+        if self._encoder_prescaler:
+            prescaler = self._params[AP.ENCODER_RESOLUTION] & ~PRESCALER_FUNCTION_BITS
+            return PRESCALER_UNIT / prescaler if prescaler > 0 else 0.0
         resolution = self._params[AP.ENCODER_RESOLUTION]
         microsteps = self._params[AP.FULLSTEPS] << self._params[AP.MICROSTEPS]
         return resolution / microsteps if microsteps else 0.0
@@ -491,8 +551,14 @@ class AxisFirmware:
         self._encoder_mech_base = self._mechanical()
 
     def _deviation(self) -> float:
-        """|AP 1 - AP 209| in encoder counts."""
-        return abs(self._position - self._encoder_position()) * self._counts_per_microstep()
+        """|AP 1 - AP 209| in the unit of AP 212: encoder counts, or with a prescaler (the
+        TMC429 modules) microsteps."""
+        gap = abs(self._position - self._encoder_position())
+        return gap if self._encoder_prescaler else gap * self._counts_per_microstep()
+
+    def _deviation_limit_steps(self, limit: int) -> float:
+        """AP 212 in microsteps of AP 1."""
+        return limit if self._encoder_prescaler else limit / self._counts_per_microstep()
 
     def _check_deviation(self) -> None:
         limit = self._params[AP.MAX_DEVIATION]
@@ -503,7 +569,7 @@ class AxisFirmware:
             self._emit(AxisEventKind.DEVIATION)
 
     def _deviation_mark(self, direction: int) -> int | None:
-        """Motor position where the deviation will first exceed AP 212 (slip > 0 only).
+        """Motor position where the deviation will first exceed AP 212 (slip > 0, or stuck).
 
         The estimate is refined at the mark itself: if the limit is not yet exceeded there, a
         new mark at least one step further is set, so the event lands on the exact step.
@@ -511,15 +577,17 @@ class AxisFirmware:
         limit = self._params[AP.MAX_DEVIATION]
         ratio = self._counts_per_microstep()
         world = self.board.world
-        if not limit or not ratio or world.encoder_slip <= 0:
+        slip = 1.0 if self.board.stuck else world.encoder_slip  # stuck: the encoder sees nothing
+        if not limit or not ratio or slip <= 0:
             return None
         per_count = world.motor_fullsteps_per_rev * 256 / world.encoder_counts_per_rev
-        encoder_per_step = (1.0 - world.encoder_slip) * self.board.scale / per_count / ratio
+        encoder_per_step = (1.0 - slip) * self.board.scale / per_count / ratio
         rate = direction * (1.0 - encoder_per_step)  # change of AP1 - AP209 per step
         if rate == 0:
             return None
         deviation = self._position - self._encoder_position()
-        room = (limit / ratio - deviation) / rate if rate > 0 else (limit / ratio + deviation) / -rate
+        steps = self._deviation_limit_steps(limit)
+        room = (steps - deviation) / rate if rate > 0 else (steps + deviation) / -rate
         return self.chip.motor_position + direction * max(1, int(room))
 
     def _update_marks(self) -> None:
@@ -543,15 +611,27 @@ class AxisFirmware:
         if self._standby:
             return self._params[AP.STANDBY_CURRENT]
         run = self._params[AP.MAX_CURRENT]
-        scale = self._coolstep.scale
+        scale = self._coolstep_scale()
         if scale is None:
             return run
         return run * (scale + 1) // ((run >> stallguard.CURRENT_SCALE_SHIFT) + 1)
 
+    def _coolstep_scale(self) -> int | None:
+        """The current scale coolStep regulates to (0..31), None while it does not."""
+        if self.motor_driver is not None:
+            return self.motor_driver.current_scale()
+        return self._coolstep.scale
+
     def _current_scale(self) -> int:
         """AP 180 (0..31): coolStep's scale while it regulates, else that of the current now."""
-        scale = self._coolstep.scale
+        scale = self._coolstep_scale()
         return self.current >> stallguard.CURRENT_SCALE_SHIFT if scale is None else scale
+
+    def _current_changed(self) -> None:
+        """Run or standby current switched, or AP 6/7 changed: a modelled driver follows."""
+        if self.motor_driver is not None:
+            setting = self._params[AP.STANDBY_CURRENT if self._standby else AP.MAX_CURRENT]
+            self.motor_driver.set_current(setting)
 
     # == parameters ============================================================================
 
@@ -564,6 +644,9 @@ class AxisFirmware:
 
     def get_parameter(self, number: int) -> int:
         if number not in _LIVE_PARAMETERS:
+            if number in self._chip_live:
+                self._sync()
+                return self.driver.read_parameter(number)  # type: ignore[attr-defined]
             return self._params[number]  # configuration: no need to bring the chip up to date
         self._sync()
         if number == AP.TARGET_POSITION:
@@ -588,6 +671,8 @@ class AxisFirmware:
             return self._current_scale()
         if number == AP.MEASURED_SPEED:  # the driver's step-rate measurement: a magnitude
             return abs(self._actual_speed())
+        if number == AP.DRIVER_ERROR_FLAGS and self.motor_driver is not None:
+            return self.motor_driver.flags()
         return self._params[number]
 
     def set_parameter(self, number: int, value: int) -> None:
@@ -610,11 +695,15 @@ class AxisFirmware:
         self._after_command()
 
     def _parameter_side_effects(self, number: int) -> None:
-        if number in (AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.VSTOP, AP.UNIT_MODE):
+        if self.motor_driver is not None and number in self.motor_driver.parameters:
+            self.motor_driver.configure(number)
+        if number in _LIMIT_PARAMETERS:
             if self._rfs is None:
                 self.driver.limits_changed(self._positioning, self._velocity_command)
-        elif number in (AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP):
+        elif number in _STOP_PARAMETERS:
             self.driver.configure_stops(searching=self._rfs is not None)
+        elif number == AP.RAMP_MODE:
+            self._ramp_mode_written()
         elif number in (AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY):
             self.board.swap = bool(self._params[AP.SWAP_SWITCHES])
             self.board.invert_left = bool(self._params[AP.LEFT_POLARITY])
@@ -624,8 +713,23 @@ class AxisFirmware:
             self._rebase_encoder()
             self.board.rescale(self.chip.motor_position, self._params[AP.MICROSTEPS])
             self._rebase_encoder()
-        elif number in (AP.MAX_CURRENT, AP.STANDBY_CURRENT) and self._standby:
-            self._emit(AxisEventKind.CURRENT_CHANGED, False)
+        elif number in (AP.MAX_CURRENT, AP.STANDBY_CURRENT):
+            self._current_changed()
+            if self._standby:
+                self._emit(AxisEventKind.CURRENT_CHANGED, False)
+
+    def _ramp_mode_written(self) -> None:
+        """AP 138 (TMC429 modules): 2 (velocity) stops a move on a ramp, as MST does; 0/1
+        choose ramp or soft positioning, at once for a move in flight, else for the next."""
+        if self._params[AP.RAMP_MODE] == 2:
+            if self._positioning and self._rfs is None:
+                self.driver.ramp_stop()
+                self._positioning = False
+                self._awaiting_arrival = False
+            return
+        set_mode = getattr(self.driver, "set_positioning_mode", None)
+        if self._positioning and set_mode is not None:
+            set_mode()
 
     def _pins_changed(self) -> None:
         self.chip.set_pins(*self.board.pins(self.chip.motor_position))
@@ -644,6 +748,7 @@ class AxisFirmware:
         self._command()
         self._rebase_encoder()
         self.board.set_world(world)
+        self.board.set_stuck(world.stuck, self.chip.motor_position)
         self._rebase_encoder()
         self._pins_changed()
         self._check_stall()
@@ -674,6 +779,43 @@ class AxisFirmware:
         self._command()
         self._rebase_encoder()
         self.board.world.encoder_slip = slip
+        self._after_command()
+
+    def set_stuck(self, stuck: bool, load: int | None = None) -> None:
+        """A fault of the mechanics: from now on the motor no longer follows its steps (or
+        follows them again).  The chip keeps counting; the mechanics, the switches they actuate
+        and the encoder stay where they stopped, so the encoder deviates (AP 212 catches it).
+        ``load``: what stallGuard2 reads meanwhile (0 for a blocked rotor; None: the world's)."""
+        self._command()
+        world = self.board.world
+        world.stuck = stuck
+        world.stuck_load = load if stuck else None
+        self.board.set_stuck(stuck, self.chip.motor_position)
+        self.board.world_changed()
+        self._check_stall()
+        self._after_command()
+
+    def break_switch(self, name: str, level: bool | None) -> None:
+        """A broken switch: its input stays at the electrical ``level`` wherever the axis is
+        (before swap and polarity, AP 14/24/25); None repairs it."""
+        self._command()
+        if level is None:
+            self.board.world.broken_switches.pop(name, None)
+        else:
+            self.board.world.broken_switches[name] = level
+        self.board.world_changed()
+        self._pins_changed()
+        self._after_command()
+
+    def place_mechanics(self, mechanical: int) -> None:
+        """After a module restart: the mechanics stand at ``mechanical`` (world units) while
+        the fresh counters (AP 1, the encoder) start from 0, so the world's switches and load
+        zones stay where they are."""
+        self._command()
+        self.board.place(mechanical, self.chip.motor_position)
+        self._encoder_mech_base = mechanical
+        self._encoder_offset = 0
+        self._pins_changed()
         self._after_command()
 
     def register_access(self, address: int, value: int | None = None) -> int:

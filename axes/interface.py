@@ -130,3 +130,18 @@ class Axis(Protocol):
 
     def set_encoder_slip(self, slip: float) -> None:
         ...
+
+    # -- faults of the mechanics and the wiring (tmcl_server/faults.py) -----------------------
+
+    def set_stuck(self, stuck: bool, load: int | None = None) -> None:
+        """The motor stops following its steps (or follows them again); ``load``: what
+        stallGuard2 reads meanwhile (None: the world's load)."""
+        ...
+
+    def break_switch(self, name: str, level: bool | None) -> None:
+        """Hold a switch input at an electrical level (None: repaired)."""
+        ...
+
+    def place_mechanics(self, mechanical: int) -> None:
+        """After a restart: the mechanics stand at ``mechanical`` (the counters start at 0)."""
+        ...

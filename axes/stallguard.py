@@ -62,6 +62,26 @@ def minimum_scale(full_scale: int, quarter: bool) -> int:
     return max(0, (full_scale + 1) // (4 if quarter else 2) - 1)
 
 
+def regulate(scale: int, above: int, measurements: int, sg_reading: int, semin: int, semax: int,
+             seup: int, sedn: int, full: int, lowest: int) -> tuple[int, int]:
+    """coolStep's law (the TMC26x's SMARTEN fields): (scale, readings above) after
+    ``measurements`` stallGuard2 measurements that all read ``sg_reading``.
+
+    Below ``SEMIN * 32`` every measurement raises the scale by 1, 2, 4 or 8 (SEUP); at or
+    above ``(SEMIN + SEMAX + 1) * 32`` every 32, 8, 2 or 1 measurements (SEDN) lower it by 1;
+    in between it stays.  It never leaves ``lowest..full``.  The firmware's model
+    (:class:`CoolStep`) and the TMC262 model (axes/tmc262.py) both regulate with this.
+    """
+    if not measurements:
+        return scale, above
+    if sg_reading < semin * THRESHOLD_UNIT:
+        return min(full, scale + measurements * INCREMENT_PER_READING[seup]), 0
+    if sg_reading >= (semin + semax + 1) * THRESHOLD_UNIT:
+        steps, above = divmod(above + measurements, READINGS_PER_DECREMENT[sedn])
+        return max(lowest, scale - steps), above
+    return scale, 0
+
+
 class CoolStep:
     """The current scale coolStep keeps (AP 180), fed with the full steps the motor travels.
 
@@ -94,17 +114,7 @@ class CoolStep:
         every = FILTER_FULL_STEPS if params[AP.STALLGUARD_FILTER] else 1
         self._pending += travelled
         measurements, self._pending = divmod(self._pending, every)
-        lower = params[AP.SMARTENERGY_HYSTERESIS_START] * THRESHOLD_UNIT
-        upper = (params[AP.SMARTENERGY_HYSTERESIS_START] + params[AP.SMARTENERGY_HYSTERESIS]
-                 + 1) * THRESHOLD_UNIT
-        if measurements and sg_reading < lower:
-            self._above = 0
-            scale = min(full, scale + measurements * INCREMENT_PER_READING[
-                params[AP.SMARTENERGY_CURRENT_UP_STEP]])
-        elif measurements and sg_reading >= upper:
-            steps, self._above = divmod(self._above + measurements, READINGS_PER_DECREMENT[
-                params[AP.SMARTENERGY_CURRENT_DOWN_STEP]])
-            scale = max(lowest, scale - steps)
-        elif measurements:
-            self._above = 0
-        self.scale = scale
+        self.scale, self._above = regulate(
+            scale, self._above, measurements, sg_reading, params[AP.SMARTENERGY_HYSTERESIS_START],
+            params[AP.SMARTENERGY_HYSTERESIS], params[AP.SMARTENERGY_CURRENT_UP_STEP],
+            params[AP.SMARTENERGY_CURRENT_DOWN_STEP], full, lowest)

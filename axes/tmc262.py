@@ -32,14 +32,17 @@ import copy
 from enum import IntEnum, IntFlag
 from typing import Protocol, Self
 
+from axes import stallguard
+
 DATAGRAM_BITS = 20
 DATAGRAM_MASK = (1 << DATAGRAM_BITS) - 1
 #: Microstep-table units (1/256 microsteps) per full step, and per electrical period.
 FULLSTEP_UNITS = 256
 PERIOD_UNITS = 4 * FULLSTEP_UNITS
 SG_MAX = 1023
-#: [inferred] stallGuard2 reading change per SGT count (a higher SGT reads higher: less sensitive).
-SG_PER_SGT = 16
+#: [inferred] stallGuard2 reading change per SGT count (a higher SGT reads higher: less
+#: sensitive): the firmware model's law (axes/stallguard.py).
+SG_PER_SGT = stallguard.THRESHOLD_STEP
 #: The load value of a motor without a world around it: that of a free-running motor
 #: (the same number as ``axes.world.DEFAULT_LOAD``).
 UNLOADED = 500
@@ -131,12 +134,17 @@ class TMC262:
         self.sg = 0
         self.measured = False
         self._se = 0
+        self._above = 0  # measurements above coolStep's upper threshold not yet counted down
         self._seen_steps = self.sense.sensed_steps() if self.sense is not None else 0
 
     def attach(self, sense: MotorSense | None) -> None:
         """Wire the driver to a motor; steps made before count as already seen."""
         self.sense = sense
         self._seen_steps = sense.sensed_steps() if sense is not None else 0
+
+    def registers(self) -> tuple[int, int, int, int, int]:
+        """The five write registers (DRVCTRL, CHOPCONF, SMARTEN, SGCSCONF, DRVCONF)."""
+        return self.drvctrl, self.chopconf, self.smarten, self.sgcsconf, self.drvconf
 
     def clone(self) -> Self:
         """A copy still wired to the same motor (the owner re-attaches it to a twin)."""
@@ -220,6 +228,14 @@ class TMC262:
         return bool(self.smarten >> 15 & 1)
 
     @property
+    def sedn(self) -> int:
+        return self.smarten >> 13 & 3
+
+    @property
+    def seup(self) -> int:
+        return self.smarten >> 5 & 3
+
+    @property
     def se(self) -> int:
         """The coolStep current scale: CS without coolStep (SEMIN = 0), else what it adapted to."""
         if self.semin == 0:
@@ -233,7 +249,7 @@ class TMC262:
         return (self.se + 1) / 32 if self.enabled else 0.0
 
     def _se_floor(self) -> int:
-        return self.cs // 4 if self.seimin else self.cs // 2
+        return stallguard.minimum_scale(self.cs, self.seimin)
 
     # == SPI ===================================================================================
 
@@ -255,6 +271,8 @@ class TMC262:
             case DrvReg.CHOPCONF:
                 self.chopconf = data
             case DrvReg.SMARTEN:
+                if not self.semin:
+                    self._se = self.cs  # coolStep starts from the full current
                 self.smarten = data & 0xEF6F
             case DrvReg.SGCSCONF:
                 self.sgcsconf = data & 0x17F1F
@@ -304,7 +322,7 @@ class TMC262:
 
     def _sg_at(self, steps: int) -> int:
         load = self.sense.sensed_load(steps) if self.sense is not None else UNLOADED
-        return max(0, min(SG_MAX, load + SG_PER_SGT * self.sgt))
+        return stallguard.reading(load, self.sgt)
 
     def observe(self) -> None:
         """Catch up with the steps the motor made since the driver last looked.
@@ -332,23 +350,31 @@ class TMC262:
             if boundary <= start:
                 return
             at = steps - (end - boundary) // unit
+            measurements = end // grid - start // grid
         else:
             boundary = -(-end // grid) * grid
             if boundary >= start:
                 return
             at = steps + (boundary - end) // unit
+            measurements = -(-start // grid) + -end // grid  # multiples in [end, start)
         if self.sfilt:
             back = -(FULLSTEP_UNITS // unit) if delta > 0 else FULLSTEP_UNITS // unit
             self.sg = sum(self._sg_at(at + k * back) for k in range(4)) // 4
         else:
             self.sg = self._sg_at(at)
         self.measured = True
-        self._cool_step()
+        self._cool_step(measurements)
 
-    def _cool_step(self) -> None:
-        """[inferred] coolStep at each measurement: full current below SEMIN * 32, the
-        minimum at or above (SEMIN + SEMAX + 1) * 32, unchanged in between (no SEUP/SEDN rate)."""
-        if self.semin == 0 or self.sg < self.semin * 32:
-            self._se = self.cs
-        elif self.sg >= (self.semin + self.semax + 1) * 32:
-            self._se = self._se_floor()
+    def _cool_step(self, measurements: int) -> None:
+        """coolStep after ``measurements`` stallGuard2 measurements that read ``sg`` (the
+        measurements since the last look are taken to read alike): the TMC26x law of
+        :func:`axes.stallguard.regulate` (SEUP increments per measurement below SEMIN * 32,
+        one decrement per 32/8/2/1 measurements (SEDN) at or above (SEMIN + SEMAX + 1) * 32,
+        between CS and half or a quarter of it (SEIMIN))."""
+        if self.semin == 0:
+            self._se, self._above = self.cs, 0
+            return
+        scale = max(self._se_floor(), min(self.cs, self._se))
+        self._se, self._above = stallguard.regulate(
+            scale, self._above, measurements, self.sg, self.semin, self.semax, self.seup,
+            self.sedn, self.cs, self._se_floor())

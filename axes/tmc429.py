@@ -185,16 +185,30 @@ class TMC429Motor(MotorEngine):
     def write(self, reg: MotorReg | int, data: int) -> None:
         self.chip.write(motor_address(self.index, reg), data)
 
-    def run(self, until: int) -> Stop | None:
-        """Advance this motor (only) to tick ``until``; return early at a notable instant."""
+    def run(self, until: int, budget: int | None = None) -> Stop | None:
+        """Advance this motor (only) to tick ``until``; return early at a notable instant
+        (or, with a work ``budget``, short of ``until`` when it runs out: MotorEngine.run)."""
         moving = self.v != 0
         x_before = self.x_actual
-        stop = super().run(until)
+        stop = super().run(until, budget)
         if self.v:
             self.rest_since = None
         elif moving or self.x_actual != x_before or self.rest_since is None:
             self.rest_since = self.t  # run() returns at the instant a motion ends
         return stop
+
+    def driver_spi(self, frame: int) -> int:
+        """A 20-bit datagram on the microcontroller's own SPI to this motor's driver (the
+        Step/Dir modules); its answer.  A write that changes a driver register counts as a
+        write to this motor (a lookahead twin made before it is stale)."""
+        driver = self.driver
+        if driver is None:
+            return 0
+        before = driver.registers()
+        answer = driver.spi(frame)
+        if driver.registers() != before:
+            self.writes += 1
+        return answer
 
     def set_pins(self, ref_l: bool, ref_r: bool, gp_in: bool = False) -> None:
         """Drive this motor's (left, right, home) switch levels; the layout decides which count."""

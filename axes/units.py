@@ -105,11 +105,24 @@ def last_step_speed(pmul: int, pdiv: int) -> int:
     return isqrt(((pmul | 0x80) << 8) >> pdiv)
 
 
-def stop_speed(a_max: int, pmul: int, pdiv: int) -> int:
+def stop_speed(a_max: int, pmul: int, pdiv: int, v_max: int, ramp_div: int, pulse_div: int) -> int:
     """The smallest V_MIN from which ramp mode always stops on the target.
 
-    The braking curve reaches the last microstep at ``last_step_speed``; and when a ramp tick
-    spans many pulse ticks the motor can arrive up to p * 2**(RD - PD) ~ A_MAX / 128 faster
-    than the curve.  Below either the motor steps past the target and comes back.
+    The braking curve reaches the last microstep at ``last_step_speed``, and a ramp tick that
+    spans many pulse ticks lets the motor arrive up to about A_MAX / 128 faster than the curve.
+    Besides, the ramp generator sees that it must brake only at a ramp tick, up to one ramp
+    period (V * 2**(RD - PD) / 2048 steps) after the curve fell below the speed V: that
+    leaves p * 2**(RD - PD) * V more in V² than the curve, while braking at the chip's real
+    rate (p_ideal = A_MAX / (128 * 2**(RD - PD))) instead of the curve's reduced p takes back
+    r * V² (r = 1 - p / p_ideal, about the 1 % reduction).  What is left at the target,
+    p k V - r V², is largest at V = p k / (2 r) (a short move that never reaches V_MAX), or at
+    V_MAX if that is lower.  Below any of these the motor steps past the target and comes
+    back (docs/motion.md, "V_MIN").
     """
-    return max(1, last_step_speed(pmul, pdiv), a_max // 128 + 2)
+    k = 2.0 ** (ramp_div - pulse_div)
+    p = pmul / 2.0 ** (3 + pdiv)
+    late = p * k  # extra V² per unit of speed from braking one ramp tick late
+    r = 1.0 - p * 128.0 * k / a_max if a_max else 0.0
+    speed = v_max if r <= 0 else min(v_max, late / (2.0 * r))
+    surplus = max(0.0, late * speed - r * speed * speed)
+    return max(1, last_step_speed(pmul, pdiv), a_max // 128 + 2, isqrt(int(surplus)) + 1)

@@ -95,12 +95,24 @@ class AxisWorld:
     encoder_slip: float = 0.0
     encoder_counts_per_rev: int = 51200
     motor_fullsteps_per_rev: int = 200
+    #: Faults of the mechanics and wiring (tmcl_server/faults.py, docs/faults.md); they belong
+    #: to the world, so a module restart keeps them.  The motor stops following its steps:
+    stuck: bool = False
+    #: ... and stallGuard2 reads this while it is stuck (None: the load of the place it is stuck at).
+    stuck_load: int | None = None
+    #: Broken switches: name -> the electrical level the input is stuck at, wherever the axis is.
+    broken_switches: dict[str, bool] = field(default_factory=dict)
 
     def level(self, name: str, position: int) -> bool:
+        broken = self.broken_switches.get(name)
+        if broken is not None:
+            return broken
         switch = self.switches.get(name)
         return switch.level(position) if switch is not None else False
 
     def load_at(self, position: int) -> int:
+        if self.stuck and self.stuck_load is not None:
+            return self.stuck_load
         for zone in self.load_zones:
             if zone.low <= position <= zone.high:
                 return zone.load
@@ -109,8 +121,9 @@ class AxisWorld:
     def edges(self) -> list[int]:
         """Every position where a switch level or the load value changes (sorted)."""
         points: set[int] = set()
-        for switch in self.switches.values():
-            points.update(switch.edges())
+        for name, switch in self.switches.items():
+            if name not in self.broken_switches:  # a broken switch's level never changes
+                points.update(switch.edges())
         for zone in self.load_zones:
             points.update(zone.edges())
         return sorted(points)
@@ -171,11 +184,12 @@ class World:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], number_of_axes: int | None = None,
-                  number_of_inputs: int | None = None) -> World:
+                  number_of_inputs: int | None = None, analog_full_scale: int = ANALOG_MAX) -> World:
         """The world a dict (a parsed world file) describes; anything unknown is an error.
 
         ``number_of_axes`` / ``number_of_inputs`` bound the axis indices and input lists if
-        given.  Errors are :class:`WorldError` naming the key path.
+        given, ``analog_full_scale`` the analogue values (the module's ADC: 4095 on the TMC429
+        modules).  Errors are :class:`WorldError` naming the key path.
         """
         _table(data, (), _TOP_KEYS)
         world = cls()
@@ -201,7 +215,7 @@ class World:
                                  f"{number_of_inputs}", at)
             for port, value in enumerate(values):
                 if kind == "analog":
-                    world.analog_inputs[port] = _integer(value, (*at, port), 0, ANALOG_MAX)
+                    world.analog_inputs[port] = _integer(value, (*at, port), 0, analog_full_scale)
                 else:
                     world.digital_inputs[port] = _boolean(value, (*at, port))
         chip = _table(data.get("chip", {}), ("chip",), _CHIP_KEYS)
@@ -215,7 +229,7 @@ class World:
 
 
 def load_world(path: str | Path, number_of_axes: int | None = None,
-               number_of_inputs: int | None = None) -> World:
+               number_of_inputs: int | None = None, analog_full_scale: int = ANALOG_MAX) -> World:
     """Read a TOML world file; errors name the file, the line (when it can be found) and the key."""
     import tomllib  # only when there is a world file to read
 
@@ -228,7 +242,7 @@ def load_world(path: str | Path, number_of_axes: int | None = None,
     except tomllib.TOMLDecodeError as exc:  # its message ends with "(at line L, column C)"
         raise ValueError(f"world file {path}: {exc}") from exc
     try:
-        return World.from_dict(data, number_of_axes, number_of_inputs)
+        return World.from_dict(data, number_of_axes, number_of_inputs, analog_full_scale)
     except WorldError as exc:
         line = locate_key(text, exc.where)
         at = f", line {line}" if line is not None else ""

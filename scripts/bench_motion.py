@@ -13,6 +13,10 @@ each next move issued at the target-reached instant (as WAIT POS would):
   1 000 000 pps², so ramps dominate.  Braking follows the chip's distance law one ramp tick
   at a time (it has no closed form), so time goes with the number of ramp ticks.
 
+Each workload runs on a TMCM-6212 (six TMC4210 chips, speeds in pps) and on a TMCM-6110 (six
+axes on two TMC429 chips, each axis's lookahead copying its whole chip; the same speeds and
+accelerations as register values with AP 154/153, as the firmware would choose them).
+
     .venv/bin/python scripts/bench_motion.py [--hours H] [--repeat N]
 """
 
@@ -26,8 +30,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from axes.units import choose_pulse_div, choose_ramp_div, velocity_register
 from tmcl_server.clock import VirtualClock
-from tmcl_server.module import TMCM6212, ModuleEvent
+from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import Request
 from tmcl_server.simulation import Simulation
 from tmcl_spec.commands import Opcode
@@ -36,13 +41,32 @@ NS = 1_000_000_000
 REVERSE_EVERY_NS = 7 * NS
 
 
-def command(module: TMCM6212, opcode: int, type_: int, motor: int, value: int) -> None:
+CLOCK_HZ = 16_000_000
+KINDS = ("tmcm-6212", "tmcm-6110")  # TMC4210 core, TMC429 core
+
+
+def command(module: TMCLModule, opcode: int, type_: int, motor: int, value: int) -> None:
     module.execute(Request(1, opcode, type_, motor, value))
 
 
-def run(hours: float, workload: str = "program") -> tuple[float, int, int]:
+def limits(module: TMCLModule, axis: int, speed: int, acceleration: int) -> int:
+    """Set AP 4 and AP 5 for ``speed`` pps and ``acceleration`` pps²; returns the value a
+    rotation at ``speed`` takes (pps, or on the TMC429 modules the register value)."""
+    if module.type.key == "tmcm-6212":
+        command(module, Opcode.SAP, 4, axis, speed)
+        command(module, Opcode.SAP, 5, axis, acceleration)
+        return speed
+    pulse_div = choose_pulse_div(speed, CLOCK_HZ)
+    ramp_div, a_max = choose_ramp_div(acceleration, pulse_div, CLOCK_HZ)
+    v_max = velocity_register(speed, pulse_div, CLOCK_HZ)
+    for number, value in ((154, pulse_div), (153, ramp_div), (4, v_max), (5, a_max)):
+        command(module, Opcode.SAP, number, axis, value)
+    return v_max
+
+
+def run(hours: float, workload: str = "program", kind: str = "tmcm-6212") -> tuple[float, int, int]:
     """Returns (wall seconds, moves completed, events handled)."""
-    module = TMCM6212()
+    module = TMCLModule(kind=kind)
     simulation = Simulation([module], VirtualClock())
     arrived: list[int] = []
     events = 0
@@ -56,20 +80,17 @@ def run(hours: float, workload: str = "program") -> tuple[float, int, int]:
     module.listeners.append(on_event)
     targets = {axis: 512_000 for axis in (0, 1, 2, 3, 5)}
     for axis in targets:
-        command(module, Opcode.SAP, 4, axis, 51200)
-        command(module, Opcode.SAP, 5, axis, 51200)
+        limits(module, axis, 51200, 51200)
     if workload == "hops":
         targets[5] = 20_000
-        command(module, Opcode.SAP, 4, 5, 200_000)
-        command(module, Opcode.SAP, 5, 5, 1_000_000)
+        limits(module, 5, 200_000, 1_000_000)
     else:
-        command(module, Opcode.SAP, 4, 5, 102_400)
-        command(module, Opcode.SAP, 5, 5, 102_400)
+        limits(module, 5, 102_400, 102_400)
     for axis, target in targets.items():
         command(module, Opcode.MVP, 0, axis, target)
-    command(module, Opcode.SAP, 5, 4, 100_000)
+    rotation = limits(module, 4, 80_000, 100_000)
     direction = 1
-    command(module, Opcode.ROR, 0, 4, 80_000)
+    command(module, Opcode.ROR, 0, 4, rotation)
     next_reverse = REVERSE_EVERY_NS
     end = round(hours * 3600 * NS)
     moves = 0
@@ -85,7 +106,7 @@ def run(hours: float, workload: str = "program") -> tuple[float, int, int]:
             moves += 1
         if simulation.now_ns >= next_reverse:
             direction = -direction
-            command(module, Opcode.ROR, 0, 4, direction * 80_000)
+            command(module, Opcode.ROR, 0, 4, direction * rotation)
             next_reverse += REVERSE_EVERY_NS
     return time.perf_counter() - start, moves, events
 
@@ -97,13 +118,17 @@ def main() -> int:
     args = parser.parse_args()
     simulated = args.hours * 3600
     for workload in ("program", "hops"):
-        results = [run(args.hours, workload) for _ in range(args.repeat)]
-        walls = sorted(r[0] for r in results)
-        wall = statistics.median(walls)
-        _, moves, events = results[0]
-        print(f"{workload}: six axes, {simulated:.0f} simulated s, {moves} moves, {events} events")
-        print(f"  wall time median {wall:.3f} s (min {walls[0]:.3f}, max {walls[-1]:.3f}, "
-              f"{args.repeat} runs): {simulated / wall:,.0f} simulated s per wall s")
+        medians = {}
+        for kind in KINDS:
+            results = [run(args.hours, workload, kind) for _ in range(args.repeat)]
+            walls = sorted(r[0] for r in results)
+            wall = medians[kind] = statistics.median(walls)
+            _, moves, events = results[0]
+            print(f"{workload} on {kind}: six axes, {simulated:.0f} simulated s, {moves} moves, "
+                  f"{events} events")
+            print(f"  wall time median {wall:.3f} s (min {walls[0]:.3f}, max {walls[-1]:.3f}, "
+                  f"{args.repeat} runs): {simulated / wall:,.0f} simulated s per wall s")
+        print(f"  TMC429 core / TMC4210 core wall time: {medians[KINDS[1]] / medians[KINDS[0]]:.2f}")
     print(f"goal: one simulated hour in < 2 s wall ({3600 / 2:,.0f} simulated s per wall s)")
     return 0
 

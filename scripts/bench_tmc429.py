@@ -45,8 +45,9 @@ def registers(clock_hz: int) -> dict[MotorReg, int]:
     pulse_div = choose_pulse_div(SPEED, clock_hz)
     ramp_div, a_max = choose_ramp_div(ACCELERATION, pulse_div, clock_hz)
     pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div)
-    return {MotorReg.V_MIN: stop_speed(a_max, pmul, pdiv),
-            MotorReg.V_MAX: velocity_register(SPEED, pulse_div, clock_hz),
+    v_max = velocity_register(SPEED, pulse_div, clock_hz)
+    return {MotorReg.V_MIN: stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div),
+            MotorReg.V_MAX: v_max,
             MotorReg.A_MAX: a_max, MotorReg.PMUL_PDIV: pmul << 8 | pdiv,
             MotorReg.DIVIDERS: pulse_div << 12 | ramp_div << 8}
 

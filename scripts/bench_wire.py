@@ -15,6 +15,10 @@ and p50/p99 round-trip latency.  Every figure is the median of ``--repeat`` runs
 rates and the rate with a dashboard page are reported as a ratio to the plain one measured in
 the same run (goal >= 80%).
 
+Then, with ``--wire-timing`` (docs/faults.md), the GAP round trip on a pty at 9600 and at
+115200 baud next to the figure the line model computes (goals: within 10 % and 20 %);
+``--wire-only`` measures just that.
+
     .venv/bin/python scripts/bench_wire.py [--seconds 2] [--repeat 3] [--page chromium|ws|none]
 """
 
@@ -218,13 +222,51 @@ class DashboardPage:
             self._browser.quit()
 
 
+#: Baud rates of the wire-timing scenario, with the goal for each (measured / computed - 1).
+WIRE_CASES = ((9600, 0.10), (115200, 0.20))
+
+
+def wire_timing(seconds: float, repeat: int) -> None:
+    """GAP round trips on paced ptys against the line model's figure (the median of each run,
+    the median of the runs)."""
+    from tmcl_server.transports.wire import DEFAULT_PROCESSING_S, serial_round_trip_s
+
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        links = [f"{tmp}/ttyWIRE{baud},baud={baud}" for baud, _ in WIRE_CASES]
+        proc, _ = start_simulator(tmp, "--wire-timing", *(a for link in links for a in ("--pty", link)),
+                                  name="wire")
+        try:
+            medians: dict[int, list[float]] = {baud: [] for baud, _ in WIRE_CASES}
+            for _ in range(repeat):
+                for (baud, _), link in zip(WIRE_CASES, links, strict=True):
+                    latencies: list[int] = []
+                    lockstep_pty(link.split(",")[0], seconds, latencies, [])
+                    medians[baud].append(statistics.median(latencies) / 1e6)
+        finally:
+            proc.terminate()
+            proc.wait(10)
+    print(f"--wire-timing, GAP round trip on a pty (processing {DEFAULT_PROCESSING_S * 1e3:g} ms; "
+          f"median of {repeat} runs of {seconds:g} s):")
+    for baud, goal in WIRE_CASES:
+        computed = serial_round_trip_s(baud) * 1e3
+        measured = statistics.median(medians[baud])
+        print(f"  {baud:>6} baud: computed {computed:6.3f} ms, measured p50 {measured:6.3f} ms "
+              f"({measured / computed - 1:+.1%}; goal within {goal:.0%})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="length of one run")
     parser.add_argument("--repeat", type=int, default=3, help="runs per figure (median)")
     parser.add_argument("--page", choices=["chromium", "ws", "none"], default="chromium",
                         help="what is open on the --http dashboard (default chromium)")
+    parser.add_argument("--wire-only", action="store_true",
+                        help="only the --wire-timing round trips at 9600 and 115200 baud")
     args = parser.parse_args()
+    if args.wire_only:
+        wire_timing(args.seconds, args.repeat)
+        return
 
     with tempfile.TemporaryDirectory() as tmpdir:
         echo, echo_endpoint = start_echo()
@@ -325,6 +367,7 @@ def main() -> None:
               f"1 raw client {page_ratios[0]:.0%}, 1 pytrinamic client {page_ratios[1]:.0%} "
               f"(goal >= 80%); server CPU per request, 1 raw client: {page_cpu[1]:.1f} us "
               f"against {page_cpu[0]:.1f} us")
+    wire_timing(args.seconds, args.repeat)
 
 
 if __name__ == "__main__":

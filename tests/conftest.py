@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import socket
 from collections.abc import Iterator
 
@@ -68,6 +70,28 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if "soak" in item.keywords:
             item.add_marker(skip)
+
+
+@pytest.fixture(autouse=True)
+def _exclusive_if_marked(request: pytest.FixtureRequest,
+                         tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """``@pytest.mark.exclusive`` tests (wall-clock timing) run while no other test does, also
+    across xdist workers: every test holds a shared lock on a file all workers see, an exclusive
+    test the exclusive lock.  A gate keeps new tests from slipping in while one waits."""
+    directory = tmp_path_factory.getbasetemp().parent  # shared by the workers of one run
+    exclusive = request.node.get_closest_marker("exclusive") is not None
+    with open(directory / "tests-gate.lock", "a") as gate, open(directory / "tests-run.lock", "a") as run:
+        fcntl.flock(gate, fcntl.LOCK_EX)
+        if not exclusive:
+            fcntl.flock(gate, fcntl.LOCK_UN)
+        fcntl.flock(run, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        if exclusive:
+            fcntl.flock(gate, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            with contextlib.suppress(OSError):
+                fcntl.flock(run, fcntl.LOCK_UN)
 
 
 @pytest.fixture

@@ -94,6 +94,19 @@ def build_parser() -> argparse.ArgumentParser:
                        help="serve the live dashboard (axes, I/O, parameters, program debugger, "
                             "wire) to a browser; host 127.0.0.1 unless given; needs the extra "
                             "tmcl-sim[http] (docs/dashboard.md)")
+    faults = parser.add_argument_group("faults and wire timing (see docs/faults.md)")
+    faults.add_argument("--fault", action="append", metavar="SPEC", default=[],
+                        help="inject a fault, e.g. noreply:opcode=GAP,rate=0.1,seed=7 or "
+                             "delay:ms=50 or stuck:axis=0 (repeatable)")
+    faults.add_argument("--faults", action="append", metavar="FILE", default=[],
+                        help="faults from a TOML ([[fault]] tables), JSON or text file (one spec "
+                             "a line)")
+    faults.add_argument("--wire-timing", action="store_true",
+                        help="the pty and serial ports send each byte at the baud rate (GP 65, "
+                             "or ,baud=N) and CAN frames take their time at GP 69's bit rate")
+    faults.add_argument("--processing-time", type=float, default=0.0002, metavar="SECONDS",
+                        help="with --wire-timing: the module's time between a request's last byte "
+                             "and its reply's first (default 0.0002)")
     parser.add_argument("--clock", choices=["real", "lockstep"], default="real",
                         help="real: simulated time follows the wall clock (x --speed); "
                              "lockstep: it moves only by --request-time per request")
@@ -156,6 +169,15 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         raise SystemExit("tmcl-server: --record-resolution must be positive")
     if args.request_time < 0:
         raise SystemExit("tmcl-server: --request-time cannot be negative")
+    if args.processing_time < 0:
+        raise SystemExit("tmcl-server: --processing-time cannot be negative")
+    from tmcl_server.faults import FaultSpecError, load_fault_file, parse_fault
+
+    try:
+        faults = [spec for path in args.faults for spec in load_fault_file(path)]
+        faults += [parse_fault(text) for text in args.fault]
+    except FaultSpecError as exc:
+        raise SystemExit(f"tmcl-server: fault: {exc}") from None
     try:
         record_axes = ([int(a) for a in args.record_axes.split(",") if a.strip()]
                        if args.record_axes else None)
@@ -167,7 +189,9 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         module_type=args.module_type, axis_core=args.axis_core,
                         request_time=args.request_time, trace=args.trace,
                         trace_format=args.trace_format, record=args.record,
-                        record_resolution=args.record_resolution, record_axes=record_axes)
+                        record_resolution=args.record_resolution, record_axes=record_axes,
+                        faults=faults, wire_timing=args.wire_timing,
+                        processing_time=args.processing_time)
 
 
 async def run(config: ServerConfig) -> None:

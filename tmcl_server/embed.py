@@ -15,10 +15,11 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import threading
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import fields
 from typing import Any, TypeVar
 
+from tmcl_server.faults import FaultHandle, FaultInjector
 from tmcl_server.loops import new_event_loop
 from tmcl_server.module import TMCLModule
 from tmcl_server.record import DEFAULT_RESOLUTION_S, Recorder, Recording
@@ -161,6 +162,26 @@ class SimulatorThread:
         """
         recorder = self.call(lambda: Recorder(self.simulation, resolution, modules, axes).start())
         return Recording(recorder, self.call)
+
+    # -- faults on purpose (tmcl_server/faults.py, docs/faults.md) ------------------------------
+
+    def fault(self, fault: str | Mapping[str, Any], **params: Any) -> FaultHandle:
+        """Inject a fault now, e.g. ``with sim.fault("noreply", opcode="GAP"): ...``; it goes
+        at the end of the block (or by ``remove()``).  ``fault``: a kind, or a whole spec
+        (``"delay:ms=50,module=2"``); keywords add keys."""
+        injector = self.call(FaultInjector.of, self.simulation)
+        return FaultHandle(self.call, injector, self.call(injector.add, fault, **params))
+
+    def faults(self) -> list[dict[str, Any]]:
+        """The faults installed now: id, spec, how often each struck."""
+        return self.call(lambda: FaultInjector.of(self.simulation).describe())
+
+    def clear_faults(self) -> None:
+        self.call(lambda: FaultInjector.of(self.simulation).clear())
+
+    def power_cycle(self, address: int = 1) -> None:
+        """Switch the module at ``address`` off and on: RAM as after power-on, EEPROM kept."""
+        self.call(lambda: FaultInjector.of(self.simulation).power_cycle(self.simulation.module(address)))
 
     @property
     def tcp(self) -> str:

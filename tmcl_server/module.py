@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from axes.cores import make_axis
+from axes.cores import make_axes
 from axes.interface import Axis, AxisEvent, AxisEventKind
 from axes.world import (
     DEFAULT_SIDES,
@@ -103,16 +103,15 @@ class TMCLModule:
         self.eeprom = eeprom if eeprom is not None else Eeprom()
         #: The physical surroundings (switches, load, encoder slip); kept across restarts.
         self.world = world or World()
-        if axis_factory is None:
-            core, table, clock_hz = self.chip_core, self.type.axis_parameters, self.world.clock_hz
-            axis_factory = lambda index: make_axis(core, index, table, clock_hz)  # noqa: E731
+        #: Builds one axis by index (tests); None: the chip core builds the module's axes.
         self._axis_factory = axis_factory
         self.listeners: list[Callable[[ModuleEvent], None]] = []
         #: Called when the serial or CAN addresses may have changed (routers cache them).
         self.on_address_change: Callable[[], None] | None = None
         self.now_ns = start_ns
         #: Standalone mode: program memory, the interpreter, control commands 128-135.
-        self.program = ProgramSupport(self, self.type.program_memory, self.type.number_of_axes)
+        self.program = ProgramSupport(self, self.type.program_memory, self.type.number_of_axes,
+                                      self.type.digital_inputs)
         #: Opcode -> bound handler, for the commands this module type knows.
         self.handlers: dict[int, Handler] = {
             opcode: handler.__get__(owner)
@@ -141,7 +140,10 @@ class TMCLModule:
         if self.globals[0][GP.DO_NOT_RESTORE_USER_VARIABLES] == 0:
             for key, value in ee.items("user_variables"):
                 self.globals[2][int(key)] = value
-        self.axes: list[Axis] = [self._axis_factory(i) for i in range(self.type.number_of_axes)]
+        # A restart resets the counters, not the mechanics: they stay where they are.
+        mechanics = ([self.axis(i).status().mechanical_position for i in range(len(self.axes))]
+                     if hasattr(self, "axes") else [])
+        self.axes: list[Axis] = self._build_axes()
         #: Each axis's next event, and the axes whose entry must be asked again.
         self._axis_due: list[int | None] = [None] * len(self.axes)
         self._stale_axes: set[int] = set(range(len(self.axes)))
@@ -149,13 +151,18 @@ class TMCLModule:
         self._touched: set[int] = set()
         for axis in self.axes:
             axis.advance_to(self.now_ns)
+            if mechanics and mechanics[axis.index]:
+                axis.place_mechanics(mechanics[axis.index])
             for key, value in (ee.get("axis_parameters", axis.index) or {}).items():
                 axis.set_parameter(int(key), value)
         self.coordinates = [[0] * self.type.coordinates for _ in self.axes]
         if self.globals[0][GP.COORDINATE_STORAGE] == 1:
             self._copy_coordinates_from_eeprom(range(1, self.type.coordinates))
         self.outputs = [0] * self.type.outputs
+        self.pullups = [1] * self.type.pullup_ports
         self.analog_inputs = [0] * self.type.analog_inputs
+        if bank0.get(GP.END_SWITCH_POLARITY):
+            self._apply_switch_polarity()
         self.apply_world(self.world)
         self._tick_origin_ms = self.now_ns // NS_PER_MS
         self._random = random.Random(0)
@@ -170,6 +177,13 @@ class TMCLModule:
         self._addresses_changed()
         self.program.power_up()
 
+    def _build_axes(self) -> list[Axis]:
+        """The module's axes: on its chip core (in groups where a chip drives several)."""
+        count = self.type.number_of_axes
+        if self._axis_factory is not None:
+            return [self._axis_factory(index) for index in range(count)]
+        return make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+
     @property
     def accumulator(self) -> int:
         """The program's A register (ACO, AAP and AGP read it in direct mode too)."""
@@ -179,6 +193,12 @@ class TMCLModule:
         """Command 137: erase the EEPROM and restart with factory settings."""
         self.eeprom.erase()
         self.power_up()
+
+    def power_cycle(self) -> None:
+        """Switch the module off and on (a reset fault, docs/faults.md): RAM as after power-on,
+        the EEPROM kept, a program auto-started if GP 77 says so; the world stays."""
+        self.power_up()
+        self.emit("power_cycle", None)
 
     # == addressing ============================================================================
 
@@ -500,6 +520,20 @@ class TMCLModule:
         target.set_encoder_slip(slip)
         self.world.axes.setdefault(axis, target.world)
 
+    def set_axis_stuck(self, axis: int, stuck: bool, load: int | None = None) -> None:
+        """The motor of ``axis`` stops following its steps (a fault; False: it follows again)."""
+        target = self._world_axis(axis)
+        target.set_stuck(stuck, load)
+        self.world.axes.setdefault(axis, target.world)
+
+    def break_switch(self, axis: int, name: str, level: bool | None) -> None:
+        """Hold the "left", "right" or "home" input at an electrical level (None: repaired)."""
+        if name not in SWITCH_NAMES:
+            raise ValueError(f"unknown switch {name!r}")
+        target = self._world_axis(axis)
+        target.break_switch(name, level)
+        self.world.axes.setdefault(axis, target.world)
+
     def axis_world(self, axis: int) -> AxisWorld:
         return self._world_axis(axis).world
 
@@ -596,7 +630,8 @@ class TMCLModule:
             raise CommandError(Status.INVALID_VALUE) from exc
 
     def _cmd_gap(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
-        self._axis_spec(req.type)
+        if not self._axis_spec(req.type).readable:  # a fixed setting the module does not show
+            raise CommandError(Status.WRONG_TYPE)
         return self._axis(req.motor).get_parameter(req.type)
 
     def _cmd_stap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
@@ -650,6 +685,17 @@ class TMCLModule:
                 self.reply_delay_s = value / 1000.0
             elif number == GP.COORDINATE_STORAGE and value == 1:
                 self._copy_coordinates_to_eeprom(range(1, self.type.coordinates))
+            elif number == GP.END_SWITCH_POLARITY:
+                self._apply_switch_polarity()
+
+    def _apply_switch_polarity(self) -> None:
+        """GP 79 (TMC429 modules): 1 inverts every axis's limit switches, as the TMCM-6212's
+        AP 24/25 invert one axis's (the module's input stage, docs/modules.md)."""
+        inverted = self.globals[0][GP.END_SWITCH_POLARITY]
+        for index in range(len(self.axes)):
+            axis = self.axis(index)
+            axis.set_parameter(AP.LEFT_POLARITY, inverted)
+            axis.set_parameter(AP.RIGHT_POLARITY, inverted)
 
     def _cmd_sgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         spec = self._global_spec(req.type, req.motor)
@@ -685,6 +731,9 @@ class TMCLModule:
     # == I/O ===================================================================================
 
     def _cmd_sio(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
+        if req.motor == IOBank.DIGITAL_INPUTS and self.type.pullup_ports:
+            self._set_pullup(req)
+            return
         if req.motor != IOBank.OUTPUTS:
             raise CommandError(Status.INVALID_VALUE)
         if not 0 <= req.type < self.type.outputs:
@@ -694,6 +743,15 @@ class TMCLModule:
         if self.outputs[req.type] != req.value:
             self.outputs[req.type] = req.value
             self.emit("output_changed", None, port=req.type, level=req.value)
+
+    def _set_pullup(self, req: Request) -> None:
+        """``SIO n, 0, 0|1`` (TMC429 modules): pull-up resistors on or off.  The world gives
+        switch and input levels directly, so they only are remembered (docs/modules.md)."""
+        if not 0 <= req.type < self.type.pullup_ports:
+            raise CommandError(Status.WRONG_TYPE)
+        if req.value not in (0, 1):
+            raise CommandError(Status.INVALID_VALUE)
+        self.pullups[req.type] = req.value
 
     def read_input(self, port: int, bank: int) -> int:
         if bank == IOBank.DIGITAL_INPUTS:
@@ -708,8 +766,12 @@ class TMCLModule:
     def _cmd_gio(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
         if req.motor not in tuple(IOBank):
             raise CommandError(Status.INVALID_VALUE)
-        if req.motor == IOBank.ANALOG_INPUTS and req.type == self.type.supply_voltage_channel:
-            return self.supply_voltage_reading()
+        if req.motor == IOBank.ANALOG_INPUTS:
+            if req.type == self.type.supply_voltage_channel:
+                return self.supply_voltage_reading()
+            channels = self.type.analog_channels
+            if channels is not None and req.type not in channels:
+                raise CommandError(Status.WRONG_TYPE)
         if not 0 <= req.type < self._input_count(req.motor):
             raise CommandError(Status.WRONG_TYPE)
         return self.read_input(req.type, req.motor)

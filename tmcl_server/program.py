@@ -85,9 +85,12 @@ class ProgramSupport:
     """Program memory, download mode, the interpreter and its control commands for one module."""
 
     def __init__(self, module: StandaloneHost, memory_size: int,
-                 number_of_axes: int = interrupts.NUMBER_OF_AXES) -> None:
+                 number_of_axes: int = interrupts.NUMBER_OF_AXES,
+                 number_of_inputs: int = interrupts.NUMBER_OF_INPUTS) -> None:
         self.module = module
         self.memory_size = memory_size
+        #: Bank-3 parameters that are trigger transitions, for this module's axes and inputs.
+        self._triggered = interrupts.triggered(number_of_axes, number_of_inputs)
         self.interpreter = Interpreter(self, number_of_axes=number_of_axes, memory_size=memory_size)
         self.downloading = False
         self.download_address = 0
@@ -165,7 +168,7 @@ class ProgramSupport:
         if bank == 3:
             if number < interrupts.NUMBER_OF_TIMERS:
                 self.interpreter.set_timer(number, value, self.module.now_ns)
-            elif number in interrupts.TRIGGERED:
+            elif number in self._triggered:
                 self.interpreter.triggers[number] = Trigger(value)
         elif (bank == 0 and number == GP.CODE_PROTECTION and old is not None
               and old & CodeProtection.READ and not value & CodeProtection.READ):

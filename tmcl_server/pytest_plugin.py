@@ -18,7 +18,8 @@ in this order, by the factory's ``clock=`` argument, ``@pytest.mark.tmcl_sim(clo
 * ``real``: simulated time is wall time (``speed=X`` to run it X times faster).
 
 The marker's other keywords (``modules=3``, ``request_time=0.01``, ...) are defaults for
-every simulator the test makes.
+every simulator the test makes; ``faults=["noreply:opcode=GAP"]`` injects faults from the start,
+``with tmcl_sim.fault("delay", ms=50): ...`` for a block (docs/faults.md).
 """
 
 from __future__ import annotations

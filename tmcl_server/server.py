@@ -71,6 +71,12 @@ class ServerConfig:
     record: str | None = None
     record_resolution: float = 0.01
     record_axes: list[int] | None = None
+    #: Faults injected from the start: specs (``noreply:opcode=GAP``) or tables (faults.py).
+    faults: list[Any] = field(default_factory=list)
+    #: Bytes and CAN frames take the real link's time (transports/wire.py); the module's
+    #: processing time between a request and its reply then.
+    wire_timing: bool = False
+    processing_time: float = 0.0002
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -93,8 +99,8 @@ def build_simulation(config: ServerConfig) -> Simulation:
     for slot in config.addresses:
         directory = module_state_dir(config.state_dir, slot) if config.state_dir else None
         # each module gets its own copy: the simulator API changes worlds per module
-        world = (load_world(config.world, kind.number_of_axes, kind.analog_inputs) if config.world
-                 else World())
+        world = (load_world(config.world, kind.number_of_axes, kind.analog_inputs,
+                            kind.analog_full_scale) if config.world else World())
         module = TMCLModule(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world,
                             kind=kind, chip_core=config.axis_core)
         modules.append(module)
@@ -143,6 +149,10 @@ class Server:
             from tmcl_server.transports.can.bus import open_can_bus  # imports python-can
 
             self._can_bus = open_can_bus(self.simulation, self.config.can_bus_name)
+            if self.config.wire_timing:
+                from tmcl_server.transports.wire import can_timing
+
+                self._can_bus.timing = can_timing(self.simulation, self.config.processing_time)
         return self._can_bus
 
     # -- lifecycle ----------------------------------------------------------------------------
@@ -152,6 +162,10 @@ class Server:
         self.simulation.on_change = self._reschedule
         try:
             self.observers.start(self._loop)
+            if self.config.faults:
+                from tmcl_server.faults import FaultInjector
+
+                FaultInjector.of(self.simulation).add_all(self.config.faults)
             for kind, arguments in self.config.endpoints.items():
                 cls = transport_class(kind)
                 for argument in arguments:
@@ -178,6 +192,8 @@ class Server:
             except Exception:  # keep closing the others
                 log.exception("closing %s failed", transport.kind)
         self.transports.clear()
+        if self._can_bus is not None and self._can_bus.timing is not None:
+            self._can_bus.timing.close()
         self.observers.close()
         if self.config.ready_file:
             Path(self.config.ready_file).unlink(missing_ok=True)

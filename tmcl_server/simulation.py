@@ -27,6 +27,7 @@ from tmcl_server.protocol import AnyReply, ChecksumError, Request, decode_reques
 from tmcl_spec.numbers import NS_PER_MS
 
 if TYPE_CHECKING:
+    from tmcl_server.faults import FaultInjector
     from tmcl_server.record import Recorder
     from tmcl_server.trace import Tracer
 
@@ -64,6 +65,8 @@ class Simulation:
         self.tracer: Tracer | None = None
         #: Samples the axes at its instants whenever time moves (tmcl_server/record.py); or None.
         self.recorder: Recorder | None = None
+        #: Faults injected on purpose (tmcl_server/faults.py), set while one watches requests.
+        self.faults: FaultInjector | None = None
         #: A lockstep clock's time per request (0 for the others): see _execute.
         self._request_ns = clock.request_ns
         for module in self.modules:
@@ -305,6 +308,11 @@ class Simulation:
                  sink: ReplySink | None) -> list[Routed]:
         if self._request_ns:  # a lockstep clock: the telegram's time on the wire passes first
             self.advance_to_ns(self.clock.now_ns() + self._request_ns)
+        faults = self.faults
+        if faults is not None:  # a request lost on the way, or a module that resets
+            targets = faults.before(request, interface, targets, sink)
+            if not targets:
+                return []
         tracer = self.tracer
         if tracer is not None:
             sink = tracer.requested(request, interface, targets, sink)
@@ -316,6 +324,8 @@ class Simulation:
                 routed.append((module, reply))
         if tracer is not None:
             tracer.replied(request, interface, targets, routed, sink)
+        if faults is not None:  # replies lost or altered (faults.Delivery), faults triggered
+            routed = faults.after(request, interface, routed)
         if request.opcode not in READ_ONLY_OPCODES:
             for module in targets:
                 self.replan(module)

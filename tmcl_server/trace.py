@@ -264,6 +264,12 @@ class Tracer:
         self._note((self._plain_line, self._wall(), self._now(), "event", endpoint, reply.module,
                     f"{opcode_name(reply.opcode)} {describe_reply(reply)}", self._reply_fields(reply)))
 
+    def injected(self, endpoint: str, module: TMCLModule, request: Request | None, what: str,
+                 fields: dict[str, Any]) -> None:
+        """A fault was injected on purpose (tmcl_server/faults.py): a ``fault`` line."""
+        self._note((self._fault_line, self._wall(), module.now_ns, endpoint, module.address, module.type,
+                    request, what, fields))
+
     def event(self, module: TMCLModule, event: ModuleEvent) -> None:
         """Something happened inside a module (axis events, interrupts, program start/stop)."""
         parts = [event.kind]
@@ -344,6 +350,16 @@ class Tracer:
                       why: str) -> list[_Line]:
         text = _request_text(request.opcode, request.type, request.motor, request.value, vocabulary(kind))
         return [("noreply", endpoint, address, f"{text}: {why}", {"reason": why})]
+
+    def _fault_line(self, endpoint: str, address: int, kind: Any, request: Request | None, what: str,
+                    fields: dict[str, Any]) -> list[_Line]:
+        if request is None:
+            return [("fault", endpoint, address, what, {"injected": True, **fields})]
+        text = _request_text(request.opcode, request.type, request.motor, request.value, vocabulary(kind))
+        if self.jsonl:
+            fields = {"opcode": request.opcode, "type": request.type, "motor": request.motor,
+                      "value": request.value, **fields}
+        return [("fault", endpoint, address, f"{text}: {what}", {"injected": True, **fields})]
 
     @staticmethod
     def _plain_line(kind: str, endpoint: str, address: int, text: str,

@@ -40,6 +40,10 @@ class ModuleType:
     chip_core: str
     #: The opcodes the firmware knows; others answer status 2.
     commands: frozenset[int]
+    #: Input lines whose analogue value ``GIO n, 1`` reads (None: every input line).
+    analog_channels: frozenset[int] | None = None
+    #: ``SIO n, 0, 0|1`` switches pull-up resistors n = 0..pullup_ports-1 (0: no such bank).
+    pullup_ports: int = 0
     #: Full scale of an analogue input reading, and where its digital reading switches.
     analog_full_scale: int = 65535
     digital_threshold: int = 32768
@@ -66,6 +70,9 @@ class ModuleType:
 #: Profile name -> "module:attribute" where it is defined (imported on first use).
 MODULE_TYPES: dict[str, str] = {
     "tmcm-6212": "tmcl_spec.tmcm6212:TMCM_6212",
+    "tmcm-1110": "tmcl_spec.tmc429_modules:TMCM_1110",
+    "tmcm-3110": "tmcl_spec.tmc429_modules:TMCM_3110",
+    "tmcm-6110": "tmcl_spec.tmc429_modules:TMCM_6110",
 }
 DEFAULT_MODULE_TYPE = "tmcm-6212"
 

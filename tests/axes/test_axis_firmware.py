@@ -313,6 +313,18 @@ def test_stall_stops_the_motor_and_sets_the_error_flag() -> None:
     assert AxisEventKind.TARGET_REACHED not in h.kinds()
 
 
+def test_a_stall_found_by_the_timer_stays_stopped() -> None:
+    """Load 0 from the start: the stall is found by the 1 ms stallGuard poll (a timer), not at a
+    chip event; the look-ahead made before it must not carry the motor on to its target."""
+    h = Harness(AxisWorld(free_load=0))
+    h.sap(181, 1)
+    h.axis.move_to(6000)
+    h.until(AxisEventKind.STALL)
+    h.advance(2.0)
+    assert h.gap(3) == 0 and h.gap(1) < 100
+    assert AxisEventKind.TARGET_REACHED not in h.kinds()
+
+
 def test_slow_motion_through_a_load_zone_does_not_stall() -> None:
     h = Harness(AxisWorld(load_zones=[LoadZone(100, 300, 0)]))
     h.sap(181, 50_000)

@@ -152,22 +152,34 @@ def test_filter_averages_the_four_full_steps_of_an_electrical_period() -> None:
     assert driver.stallguard() == 250
 
 
-def test_cool_step_current() -> None:
+def test_cool_step_current_follows_the_shared_law() -> None:
+    """SEUP/SEDN rates and the SEIMIN floor are axes.stallguard.regulate's (the firmware's)."""
     motor = Motor(default=50)
-    driver = driver_on(motor, cs=20)
+    driver = driver_on(motor, cs=20)  # 16 microsteps: a full step every 16 steps
     assert driver.se == 20  # coolStep off (SEMIN = 0): SE = CS
-    driver.write(drv_datagram(DrvReg.SMARTEN, 2 << 8 | 4))  # SEMIN 4 (SG < 128: full), SEMAX 2 (>= 224: min)
+    # SEMIN 4 (SG < 128: up), SEMAX 2 (SG >= 224: down), SEDN 3 (every measurement), SEUP 1 (+2)
+    driver.write(drv_datagram(DrvReg.SMARTEN, 3 << 13 | 2 << 8 | 1 << 5 | 4))
     motor.steps = 16
-    assert driver.se == 20  # SG 50 < 128
+    assert driver.se == 20  # SG 50 < 128, but already at CS
     motor.default = 600
-    motor.steps = 32
-    assert driver.se == 10  # SG 600 >= 224: CS/2
-    driver.write(drv_datagram(DrvReg.SMARTEN, 1 << 15 | 2 << 8 | 4))
+    motor.steps = 16 * 4  # three more full steps read 600 >= 224: three decrements
+    assert driver.se == 17
+    motor.steps = 16 * 20  # many more: down to half the current, (20 + 1) // 2 - 1
+    assert driver.se == 9
+    motor.default = 50
+    motor.steps = 16 * 22  # two measurements below SEMIN * 32: +2 each
+    assert driver.se == 13
+    driver.write(drv_datagram(DrvReg.SMARTEN, 1 << 15 | 3 << 13 | 2 << 8 | 1 << 5 | 4))
     motor.default = 150
-    motor.steps = 48
-    assert driver.se == 10  # between the thresholds: unchanged
+    motor.steps = 16 * 23
+    assert driver.se == 13  # between the thresholds: unchanged
+    motor.default = 1000
+    motor.steps = 16 * 40
+    assert driver.se == 4  # SEIMIN: a quarter, (20 + 1) // 4 - 1
     driver.write(drv_datagram(DrvReg.DRVCONF, ReadSelect.SG_SE << 4))
-    assert poll(driver) >> 10 == (150 >> 5) << 5 | 10
+    assert poll(driver) >> 10 == (1000 >> 5) << 5 | 4
+    motor.steps = 16 * 36  # backwards: four measurements at 1000 change nothing at the floor
+    assert driver.se == 4
 
 
 def test_spi_mode_steps_use_the_sequencers_step_size() -> None:

@@ -8,8 +8,6 @@ in ``test_tmc429_chain.py`` and ``test_tmc262.py``.
 
 from __future__ import annotations
 
-from math import isqrt
-
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
@@ -45,7 +43,8 @@ def status(chip: TMC429) -> int:
 def configure(motor: TMC429Motor, *, v_max: int, a_max: int, pulse_div: int, ramp_div: int,
               v_min: int | None = None, mode: RampMode = RampMode.RAMP) -> None:
     pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
-    motor.write(MotorReg.V_MIN, stop_speed(a_max, pmul, pdiv) if v_min is None else v_min)
+    motor.write(MotorReg.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div)
+                if v_min is None else v_min)
     motor.write(MotorReg.V_MAX, v_max)
     motor.write(MotorReg.A_MAX, a_max)
     motor.write(MotorReg.PMUL_PDIV, pmul << 8 | pdiv)
@@ -478,29 +477,15 @@ _move_setup = st.integers(50, 400_000).flatmap(
     lambda speed: st.tuples(st.just(speed), st.integers(max(100, speed // 100), min(5_000_000, speed * 100))))
 
 
-def late_braking_speed(v_max: int, a_max: int) -> int:
-    """The speed a motor can still have at the target when it starts braking one ramp tick late.
-
-    The ramp generator sees that it must brake only at a ramp tick, up to one ramp period
-    (V_MAX * 2**(RD - PD) / 2048 steps) after the curve crossed V_MAX: that leaves
-    2 * A_MAX/256 * V_MAX more in v² than the curve, of which the 1 % reduction of p takes
-    back V_MAX² / 100 (docs/tmc429.md).  ``units.stop_speed`` does not include this term.
-    """
-    return isqrt(max(0, 2 * a_max * v_max // 256 - v_max * v_max // 100)) + 1
-
-
 def _moves_case(setups: list[tuple[int, int]], targets: list[list[int]]) -> None:
-    """Registers as the firmware layer derives them from a speed (pps) and acceleration (pps²),
-    with V_MIN raised to cover braking one ramp tick late."""
+    """Registers as the firmware layer derives them from a speed (pps) and acceleration (pps²)."""
     fences = [Fence(), Fence(), Fence()]
     chip = step_dir_chip(boards=fences)
     for motor, (speed, acceleration) in zip(chip.motors, setups, strict=True):
         pulse_div = choose_pulse_div(speed, chip.clock_hz)
         ramp_div, a_max = choose_ramp_div(acceleration, pulse_div, chip.clock_hz)
         v_max = max(1, velocity_register(speed, pulse_div, chip.clock_hz))
-        pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
-        v_min = max(stop_speed(a_max, pmul, pdiv), late_braking_speed(v_max, a_max))
-        configure(motor, v_max=v_max, a_max=a_max, pulse_div=pulse_div, ramp_div=ramp_div, v_min=v_min)
+        configure(motor, v_max=v_max, a_max=a_max, pulse_div=pulse_div, ramp_div=ramp_div)
     for index, motor in enumerate(chip.motors):
         for target in targets[index]:
             fences[index].target = target
@@ -517,7 +502,8 @@ _moves = dict(setups=st.lists(_move_setup, min_size=3, max_size=3),
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@example(setups=[(50, 100), (50, 100), (977, 430)], targets=[[0], [0], [1259]])  # see late_braking_speed
+# 977 pps at 430 pps² overshot by one step before units.stop_speed covered late braking:
+@example(setups=[(50, 100), (50, 100), (977, 430)], targets=[[0], [0], [1259]])
 @given(**_moves)
 def test_random_moves_land_on_target_without_overshoot(setups, targets) -> None:
     _moves_case(setups, targets)

@@ -12,7 +12,8 @@ from enum import Enum
 from typing import TYPE_CHECKING, Any, Protocol
 
 from tmcl_server.dispatch import ReplySink
-from tmcl_server.protocol import FRAME_LENGTH, FrameAssembler, Reply
+from tmcl_server.faults import Delivery
+from tmcl_server.protocol import FRAME_LENGTH, AnyReply, FrameAssembler, Reply
 from tmcl_server.simulation import Routed, Simulation
 
 if TYPE_CHECKING:
@@ -149,8 +150,8 @@ class StreamSession:
         for frame in frames:
             for module, reply in self._route(frame, self):
                 delay = module.reply_delay_s if self.rs485 else 0.0
-                if delay or self.closed:
-                    self._send(reply.encode(), delay)
+                if delay or self.closed or type(reply) is Delivery:
+                    self._deliver(reply, delay)
                 else:  # the common case, kept short: it runs for every request
                     try:
                         self._write(reply.encode())
@@ -160,6 +161,15 @@ class StreamSession:
             # The 5 ms pause is a pause on the line: it counts from when we are ready for
             # more bytes again, not from when a long burst began to be processed.
             assembler.last_byte_ns = time.monotonic_ns()
+
+    def _deliver(self, reply: AnyReply | Delivery, delay_s: float) -> None:
+        """A reply after the GP 75 pause, or one the faults altered (late, torn, ...)."""
+        if type(reply) is not Delivery:
+            self._send(reply.encode(), delay_s)
+            return
+        for pause, data in reply.stream_pieces():
+            delay_s += pause
+            self._send(data, delay_s)
 
     def _send(self, data: bytes, delay_s: float = 0.0) -> None:
         if self.closed:

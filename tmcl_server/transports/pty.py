@@ -18,6 +18,7 @@ import logging
 import os
 import tty
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
@@ -29,6 +30,9 @@ from tmcl_server.transports.base import (
     link_mode,
     split_endpoint_options,
 )
+
+if TYPE_CHECKING:
+    from tmcl_server.transports.wire import WireTiming
 
 log = logging.getLogger(__name__)
 
@@ -96,10 +100,14 @@ class LinkLock:
 class PtyTransport(Transport):
     kind = "pty"
 
-    def __init__(self, simulation: Simulation, link: str, mode: LinkMode = LinkMode.RS485) -> None:
+    def __init__(self, simulation: Simulation, link: str, mode: LinkMode = LinkMode.RS485,
+                 wire: WireTiming | None = None, baud: int | None = None) -> None:
         self.simulation = simulation
         self.link = Path(link)
         self.mode = mode
+        #: ``--wire-timing``: bytes at ``baud`` (default: GP 65), see transports/wire.py.
+        self.wire = wire
+        self.baud = baud
         self.device: str | None = None
         self._master: int | None = None
         self._slave: int | None = None
@@ -108,9 +116,13 @@ class PtyTransport(Transport):
 
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> PtyTransport:
-        """``PATH[,mode=usb|rs485]``; without a mode: USB for one module, RS-485 for several."""
-        path, options = split_endpoint_options(argument)
-        return cls(host.simulation, path, link_mode(host.simulation, options, f"--pty {path}"))
+        """``PATH[,mode=usb|rs485][,baud=N]``; without a mode: USB for one module, RS-485 for
+        several; ``baud`` paces the line with ``--wire-timing`` (default: GP 65)."""
+        from tmcl_server.transports.wire import WireTiming, parse_baud
+
+        path, options = split_endpoint_options(argument, ("mode", "baud"))
+        return cls(host.simulation, path, link_mode(host.simulation, options, f"--pty {path}"),
+                   WireTiming.of(host), parse_baud(options.get("baud"), f"--pty {path}"))
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
@@ -129,6 +141,12 @@ class PtyTransport(Transport):
 
     def _make_session(self, loop: asyncio.AbstractEventLoop) -> ByteSession:
         """What speaks on the port: 9-byte TMCL here, SLCAN in the CAN adapter (slcan.py)."""
+        if self.wire is not None:
+            from tmcl_server.transports.wire import LineRate, PacedStreamSession
+
+            first = self.simulation.modules[0] if self.simulation.modules else None
+            return PacedStreamSession(self.simulation, self._write, loop, self.mode, f"pty {self.link}",
+                                      baud=LineRate.uart(first, self.baud), timing=self.wire)
         return StreamSession(self.simulation, self._write, loop, self.mode, f"pty {self.link}")
 
     def _on_readable(self) -> None:

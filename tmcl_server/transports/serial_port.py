@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import logging
 import threading
+from typing import TYPE_CHECKING
 
 import serial
 
@@ -20,6 +21,9 @@ from tmcl_server.transports.base import (
     split_endpoint_options,
 )
 from tmcl_spec.tmcm6212 import BAUD_RATES
+
+if TYPE_CHECKING:
+    from tmcl_server.transports.wire import WireTiming
 
 log = logging.getLogger(__name__)
 
@@ -37,9 +41,12 @@ def parse_serial_spec(text: str) -> tuple[str, int | None]:
 class SerialPortTransport(Transport):
     kind = "serial"
 
-    def __init__(self, simulation: Simulation, spec: str, mode: LinkMode = LinkMode.RS485) -> None:
+    def __init__(self, simulation: Simulation, spec: str, mode: LinkMode = LinkMode.RS485,
+                 wire: WireTiming | None = None) -> None:
         self.simulation = simulation
         self.mode = mode
+        #: ``--wire-timing``: bytes paced at the port's baud rate (transports/wire.py).
+        self.wire = wire
         self.device, baud = parse_serial_spec(spec)
         if baud is None:  # the module's own GP 65 setting decides, as on the real part
             baud = BAUD_RATES[simulation.modules[0].globals[0][65]] if simulation.modules else 9600
@@ -54,14 +61,24 @@ class SerialPortTransport(Transport):
     def build(cls, host: TransportHost, argument: str) -> SerialPortTransport:
         """``DEVICE[:BAUD][,mode=usb|rs485]``; without a mode: USB for one module, RS-485 for
         several (docs/protocol.md)."""
+        from tmcl_server.transports.wire import WireTiming
+
         spec, options = split_endpoint_options(argument)
-        return cls(host.simulation, spec, link_mode(host.simulation, options, f"--serial {spec}"))
+        return cls(host.simulation, spec, link_mode(host.simulation, options, f"--serial {spec}"),
+                   WireTiming.of(host))
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
         self._port = serial.serial_for_url(self.device, baudrate=self.baudrate, timeout=0)
-        self._session = StreamSession(self.simulation, self._port.write, loop, self.mode,
-                                      f"serial {self.device}")
+        if self.wire is not None:
+            from tmcl_server.transports.wire import LineRate, PacedStreamSession
+
+            self._session = PacedStreamSession(
+                self.simulation, self._port.write, loop, self.mode, f"serial {self.device}",
+                baud=LineRate.uart(None, self.baudrate), timing=self.wire)
+        else:
+            self._session = StreamSession(self.simulation, self._port.write, loop, self.mode,
+                                          f"serial {self.device}")
         try:
             fd = self._port.fileno()
         except (AttributeError, NotImplementedError, OSError, ValueError):

@@ -15,17 +15,22 @@ every CAN transport it builds.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections import Counter, deque
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import can
 
+from tmcl_server.faults import Delivery
 from tmcl_server.protocol import CAN_PAYLOAD_LENGTH, AnyReply, Reply, decode_can_request
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, check_bus_name
 from tmcl_spec.parameters import GP
 from tmcl_spec.tmcm6212 import BANK0_PARAMETERS
+
+if TYPE_CHECKING:
+    from tmcl_server.transports.wire import CanTiming
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +61,8 @@ class SimulatedCanBus:
         self._parties: tuple[CanParty, ...] = ()
         self._pending: deque[tuple[can.Message, CanParty | None]] = deque()
         self._delivering = False
+        #: ``--wire-timing``: frames take their time on the wire (transports/wire.py); None: instant.
+        self.timing: CanTiming | None = None
         #: Frames carried (``frames``) and party failures (``party_errors``).
         self.stats: Counter[str] = Counter()
 
@@ -70,12 +77,23 @@ class SimulatedCanBus:
     def parties(self) -> tuple[CanParty, ...]:
         return self._parties
 
-    def send(self, frame: can.Message, sender: CanParty | None) -> None:
+    def send(self, frame: can.Message, sender: CanParty | None, after_s: float = 0.0) -> None:
         """Put ``frame`` on the wire: every party but the sender receives it.
 
         A frame sent while another is being delivered (a module's reply) waits for it, so
-        every party hears the frames in the order they were sent, as on a wire.
+        every party hears the frames in the order they were sent, as on a wire.  ``after_s``:
+        the sender starts sending that much later (a module's processing time, a late reply);
+        with wire timing on, the frame arrives when its last bit would have.
         """
+        if self.timing is not None:
+            self.timing.transmit(self, frame, sender, after_s)
+        elif after_s > 0:
+            asyncio.get_running_loop().call_later(after_s, self.deliver_now, frame, sender)
+        else:
+            self.deliver_now(frame, sender)
+
+    def deliver_now(self, frame: can.Message, sender: CanParty | None) -> None:
+        """The frame's last bit has gone: every party but the sender receives it now."""
         self._pending.append((frame, sender))
         if self._delivering:
             return
@@ -160,8 +178,31 @@ class ModuleNode:
             return self._ignore(frame, "bad_length")
         self.stats["requests"] += 1
         request = decode_can_request(can_id, frame.data)
+        processing = self.bus.timing.processing_s if self.bus.timing is not None else 0.0
         for module, reply in self.simulation.handle_can_request(request, self._sinks[length]):
-            self._send(module.can_reply_id, can_reply_data(reply, length))
+            if type(reply) is Delivery:
+                self._deliver(module.can_reply_id, reply, length, processing)
+            else:
+                self._send(module.can_reply_id, can_reply_data(reply, length), processing)
+
+    def _deliver(self, can_id: int, delivery: Delivery, length: int, processing_s: float) -> None:
+        """A reply the faults altered.  A CAN frame cannot be torn (its pauses add up to a
+        delay), and one with a bad checksum fails its CRC: nobody receives it."""
+        if delivery.bad_checksum:
+            self.stats["replies_lost"] += 1
+            return
+        frames = [can_reply_data(delivery.reply, length)] * delivery.copies
+        if delivery.garbage:  # a frame of junk from the reply id first
+            frames.insert(0, delivery.garbage[:8])
+        delay = delivery.total_delay_s + processing_s
+        if delay > 0 and self.bus.timing is None:  # one timer for all: they keep their order
+            asyncio.get_running_loop().call_later(delay, self._send_all, can_id, frames, 0.0)
+        else:
+            self._send_all(can_id, frames, delay)
+
+    def _send_all(self, can_id: int, frames: list[bytes], after_s: float) -> None:
+        for data in frames:
+            self._send(can_id, data, after_s)
 
     def _ignore(self, frame: can.Message, reason: str) -> None:
         """A frame the modules do not act on: counted, and traced when the trace is on."""
@@ -176,9 +217,9 @@ class ModuleNode:
                         DEFAULT_REPLY_ID)
         self._send(reply_id, can_reply_data(reply, length))
 
-    def _send(self, can_id: int, data: bytes) -> None:
+    def _send(self, can_id: int, data: bytes, after_s: float = 0.0) -> None:
         self.stats["replies"] += 1
-        self.bus.send(can.Message(arbitration_id=can_id, is_extended_id=False, data=data), self)
+        self.bus.send(can.Message(arbitration_id=can_id, is_extended_id=False, data=data), self, after_s)
 
 
 def open_can_bus(simulation: Simulation, name: str = DEFAULT_BUS_NAME) -> SimulatedCanBus:

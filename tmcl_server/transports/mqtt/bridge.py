@@ -8,7 +8,8 @@ address a module was started with (its slot):
 * ``PREFIX/A/event``           one JSON message per module event, in order
 * ``PREFIX/A/request``         a 9-byte TMCL frame or JSON -> reply on ``PREFIX/A/reply``
                                (or the MQTT 5 response topic, correlation data copied)
-* ``PREFIX/A/sim/...``         set the simulated world (inputs, switches, load, slip)
+* ``PREFIX/A/sim/...``         set the simulated world (inputs, switches, load, slip), inject
+                               faults (``sim/fault``; the list: ``PREFIX/faults``, retained)
 
 Field names and payloads are documented in docs/mqtt.md.  The bridge keeps every reply and
 event it owes in an outbox until the broker has taken it, so a broker restart loses nothing
@@ -35,11 +36,13 @@ from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
 from tmcl_server.dispatch import Interface
+from tmcl_server.faults import Delivery, FaultInjector, FaultSpecError
 from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import FRAME_LENGTH, ChecksumError, Reply, decode_request
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import Transport, TransportHost
 from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ
+from tmcl_server.transports.mqtt.fault_topics import FAULT_TOPICS, apply_fault_message
 from tmcl_server.transports.mqtt.requests import RequestError, reply_to_json, request_from_json
 from tmcl_server.transports.mqtt.world_topics import WorldTopicError, apply_sim_message
 from tmcl_spec.numbers import NS_PER_S
@@ -120,9 +123,30 @@ class _ReplyRoute:
         self.endpoint = "mqtt"
 
     def send(self, reply: Any) -> None:
+        if type(reply) is Delivery:
+            self._send_altered(reply)
+            return
         payload = (json.dumps(reply_to_json(reply)).encode() if self._as_json
                    else reply.encode())
         self._bridge.enqueue(_Outgoing(self._topic, payload, correlation=self._correlation))
+
+    def _send_altered(self, delivery: Delivery) -> None:
+        """A reply the faults altered: a message cannot be torn (its pauses add up to a delay);
+        JSON has no checksum to spoil or room for garbage bytes (docs/faults.md)."""
+        if self._as_json:
+            payloads = [json.dumps(reply_to_json(delivery.reply)).encode()] * delivery.copies
+        else:
+            frame = delivery.frame()
+            payloads = [delivery.garbage + frame] + [frame] * (delivery.copies - 1)
+        messages = [_Outgoing(self._topic, p, correlation=self._correlation) for p in payloads]
+        if delivery.total_delay_s > 0:
+            asyncio.get_running_loop().call_later(delivery.total_delay_s, self._enqueue_all, messages)
+        else:
+            self._enqueue_all(messages)
+
+    def _enqueue_all(self, messages: list[_Outgoing]) -> None:
+        for message in messages:
+            self._bridge.enqueue(message)
 
     def send_unsolicited(self, reply: Reply) -> None:
         self.send(reply)
@@ -330,8 +354,14 @@ class MqttBridge(Transport):
 
     def _handle_sim(self, feed: _ModuleFeed, path: list[str], payload: bytes) -> None:
         try:
-            apply_sim_message(feed.module, path, payload)
-        except WorldTopicError as exc:
+            if path[:1] and path[0] in FAULT_TOPICS:
+                injector = FaultInjector.of(self.simulation)
+                apply_fault_message(injector, feed.module, path, payload)
+                self.enqueue(_Outgoing(f"{self.settings.prefix}/faults",
+                                       json.dumps(injector.describe()).encode(), retain=True))
+            else:
+                apply_sim_message(feed.module, path, payload)
+        except (WorldTopicError, FaultSpecError) as exc:
             self.enqueue(_Outgoing(f"{feed.base}/sim_error",
                                    json.dumps({"topic": "/".join(["sim", *path]),
                                                "error": str(exc)}).encode()))

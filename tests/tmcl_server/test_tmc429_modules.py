@@ -1,0 +1,254 @@
+"""The TMCM-1110, TMCM-3110 and TMCM-6110 against host software written for them, unchanged.
+
+pytrinamic's ``TMCM1110``/``TMCM3110``/``TMCM6110`` classes over the module's USB port (pty) and
+TCP; TMCM-Lib, which implements the TMCM-3110 and identifies a module with command 136 type 1
+before its usual start-up; a TMCL program on the TMCM-6110 whose interrupt vectors follow the
+module's eight inputs.  docs/modules.md says what each profile takes from where.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from pytrinamic.connections import ConnectionManager
+from pytrinamic.modules import TMCM1110, TMCM3110, TMCM6110
+from pytrinamic.tmcl import TMCLReplyStatusError
+
+from interpreter.assembler import assemble
+from tmcl_server.embed import SimulatorThread
+from tmcl_server.module import TMCLModule
+from tmcl_server.protocol import Request
+from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.modules import module_type
+from tmcl_spec.parameters import AP
+
+PYTRINAMIC = {"tmcm-1110": TMCM1110, "tmcm-3110": TMCM3110, "tmcm-6110": TMCM6110}
+VERSIONS = {"tmcm-1110": "1110V109", "tmcm-3110": "3110V114", "tmcm-6110": "6110V146"}
+MODULES = sorted(PYTRINAMIC)
+
+
+def names(cls: type) -> dict[str, int]:
+    """A pytrinamic parameter class's names -> numbers."""
+    return {name: value for name, value in vars(cls).items() if not name.startswith("_")}
+
+
+def connect(sim: SimulatorThread, path: str):
+    if path == "tcp":
+        return ConnectionManager(f"--interface socket_serial_tmcl --port {sim.tcp}").connect()
+    return ConnectionManager(f"--interface serial_tmcl --port {sim.pty} --data-rate 115200").connect()
+
+
+def simulator(tmp_path: Path, kind: str, **options) -> SimulatorThread:
+    return SimulatorThread(clock="virtual", module_type=kind, tcp=["127.0.0.1:0"],
+                           pty=[str(tmp_path / "ttyTMCL0")], **options)
+
+
+@pytest.fixture(params=MODULES)
+def kind(request) -> str:
+    return request.param
+
+
+@pytest.fixture
+def sim(tmp_path, kind):
+    with simulator(tmp_path, kind) as sim:
+        yield sim
+
+
+# == identity and parameters ===================================================================
+
+
+@pytest.mark.parametrize("path", ["pty", "tcp"])
+def test_version_and_every_parameter_the_pytrinamic_class_names(sim, kind, path) -> None:
+    with connect(sim, path) as iface:
+        module = PYTRINAMIC[kind](iface)
+        profile = module_type(kind)
+        assert iface.get_version_string() == VERSIONS[kind]
+        assert iface.send(Opcode.GET_FIRMWARE_VERSION, 1, 0, 0).value == profile.version_number
+        assert len(module.motors) == profile.number_of_axes
+        for motor in module.motors:
+            for name, number in names(motor.AP).items():
+                value = motor.get_axis_parameter(number, signed=True)
+                spec = profile.axis_parameters[number]
+                assert spec.readable and spec.minimum <= value <= spec.maximum, name
+                if spec.writable and number not in (AP.TARGET_POSITION, AP.ACTUAL_POSITION,
+                                                    AP.TARGET_SPEED, AP.ENCODER_POSITION):
+                    motor.set_axis_parameter(number, spec.maximum)
+                    assert motor.get_axis_parameter(number, signed=True) == spec.maximum, name
+                    motor.set_axis_parameter(number, value)
+        for number in names(module.GP0).values():
+            iface.get_global_parameter(number, 0)  # raises unless the firmware has it
+        for name, number in names(module.GP3).items():
+            assert iface.get_global_parameter(number, 3) == 0, name
+        with pytest.raises(TMCLReplyStatusError) as error:
+            iface.get_axis_parameter(AP.UNIT_MODE, 0)  # the TMCM-6212's, not these modules'
+        assert error.value.reply.status == Status.WRONG_TYPE
+
+
+@pytest.mark.parametrize("path", ["pty", "tcp"])
+def test_moves_on_every_axis_polled_to_the_target_and_registers_per_motor(sim, kind, path) -> None:
+    with connect(sim, path) as iface:
+        module = PYTRINAMIC[kind](iface)
+        targets = [(-1) ** n * 12_345 * (n + 1) for n in range(len(module.motors))]
+        for motor, target in zip(module.motors, targets, strict=True):
+            motor.move_to(target, velocity=1500)  # AP 4 in the TMC429's units
+        for _ in range(100):
+            if all(motor.get_position_reached() for motor in module.motors):
+                break
+            sim.advance(0.1)
+        assert [motor.actual_position for motor in module.motors] == targets
+        assert [motor.get_axis_parameter(AP.MAX_SPEED) for motor in module.motors] == [1500] * len(targets)
+        # commands 146/147: the TMC429 itself; a write to one motor's register only
+        assert iface.send(Opcode.READ_MC, 0x39, 0, 0).value & 0xFFFFFF == 0x429101
+        last = len(module.motors) - 1
+        iface.send(Opcode.WRITE_MC, 0x02, last, 345)  # V_MIN of the last axis's motor
+        v_min = [iface.send(Opcode.READ_MC, 0x02, n, 0).value & 0x7FF for n in range(last + 1)]
+        assert v_min[last] == 345 and all(v != 345 for v in v_min[:last])
+
+
+WORLD = """
+[[axis]]
+index = {axis}
+left = {{ position = -20000 }}
+right = {{ position = 30000 }}
+"""
+
+
+@pytest.mark.parametrize("kind", ["tmcm-3110", "tmcm-6110"])
+def test_reference_search_against_a_world_file(tmp_path, kind) -> None:
+    axis = 2
+    world = tmp_path / "world.toml"
+    world.write_text(WORLD.format(axis=axis))
+    with simulator(tmp_path, kind, world=str(world)) as sim, connect(sim, "tcp") as iface:
+        motor = PYTRINAMIC[kind](iface).motors[axis]
+        motor.set_axis_parameter(AP.RFS_MODE, 2)  # right switch, then left: the zero
+        motor.set_axis_parameter(AP.RFS_SPEED, 700)
+        iface.reference_search(0, axis)
+        for _ in range(200):
+            sim.advance(0.1)
+            if iface.reference_search(2, axis) == 0:
+                break
+        assert iface.reference_search(2, axis) == 0
+        assert motor.actual_position == 0
+        assert motor.get_axis_parameter(AP.SWITCH_DISTANCE) == pytest.approx(50_000, abs=2)
+        assert sim.module().axis(axis).status().mechanical_position == pytest.approx(-20_000, abs=2)
+
+
+def test_inputs_outputs_and_the_supply_voltage(sim, kind) -> None:
+    profile = module_type(kind)
+    module: TMCLModule = sim.module()
+    with connect(sim, "tcp") as iface:
+        io = PYTRINAMIC[kind].IO
+        outputs = [number for name, number in names(io).items() if name.startswith("OUT")]
+        for port in outputs:
+            iface.set_digital_output(port)
+            assert iface.get_digital_output(port) == 1
+            iface.clear_digital_output(port)
+        inputs = [number for name, number in names(io).items() if name.startswith(("IN", "AIN"))]
+        assert sorted(inputs) == list(range(profile.digital_inputs))
+        sim.call(module.set_digital_input, inputs[-1], True)
+        sim.call(module.set_analog_input, 0, 1000)  # below half of 4095: digital 0
+        assert [iface.get_digital_input(port) for port in inputs] == [0] * (len(inputs) - 1) + [1]
+        assert iface.get_analog_input(0) == 1000
+        if profile.supply_voltage_channel is not None:
+            assert iface.get_analog_input(names(io).get("VIN", 8)) == 240  # 24.0 V
+        with pytest.raises(TMCLReplyStatusError):
+            iface.get_digital_input(profile.digital_inputs)
+
+
+def test_user_variables_and_parameters_are_stored_across_a_restart(tmp_path, kind) -> None:
+    state = str(tmp_path / "state")
+    with simulator(tmp_path, kind, state_dir=state) as sim, connect(sim, "pty") as iface:
+        iface.set_global_parameter(7, 2, -4242)
+        iface.store_global_parameter(7, 2)
+        iface.set_global_parameter(8, 2, 99)  # not stored
+        iface.set_axis_parameter(AP.MAX_ACCELERATION, 0, 1234)
+        iface.store_axis_parameter(AP.MAX_ACCELERATION, 0)
+    with simulator(tmp_path, kind, state_dir=state) as sim, connect(sim, "tcp") as iface:
+        assert iface.get_global_parameter(7, 2, signed=True) == -4242
+        assert iface.get_global_parameter(8, 2) == 0
+        assert iface.get_axis_parameter(AP.MAX_ACCELERATION, 0) == 1234
+
+
+# == TMCM-Lib: a host written for the TMCM-3110 ===============================================
+
+
+def test_tmcm_lib_finds_its_tmcm_3110_and_runs_its_start_up(tmp_path) -> None:
+    tmcm_lib = pytest.importorskip("tmcm_lib")
+    with simulator(tmp_path, "tmcm-3110") as sim:
+        port = tmcm_lib.Port(sim.pty, 115200)
+        assert tmcm_lib.Module.identify(port) == (3110, (1, 14))  # command 136 type 1
+        module = tmcm_lib.Module.construct(port)  # version check, parameter reads, pull-ups
+        assert type(module).__name__ == "Module" and module.model_number == 3110
+        assert module.supply_voltage == 24_000  # mV, from GIO 8, 1 in 0.1 V
+        assert module.motor_count == 3 and module.coordinate_count == 20
+        motor = module.motors[1]
+        assert motor.microstep_resolution == 256
+        motor.velocity_moving = motor.velocity_maximum / 4  # sets AP 154 and AP 4
+        motor.acceleration_moving = motor.acceleration_maximum / 4  # AP 153 and AP 5
+        motor.move_to(25_600, wait_while_moving=False)
+        for _ in range(100):
+            sim.advance(0.1)
+            if not motor.moving:
+                break
+        assert motor.position == 25_600
+        assert module.switch_limit_activity  # GP 79 = 0 read at start-up: active high
+
+
+# == interrupts follow the module's inputs =====================================================
+
+
+def test_a_program_on_the_tmcm_6110_gets_the_interrupt_of_input_7() -> None:
+    module = TMCLModule(kind="tmcm-6110")
+
+    def command(opcode: int, type_: int = 0, motor: int = 0, value: int = 0) -> int:
+        reply = module.execute(Request(1, opcode, type_, motor, value))
+        assert reply.status in (Status.OK, Status.LOADED), reply
+        return reply.value
+
+    program = assemble("""
+        VECT 46, Input7
+        EI 46
+        EI 255
+    Idle:
+        JA Idle
+    Input7:
+        GGP 46, 2
+        CALC ADD, 1
+        AGP 46, 2
+        RETI
+    """).instructions
+    command(Opcode.ENTER_DOWNLOAD_MODE)
+    for instruction in program:
+        command(*instruction)
+    command(Opcode.EXIT_DOWNLOAD_MODE)
+    command(Opcode.SGP, 46, 3, 3)  # input 7: both edges (a TMCM-6212 has no row 46)
+    command(Opcode.RUN_APPLICATION)
+    for t, level in ((10, True), (20, False), (30, True)):
+        module.advance_to(t * 1_000_000)
+        module.set_digital_input(7, level)
+    module.advance_to(40_000_000)
+    assert command(Opcode.GGP, 46, 2) == 3
+
+
+# == profile details at the module ============================================================
+
+
+def test_end_switch_polarity_pull_ups_and_analogue_channels_of_the_tmcm_3110() -> None:
+    module = TMCLModule(kind="tmcm-3110")
+
+    def send(opcode: int, type_: int = 0, motor: int = 0, value: int = 0):
+        return module.execute(Request(1, opcode, type_, motor, value))
+
+    module.set_switch(1, "left", 0, side="above")  # axis 1 stands on its left switch
+    assert send(Opcode.GAP, AP.LEFT_SWITCH, 1).value == 1
+    assert send(Opcode.SGP, 79, 0, 1).status == Status.OK  # GP 79: the limit switches inverted
+    assert [send(Opcode.GAP, AP.LEFT_SWITCH, n).value for n in range(3)] == [1, 0, 1]
+    assert [send(Opcode.GAP, AP.RIGHT_SWITCH, n).value for n in range(3)] == [1, 1, 1]
+    assert send(Opcode.SIO, 0, 0, 0).status == Status.OK and module.pullups == [0]  # pull-ups off
+    assert send(Opcode.SIO, 1, 0, 0).status == Status.WRONG_TYPE  # one pull-up switch only
+    module.set_analog_input(4, 3000)
+    assert send(Opcode.GIO, 4, 1).value == 3000 and send(Opcode.GIO, 4, 0).value == 1
+    assert send(Opcode.GIO, 1, 1).status == Status.WRONG_TYPE  # IN1 is digital only
+    with pytest.raises(ValueError):
+        module.set_analog_input(0, 4096)  # a 12-bit ADC
