@@ -16,7 +16,7 @@ from tests.conftest import RawClient
 from tmcl_server.clock import VirtualClock
 from tmcl_server.dashboard.core import WIRE_PER_FRAME, ActionError, Dashboard, Viewer
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.module import TMCM6212
+from tmcl_server.module import TMCM6212, TMCLModule
 from tmcl_server.protocol import Request
 from tmcl_server.simulation import Simulation
 from tmcl_server.trace import Tracer
@@ -43,8 +43,19 @@ def test_hello_describes_every_module_with_the_manuals_tables_by_compact_name() 
     assert rows[4]["name"] == "MaxPositioningSpeed" and rows[4]["title"] == "Maximum positioning speed"
     assert set(module["banks"]) == {"0", "2", "3"}
     assert {row["name"] for row in module["banks"]["2"]} >= {"UserVariable0", "UserVariable55"}
-    assert module["vectors"]["0"] == "TI_TIMER0"
+    assert module["vectors"]["0"] == "TI_TIMER0" and module["vectors"]["8"] == "TI_TARGET5"
     json.dumps(hello)  # what goes over the socket
+
+
+def test_every_module_type_is_shown_with_its_own_tables_and_axes() -> None:
+    simulation = Simulation([TMCLModule(1, kind="tmcm-3110")], VirtualClock())
+    dashboard = Dashboard(simulation)
+    module = dashboard.hello()["modules"][0]
+    assert (module["type"], module["axes"]) == ("TMCM-3110", 3)
+    assert "TI_TARGET2" in module["vectors"].values() and "TI_TARGET3" not in module["vectors"].values()
+    frame = dashboard.frame(Viewer(PAGE, 1), parameters=True)
+    assert len(frame["axes"]) == 3 and all(len(v) == 3 for v in frame["parameters"]["axis"].values())
+    json.dumps(frame)
 
 
 def test_frames_carry_only_what_is_new_samples_on_simulated_time_and_the_listing() -> None:

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 from axes.reference_search import reference_plan
 from axes.world import INFINITY, LOAD_MAX, Switch
 from interpreter.disassembler import labelled
-from interpreter.interrupts import INTERRUPT_VECTORS
+from interpreter.interrupts import vector_table
 from tmcl_server.decode import describe_outcome, describe_request, vocabulary
 from tmcl_server.dispatch import Interface
 from tmcl_server.protocol import RawReply, Reply
@@ -202,7 +202,8 @@ class Dashboard:
             "axis_parameters": [_parameter_row(spec, axis_names.by_number[n])
                                 for n, spec in kind.axis_parameters.items()],
             "banks": banks,
-            "vectors": {str(n): symbol for n, (symbol, _) in INTERRUPT_VECTORS.items()},
+            "vectors": {str(n): symbol for n, (symbol, _) in
+                        vector_table(len(module.axes), kind.digital_inputs).items()},
         }
 
     def sample(self, slots: set[int]) -> None:
