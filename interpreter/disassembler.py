@@ -62,18 +62,25 @@ def jump_targets(instructions: Sequence[Instruction]) -> list[int]:
     return sorted(targets)
 
 
+def labelled(instructions: Sequence[Instruction]) -> list[tuple[int, str | None, str]]:
+    """(address, label or None, source text) per instruction: what :func:`disassemble` prints,
+    line by line (a debugger shows it with the current instruction and breakpoints)."""
+    labels = {address: f"L{n}" for n, address in
+              enumerate((a for a in jump_targets(instructions) if 0 <= a < len(instructions)), 1)}
+    return [(address, labels.get(address), format_instruction(ins, labels))
+            for address, ins in enumerate(instructions)]
+
+
 def disassemble(instructions: Sequence[Instruction]) -> str:
     """Source text with generated labels; assembling it gives the same instructions.
 
     Targets beyond the program (or outside memory) stay numeric.
     """
-    labels = {address: f"L{n}" for n, address in
-              enumerate((a for a in jump_targets(instructions) if 0 <= a < len(instructions)), 1)}
     lines = []
-    for address, ins in enumerate(instructions):
-        if address in labels:
-            lines.append(f"{labels[address]}:")
-        lines.append(f"    {format_instruction(ins, labels)}")
+    for _, label, text in labelled(instructions):
+        if label is not None:
+            lines.append(f"{label}:")
+        lines.append(f"    {text}")
     return "\n".join(lines) + ("\n" if lines else "")
 
 

@@ -161,10 +161,19 @@ class Interpreter:
         self.memory_size = memory_size
         #: Program memory plus one empty sentinel cell, so running off the end reads "end".
         self.code: list[Instruction] = [EMPTY] * (memory_size + 1)
+        #: Counts changes to program memory (a viewer redraws its listing when it moves).
+        self.memory_revision = 0
         #: Instructions executed since creation (benchmarks, tests).
         self.executed = 0
         self.triggers: dict[int, Trigger] = {}
         self._timers: dict[int, _Timer] = {}
+        #: Addresses a running program stops at, before executing the instruction there (a
+        #: debugger's, e.g. the dashboard's: not firmware state, so reset and power-up keep
+        #: them).  While the set is empty the dispatch loop runs unchecked, at full speed.
+        self.breakpoints: set[int] = set()
+        #: (PC, executed) when the program was last continued: the breakpoint it continued
+        #: from is not stopped at again before an instruction has run.
+        self._resumed_at: tuple[int, int] | None = None
         self.power_up(0)
 
     def power_up(self, now_ns: int) -> None:
@@ -218,9 +227,11 @@ class Interpreter:
             raise IndexError(f"program address {address} outside 0..{self.memory_size - 1}")
         opcode, type_, motor, value = ins
         self.code[address] = Instruction(int(opcode), int(type_), int(motor), int(value))
+        self.memory_revision += 1
 
     def erase(self) -> None:
         self.code[:self.memory_size] = [EMPTY] * self.memory_size
+        self.memory_revision += 1
 
     def program(self) -> list[Instruction]:
         """Memory up to the last non-empty cell."""
@@ -240,6 +251,7 @@ class Interpreter:
             self.saved = None
         self.time_ns = max(self.time_ns, now_ns)
         self.status = ApplicationStatus.RUN
+        self._resumed_at = (self.pc, self.executed) if address is None else None
         self._fire_timers(now_ns, fire=False)
         self.port.program_event(self.time_ns, "program_started", pc=self.pc)
 
@@ -386,7 +398,7 @@ class Interpreter:
                     return False
                 self.time_ns = limit  # still waiting when the next timer fires
                 continue
-            outcome = self._execute(limit)
+            outcome = self._execute_checked(limit) if self.breakpoints else self._execute(limit)
             if outcome == _YIELD:
                 return True
             if outcome == _STOPPED:
@@ -512,6 +524,21 @@ class Interpreter:
         self.executed += n
         self.time_ns += n * cost
         return outcome
+
+    def _execute_checked(self, limit_ns: int) -> int:
+        """The dispatch loop while breakpoints are set: one instruction at a time, stopping in
+        step mode before an instruction at a breakpoint (slower, so only used then)."""
+        breakpoints = self.breakpoints
+        while self.time_ns < limit_ns:
+            pc = self.pc
+            if pc in breakpoints and (pc, self.executed) != self._resumed_at:
+                self.status = ApplicationStatus.STEP
+                self.port.program_event(self.time_ns, "breakpoint", pc=pc)
+                return _STOPPED
+            outcome = self._execute(self.time_ns + 1)
+            if outcome != _CONTINUE:
+                return outcome
+        return _CONTINUE
 
     def _execute_other(self, ins: Instruction, t: int) -> int:
         """Everything the dispatch loop does not inline; ``t`` is the instruction's time."""

@@ -6,20 +6,26 @@ Runs, in one go and on the same machine:
 * ``tmcl-server`` (TCP and a pty), each in its own process,
 * ``tmcl-server --trace FILE`` (text, and ``--trace-format jsonl``): the same with the
   telegram trace on, writing two lines per request to a file,
+* ``tmcl-server --http`` with a page open on the dashboard (``--page chromium``: a headless
+  Chromium showing the page; ``--page ws``: a WebSocket client that acknowledges every frame
+  at once, with the Parameters section open, so the server does its most work; ``--page
+  none``: no dashboard case),
 and measures, for 1 and 16 lockstep TCP clients and for one pty client, requests per second
 and p50/p99 round-trip latency.  Every figure is the median of ``--repeat`` runs.  The traced
-rates are reported as a ratio to the untraced one measured in the same run (goal >= 80%).
+rates and the rate with a dashboard page are reported as a ratio to the plain one measured in
+the same run (goal >= 80%).
 
 Then, with ``--wire-timing`` (docs/faults.md), the GAP round trip on a pty at 9600 and at
 115200 baud next to the figure the line model computes (goals: within 10 % and 20 %);
 ``--wire-only`` measures just that.
 
-    .venv/bin/python scripts/bench_wire.py [--seconds 2] [--repeat 3]
+    .venv/bin/python scripts/bench_wire.py [--seconds 2] [--repeat 3] [--page chromium|ws|none]
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import os
 import socket
@@ -116,22 +122,37 @@ def lockstep_pytrinamic(endpoint: str, seconds: float, latencies: list[int],
 ECHO_ENDPOINT: list[str] = [""]
 
 
-def measure(target, endpoint: str, clients: int, seconds: float) -> dict[str, float]:
+def cpu_seconds(pid: int | None) -> float:
+    """CPU time (user + system) a process has used so far (Linux; 0 elsewhere)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, TypeError):
+        return 0.0
+
+
+def measure(target, endpoint: str, clients: int, seconds: float,
+            pid: int | None = None) -> dict[str, float]:
     latencies: list[int] = []
     counts: list[int] = []
     threads = [threading.Thread(target=target, args=(endpoint, seconds, latencies, counts))
                for _ in range(clients)]
+    cpu_before = cpu_seconds(pid)
     start = time.perf_counter()
     for t in threads:
         t.start()
     for t in threads:
         t.join()
     elapsed = time.perf_counter() - start
+    cpu = cpu_seconds(pid) - cpu_before
     latencies.sort()
     return {
         "rate": sum(counts) / elapsed,
         "p50_us": latencies[len(latencies) // 2] / 1000,
         "p99_us": latencies[int(len(latencies) * 0.99)] / 1000,
+        # the server's CPU per request: steadier than the rate on a shared machine
+        "cpu_us": cpu / max(1, sum(counts)) * 1e6,
     }
 
 
@@ -157,6 +178,48 @@ def start_simulator(tmp: Path, *extra: str, name: str = "plain"
             raise RuntimeError("simulator did not start")
         time.sleep(0.01)
     return proc, json.loads(ready.read_text())
+
+
+class DashboardPage:
+    """A page open on a simulator's dashboard for the whole benchmark (``--page``)."""
+
+    def __init__(self, kind: str, url: str) -> None:
+        self.kind = kind
+        self.frames = 0
+        self._stop = threading.Event()
+        self._browser = None
+        self._thread: threading.Thread | None = None
+        if kind == "chromium":
+            sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+            from tests.helpers.browser import HeadlessChromium
+
+            self._browser = HeadlessChromium(1400, 1000)
+            self._browser.driver.get(url)
+        else:
+            self._thread = threading.Thread(target=lambda: asyncio.run(self._acknowledge(url)),
+                                            daemon=True)
+            self._thread.start()
+
+    async def _acknowledge(self, url: str) -> None:
+        import aiohttp
+
+        async with aiohttp.ClientSession() as session, session.ws_connect(f"{url}ws") as ws:
+            await ws.receive_json()  # hello
+            await ws.send_json({"op": "view", "module": 1, "parameters": True})
+            while not self._stop.is_set():
+                await ws.receive_str()
+                self.frames += 1
+                await ws.send_json({"op": "ack"})
+
+    def frame_count(self) -> int:
+        if self._browser is not None:
+            return int(self._browser.driver.execute_script("return window.tmclDashboard.frames()"))
+        return self.frames
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._browser is not None:
+            self._browser.quit()
 
 
 #: Baud rates of the wire-timing scenario, with the goal for each (measured / computed - 1).
@@ -196,6 +259,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="length of one run")
     parser.add_argument("--repeat", type=int, default=3, help="runs per figure (median)")
+    parser.add_argument("--page", choices=["chromium", "ws", "none"], default="chromium",
+                        help="what is open on the --http dashboard (default chromium)")
     parser.add_argument("--wire-only", action="store_true",
                         help="only the --wire-timing round trips at 9600 and 115200 baud")
     args = parser.parse_args()
@@ -214,6 +279,12 @@ def main() -> None:
                                                  "--trace-format", "jsonl", name="jsonl")
         # the default loop is uvloop where installed (the fast extra); asyncio's for comparison
         plain_loop, plain_endpoints = start_simulator(tmp, "--loop", "asyncio", name="asyncio")
+        processes = [echo, sim, traced, jsonl, plain_loop]
+        page = None
+        if args.page != "none":
+            http, http_endpoints = start_simulator(tmp, "--http", "127.0.0.1:0", name="http")
+            processes.append(http)
+            page = DashboardPage(args.page, http_endpoints["http"][0])
         try:
             cases = (
                 ("echo  tcp  1 client ", lockstep_tcp, echo_endpoint, 1),
@@ -228,12 +299,20 @@ def main() -> None:
                 ("sim   tcp  pytrinamic", lockstep_pytrinamic, endpoints["tcp"][0], 1),
                 ("trace tcp  pytrinamic", lockstep_pytrinamic, traced_endpoints["tcp"][0], 1),
             )
+            server_pid = {endpoints["tcp"][0]: sim.pid, traced_endpoints["tcp"][0]: traced.pid,
+                          jsonl_endpoints["tcp"][0]: jsonl.pid, plain_endpoints["tcp"][0]: plain_loop.pid}
+            if page is not None:
+                server_pid[http_endpoints["tcp"][0]] = http.pid
+                cases += (("http  tcp  1 client ", lockstep_tcp, http_endpoints["tcp"][0], 1),
+                          ("http  tcp  pytrinamic", lockstep_pytrinamic, http_endpoints["tcp"][0], 1))
+                frames_before, page_began = page.frame_count(), time.perf_counter()
             # Interleave the cases (echo, sim, echo, sim, ...) so that drifting background
             # load hits both sides of every ratio alike.
             runs: dict[str, list[dict[str, float]]] = {label: [] for label, *_ in cases}
             for _ in range(args.repeat):
                 for label, target, endpoint, clients in cases:
-                    runs[label].append(measure(target, endpoint, clients, args.seconds))
+                    runs[label].append(measure(target, endpoint, clients, args.seconds,
+                                               server_pid.get(endpoint)))
             rows = [(label, median_of(r)) for label, r in runs.items()]
             # p50 latency is steadier than the rate on a shared machine: report both
             latency_ratios = [statistics.median(s["p50_us"] / t["p50_us"] for s, t in
@@ -252,16 +331,28 @@ def main() -> None:
                           ("trace tcp  1 client ", "sim   tcp  1 client "),
                           ("jsonl tcp  1 client ", "sim   tcp  1 client "),
                           ("trace tcp  pytrinamic", "sim   tcp  pytrinamic"))]
+            if page is not None:
+                frame_rate = (page.frame_count() - frames_before) / (time.perf_counter() - page_began)
+                page_cpu = [statistics.median(r["cpu_us"] for r in runs[label])
+                            for label in ("sim   tcp  1 client ", "http  tcp  1 client ")]
+                page_ratios = [statistics.median(h["rate"] / s["rate"] for h, s in
+                                                 zip(runs[http_label], runs[sim_label], strict=True))
+                               for http_label, sim_label in (
+                                   ("http  tcp  1 client ", "sim   tcp  1 client "),
+                                   ("http  tcp  pytrinamic", "sim   tcp  pytrinamic"))]
         finally:
-            for proc in (echo, sim, traced, jsonl, plain_loop):
+            if page is not None:
+                page.close()
+            for proc in processes:
                 proc.terminate()
                 proc.wait(10)
 
     print(f"machine: {os.cpu_count()} CPUs, Python {sys.version.split()[0]}; "
           f"median of {args.repeat} runs of {args.seconds:g} s")
-    print(f"{'':22} {'req/s':>9} {'p50 us':>8} {'p99 us':>8}")
+    print(f"{'':22} {'req/s':>9} {'p50 us':>8} {'p99 us':>8} {'server CPU us/req':>18}")
     for label, r in rows:
-        print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f}")
+        cpu = f"{r['cpu_us']:18.1f}" if r["cpu_us"] else ""
+        print(f"{label:22} {r['rate']:9.0f} {r['p50_us']:8.1f} {r['p99_us']:8.1f} {cpu}")
     one, many, pytri, text_trace, jsonl_trace, pytrinamic_trace = ratios
     print(f"p50 overhead over the bare asyncio echo (median of paired runs): "
           f"{overheads[0]:+.1f} us on the default loop, {overheads[1]:+.1f} us on asyncio's "
@@ -271,6 +362,11 @@ def main() -> None:
     print(f"ratio traced/untraced, 1 raw client: --trace text {text_trace:.0%}, "
           f"jsonl {jsonl_trace:.0%} (goal >= 80%); by p50 latency: text {latency_ratios[0]:.0%}, "
           f"jsonl {latency_ratios[1]:.0%}; 1 pytrinamic client, --trace text: {pytrinamic_trace:.0%}")
+    if page is not None:
+        print(f"ratio with a dashboard page open ({args.page}, {frame_rate:.1f} frames/s)/plain: "
+              f"1 raw client {page_ratios[0]:.0%}, 1 pytrinamic client {page_ratios[1]:.0%} "
+              f"(goal >= 80%); server CPU per request, 1 raw client: {page_cpu[1]:.1f} us "
+              f"against {page_cpu[0]:.1f} us")
     wire_timing(args.seconds, args.repeat)
 
 

@@ -134,6 +134,30 @@ def test_a_server_with_tcp_only_imports_neither_python_can_nor_mqtt() -> None:
     assert not loaded & set(TRANSPORT_LIBRARIES), sorted(loaded & set(TRANSPORT_LIBRARIES))
 
 
+def _modules_loaded_after(code: str) -> set[str]:
+    result = subprocess.run(
+        [sys.executable, "-c", code + "\nimport sys\nprint(' '.join(sorted(sys.modules)))"],
+        capture_output=True, text=True, check=True, cwd=ROOT, timeout=60)
+    return set(result.stdout.split())
+
+
+def test_without_http_nothing_of_the_dashboard_is_imported() -> None:
+    """The dashboard (``--http``) and its library are loaded only when a server opens it."""
+    dashboard = ("aiohttp", "tmcl_server.dashboard")
+    loaded = _modules_loaded_after(
+        "from tmcl_server.cli import build_parser, config_from_args\n"
+        "config = config_from_args(build_parser().parse_args(['--tcp', '127.0.0.1:0']))\n"
+        "from tmcl_server import SimulatorThread\n"
+        "with SimulatorThread(config) as sim:\n"
+        "    assert sim.tcp\n")
+    assert not {m for m in loaded if m.startswith(dashboard)}
+    with_http = _modules_loaded_after(
+        "from tmcl_server import SimulatorThread\n"
+        "with SimulatorThread(clock='virtual', tcp=['127.0.0.1:0'], http=['127.0.0.1:0']) as sim:\n"
+        "    assert sim.endpoints['http'][0].startswith('http://127.0.0.1:')\n")
+    assert {"aiohttp", "tmcl_server.dashboard.web"} <= with_http
+
+
 def test_every_opcode_of_the_module_type_has_exactly_one_handler() -> None:
     module = TMCM6212()
     own, standalone = set(TMCM6212.COMMANDS), set(ProgramSupport.COMMANDS)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import importlib.util
 import logging
 import signal
 import sys
@@ -89,6 +90,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="simulated time between two samples (default 0.01)")
     watch.add_argument("--record-axes", metavar="LIST",
                        help="axes to record, e.g. 0,1 (default: all)")
+    watch.add_argument("--http", action="append", metavar="[HOST:]PORT", default=[],
+                       help="serve the live dashboard (axes, I/O, parameters, program debugger, "
+                            "wire) to a browser; host 127.0.0.1 unless given; needs the extra "
+                            "tmcl-sim[http] (docs/dashboard.md)")
     faults = parser.add_argument_group("faults and wire timing (see docs/faults.md)")
     faults.add_argument("--fault", action="append", metavar="SPEC", default=[],
                         help="inject a fault, e.g. noreply:opcode=GAP,rate=0.1,seed=7 or "
@@ -148,6 +153,10 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         endpoints["mqtt"] = args.mqtt
     if not endpoints:
         raise SystemExit("tmcl-server: no transport left to serve on")
+    if args.http:  # not a transport for hosts: it does not count as one to serve on
+        if importlib.util.find_spec("aiohttp") is None:
+            raise SystemExit("tmcl-server: --http needs aiohttp: pip install 'tmcl-sim[http]'")
+        endpoints["http"] = args.http
     if args.speed <= 0:
         raise SystemExit("tmcl-server: --speed must be positive")
     if args.mqtt_rate <= 0:

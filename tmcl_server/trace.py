@@ -64,6 +64,10 @@ _json_string = json.encoder.encode_basestring  # type: ignore[attr-defined]
 _Note = tuple[Any, ...]
 #: What a formatter returns: kind, endpoint, module address, text, JSON fields (or None).
 _Line = tuple[str, str, int, str, dict[str, Any] | None]
+#: A noted happening as listeners get it (opaque: :meth:`Tracer.decode` turns it into lines).
+TraceNote = _Note
+#: A decoded line: wall time, simulated ns, kind, endpoint, module address, text.
+TraceLine = tuple[float, int, str, str, int, str]
 
 
 def endpoint_of(sink: object) -> str:
@@ -115,14 +119,19 @@ class _TracedSink:
 
 
 class Tracer:
-    """Writes trace lines for one simulation to a text stream (``text`` or ``jsonl``)."""
+    """Writes trace lines for one simulation to a text stream (``text`` or ``jsonl``), and
+    hands every batch of noted happenings to its :attr:`listeners` (the dashboard's wire view),
+    which decode only what they show (:meth:`decode`)."""
 
-    def __init__(self, stream: TextIO, fmt: str = "text",
+    def __init__(self, stream: TextIO | None, fmt: str = "text",
                  wall: Callable[[], float] = time.time) -> None:
         if fmt not in FORMATS:
             raise ValueError(f"trace format must be one of {', '.join(FORMATS)}, not {fmt!r}")
+        #: Where lines are written; None: only the listeners get the happenings.
         self.stream = stream
         self.jsonl = fmt == "jsonl"
+        #: Called with every batch of notes, in order, when it is flushed.
+        self.listeners: list[Callable[[list[TraceNote]], None]] = []
         self._wall = wall
         self._simulation: Simulation | None = None
         self._listeners: list[tuple[TMCLModule, Callable[[ModuleEvent], None]]] = []
@@ -411,6 +420,13 @@ class Tracer:
             out.append(head + where + text)
         return "\n".join(out)
 
+    def decode(self, note: TraceNote) -> list[TraceLine]:
+        """The lines of one note a listener got (formatters use only what was noted, so a note
+        decodes the same later)."""
+        wall, sim_ns = note[1], note[2]
+        return [(wall, sim_ns, kind, endpoint, address, text)
+                for kind, endpoint, address, text, _ in note[0](*note[3:])]
+
     # -- writing ------------------------------------------------------------------------------
 
     def _note(self, note: _Note) -> None:
@@ -432,6 +448,10 @@ class Tracer:
         if not self._notes:
             return
         notes, self._notes = self._notes, []
+        for listener in list(self.listeners):
+            listener(notes)
+        if self.stream is None:
+            return
         lines = [self._render(note[1], note[2], note[0](*note[3:])) for note in notes]
         try:
             self.stream.write("\n".join(lines) + "\n")

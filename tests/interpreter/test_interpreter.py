@@ -448,6 +448,75 @@ def test_step_executes_one_instruction() -> None:
     assert interp.wait is None and interp.pc == 3
 
 
+
+COUNTING_LOOP = """
+    CALC LOAD, 0
+Loop:
+    CALC ADD, 1
+    COMP 1000
+    JC LT, Loop
+    STOP
+"""
+
+
+def test_a_breakpoint_stops_the_program_in_step_mode_before_the_instruction() -> None:
+    interp, port = machine(COUNTING_LOOP)
+    interp.breakpoints.add(2)  # COMP: the first time after one CALC ADD
+    start(interp, 10 * MS)
+    assert (interp.status, interp.pc, interp.accumulator) == (ApplicationStatus.STEP, 2, 1)
+    assert interp.executed == 2 and interp.time_ns == 2 * INSTRUCTION_NS
+    assert port.events[-1] == (2 * INSTRUCTION_NS, "breakpoint", {"pc": 2})
+    assert interp.next_event_ns(interp.time_ns) is None and not interp.busy  # nothing runs
+
+
+def test_step_from_a_breakpoint_runs_one_instruction_and_continue_stops_there_again() -> None:
+    interp, _ = machine(COUNTING_LOOP)
+    interp.breakpoints.add(2)
+    start(interp, 10 * MS)
+    interp.step(interp.time_ns)  # the COMP at the breakpoint itself
+    assert (interp.status, interp.pc, interp.accumulator, interp.executed) == (
+        ApplicationStatus.STEP, 3, 1, 3)
+    interp.start(interp.time_ns)  # continue: JC, CALC ADD, then the breakpoint again
+    run(interp, 10 * MS)
+    assert (interp.status, interp.pc, interp.accumulator, interp.executed) == (
+        ApplicationStatus.STEP, 2, 2, 5)
+    interp.start(interp.time_ns)  # continuing from the breakpoint itself does not stop at once
+    run(interp, 10 * MS)
+    assert (interp.pc, interp.accumulator, interp.executed) == (2, 3, 8)
+    interp.breakpoints.clear()
+    interp.start(interp.time_ns)
+    run(interp, 100 * MS)
+    assert (interp.status, interp.accumulator) == (ApplicationStatus.STOP, 1000)
+
+
+def test_running_from_an_address_with_a_breakpoint_stops_there_first() -> None:
+    interp, port = machine(COUNTING_LOOP)
+    interp.breakpoints.add(0)
+    interp.start(0, 0)
+    run(interp, MS)
+    assert (interp.status, interp.pc, interp.executed) == (ApplicationStatus.STEP, 0, 0)
+    assert [kind for _, kind, _ in port.events] == ["program_started", "breakpoint"]
+
+
+def test_a_breakpoint_in_an_interrupt_handler_stops_on_entry() -> None:
+    interp, port = machine("""
+        VECT 0, Handler
+        EI 0
+        EI 255
+    Idle:
+        JA Idle
+    Handler:
+        CALC ADD, 1
+        RETI
+    """)
+    interp.breakpoints.add(4)  # Handler
+    interp.start(0)
+    interp.set_timer(0, 5, 0)
+    run(interp, 20 * MS)
+    assert (interp.status, interp.pc, interp.in_interrupt) == (ApplicationStatus.STEP, 4, True)
+    assert [kind for _, kind, _ in port.events][-2:] == ["interrupt_taken", "breakpoint"]
+    assert port.events[-1][0] == 5 * MS
+
 def test_program_memory_bounds() -> None:
     interp = Interpreter(FakePort())
     with pytest.raises(IndexError):

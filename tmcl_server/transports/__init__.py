@@ -25,6 +25,8 @@ TRANSPORTS: dict[str, str] = {
     "slcan": "tmcl_server.transports.can.slcan:SlcanPtyTransport",
     "socketcand": "tmcl_server.transports.can.socketcand:SocketcandTransport",
     "mqtt": "tmcl_server.transports.mqtt.bridge:MqttBridge",
+    # not a host's transport: the live dashboard in a browser (docs/dashboard.md)
+    "http": "tmcl_server.dashboard.web:DashboardTransport",
 }
 
 
