@@ -35,9 +35,9 @@ log = logging.getLogger(__name__)
 
 Routed = tuple["TMCLModule", AnyReply]
 
-#: On a real clock a busy program runs this much simulated time before the transports get a
-#: turn (a request to its module waits at most one chunk, about 20 instructions).
-PROGRAM_CHUNK_NS = 200_000
+#: On a real clock a busy program runs this much simulated time (about 50 instructions) before
+#: the server looks at the wall clock again: smaller chunks cost more in bookkeeping.
+PROGRAM_CHUNK_NS = 500_000
 #: On a real clock the recorder takes at most this many sample instants per turn (a request,
 #: a timer slice): it catches up over several, like a busy program.
 RECORDER_SAMPLES_PER_TURN = 16
