@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import importlib.util
 import logging
 import signal
 import sys
@@ -154,6 +153,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
     if not endpoints:
         raise SystemExit("tmcl-server: no transport left to serve on")
     if args.http:  # not a transport for hosts: it does not count as one to serve on
+        import importlib.util
+
         if importlib.util.find_spec("aiohttp") is None:
             raise SystemExit("tmcl-server: --http needs aiohttp: pip install 'tmcl-sim[http]'")
         endpoints["http"] = args.http

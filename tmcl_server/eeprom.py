@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +75,8 @@ class Eeprom:
         document = {"format": FORMAT_NAME, "version": FORMAT_VERSION, **self._data}
         payload = json.dumps(document, indent=1, sort_keys=True).encode()
         directory = self.path.parent
+        import tempfile  # only when something is stored
+
         fd, tmp = tempfile.mkstemp(prefix=".eeprom-", suffix=".tmp", dir=directory)
         try:
             with os.fdopen(fd, "wb") as f:

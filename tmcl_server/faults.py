@@ -40,8 +40,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from tmcl_server.delivery import Delivery
 from tmcl_server.dispatch import Interface, ReplySink
-from tmcl_server.protocol import AnyReply, Reply, Request
+from tmcl_server.protocol import Reply, Request
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.modules import module_type
 from tmcl_spec.names import names_of
@@ -393,51 +394,6 @@ def load_fault_file(path: str | Path) -> list[FaultSpec]:
 # == what the wire carries ======================================================================
 
 
-@dataclass(slots=True)
-class Delivery:
-    """A reply the faults altered, and how it leaves: each transport sends it its own way."""
-
-    reply: AnyReply
-    delay_s: float = 0.0
-    bad_checksum: bool = False
-    garbage: bytes = b""
-    pieces: int = 1
-    pause_s: float = 0.0
-    copies: int = 1
-
-    def frame(self) -> bytes:
-        """The reply's bytes on a serial link (its checksum byte spoilt if asked)."""
-        data = self.reply.encode()
-        if self.bad_checksum:
-            data = data[:-1] + bytes((data[-1] ^ 0xFF,))
-        return data
-
-    def stream_pieces(self) -> list[tuple[float, bytes]]:
-        """(pause before, bytes) for a byte stream: the first pause is the delay; pieces with
-        no pause between them are joined into one write."""
-        frame = self.frame()
-        size, extra = divmod(len(frame), self.pieces)
-        cuts = [0]
-        for index in range(self.pieces):
-            cuts.append(cuts[-1] + size + (index < extra))
-        out: list[tuple[float, bytes]] = []
-        for copy in range(self.copies):
-            for index in range(self.pieces):
-                data = frame[cuts[index]:cuts[index + 1]]
-                if copy == 0 and index == 0:
-                    out.append((self.delay_s, self.garbage + data))
-                    continue
-                pause = self.pause_s if index else 0.0
-                if pause > 0:
-                    out.append((pause, data))
-                else:
-                    out[-1] = (out[-1][0], out[-1][1] + data)
-        return out
-
-    @property
-    def total_delay_s(self) -> float:
-        """A link that sends whole messages (CAN, MQTT) cannot tear one: the pauses add up."""
-        return self.delay_s + (self.pieces - 1) * self.pause_s
 
 
 @dataclass(frozen=True, slots=True)

@@ -7,12 +7,13 @@ on the standard loop too.  Imported only by the command line and the embedding A
 from __future__ import annotations
 
 import asyncio
-import importlib.util
 
 LOOPS = ("auto", "asyncio", "uvloop")
 
 
 def uvloop_available() -> bool:
+    import importlib.util
+
     return importlib.util.find_spec("uvloop") is not None
 
 

@@ -11,7 +11,6 @@ import asyncio
 import json
 import logging
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -111,6 +110,8 @@ def build_simulation(config: ServerConfig) -> Simulation:
 def write_atomically(path: str | os.PathLike[str], text: str) -> None:
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
+    import tempfile  # only for the ready file
+
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
     with os.fdopen(fd, "w") as f:
         f.write(text)

@@ -11,8 +11,8 @@ from collections.abc import Callable, Iterable
 from enum import Enum
 from typing import TYPE_CHECKING, Any, Protocol
 
+from tmcl_server.delivery import Delivery
 from tmcl_server.dispatch import ReplySink
-from tmcl_server.faults import Delivery
 from tmcl_server.protocol import FRAME_LENGTH, AnyReply, FrameAssembler, Reply
 from tmcl_server.simulation import Routed, Simulation
 

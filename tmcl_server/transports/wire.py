@@ -31,7 +31,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from tmcl_server.faults import Delivery
+from tmcl_server.delivery import Delivery
 from tmcl_server.protocol import AnyReply
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import LinkMode, StreamSession, TransportHost

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import can
 
-from tmcl_server.faults import Delivery
+from tmcl_server.delivery import Delivery
 from tmcl_server.protocol import CAN_PAYLOAD_LENGTH, AnyReply, Reply, decode_can_request
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, check_bus_name

@@ -35,8 +35,9 @@ import aiomqtt
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
 
+from tmcl_server.delivery import Delivery
 from tmcl_server.dispatch import Interface
-from tmcl_server.faults import Delivery, FaultInjector, FaultSpecError
+from tmcl_server.faults import FaultInjector, FaultSpecError
 from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import FRAME_LENGTH, ChecksumError, Reply, decode_request
 from tmcl_server.simulation import Simulation
