@@ -7,7 +7,7 @@ something changes, so the motion engine can stop exactly there.
 
 from __future__ import annotations
 
-from axes.world import AxisWorld
+from axes.world import AxisWorld, Switch
 
 
 class AxisBoard:
@@ -38,6 +38,14 @@ class AxisBoard:
     def set_world(self, world: AxisWorld) -> None:
         self.world = world
         self._edges = world.edges()
+
+    def set_switch(self, name: str, switch: Switch | None) -> None:
+        """Place (or with None remove) the "left", "right" or "home" switch in the world."""
+        if switch is None:
+            self.world.switches.pop(name, None)
+        else:
+            self.world.switches[name] = switch
+        self.world_changed()
 
     def world_changed(self) -> None:
         self._edges = self.world.edges()

@@ -770,11 +770,7 @@ class AxisFirmware:
 
     def set_switch(self, name: str, switch: Switch | None) -> None:
         self._command()
-        if switch is None:
-            self.board.world.switches.pop(name, None)
-        else:
-            self.board.world.switches[name] = switch
-        self.board.world_changed()
+        self.board.set_switch(name, switch)
         self._pins_changed()
         self._after_command()
 

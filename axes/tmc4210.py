@@ -27,8 +27,10 @@ from axes.tmc42x import (
     MASK24,
     REF_RNL,
     SOFT_STOP,
+    GlobalReg,
     Irq,
     MotorEngine,
+    MotorReg,
     RampMode,
     datagram,
     floor_sum,
@@ -50,36 +52,10 @@ SMGP_MASK = 0x31FFFF
 IF_CONFIG_MASK = 0x1FF
 
 
-class Reg(IntEnum):
-    """Register addresses: the 7-bit ``RRS|SMDA|IDX`` field (datagram bits 31..25)."""
-
-    X_TARGET = 0x00
-    X_ACTUAL = 0x01
-    V_MIN = 0x02
-    V_MAX = 0x03
-    V_TARGET = 0x04
-    V_ACTUAL = 0x05
-    A_MAX = 0x06
-    A_ACTUAL = 0x07
-    A_THRESHOLD = 0x08  # TMC429 current scaling, plain storage here
-    PMUL_PDIV = 0x09
-    REF_CONF_RAMP_MODE = 0x0A
-    INTERRUPT = 0x0B
-    DIVIDERS = 0x0C
-    DX_REF_TOLERANCE = 0x0D
-    X_LATCHED = 0x0E
-    USTEP_COUNT = 0x0F
-    DATAGRAM_LOW = 0x30
-    DATAGRAM_HIGH = 0x31
-    COVER_POS_LEN = 0x32
-    COVER_DATAGRAM = 0x33
-    IF_CONFIGURATION = 0x34
-    POS_COMP = 0x35
-    POS_COMP_INT = 0x36
-    POWER_DOWN = 0x38
-    TYPE_VERSION = 0x39
-    REFERENCE_SWITCHES = 0x3E
-    SMGP = 0x3F
+#: Register addresses: the 7-bit ``RRS|SMDA|IDX`` field (datagram bits 31..25): the one
+#: motor's axis registers and the family's global registers, at the TMC429's addresses.
+Reg = IntEnum("Reg", {member.name: member.value for family in (MotorReg, GlobalReg)
+                      for member in family})
 
 
 #: Registers that are plain storage: attribute and the bits that exist (spec §3.2/§3.3).

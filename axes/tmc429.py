@@ -48,6 +48,7 @@ from axes.core import Board, StaleLookahead, Stop
 from axes.tmc42x import (
     DEFAULT_CLOCK_HZ,
     MASK24,
+    GlobalReg,
     MotorEngine,
     MotorReg,
     datagram,
@@ -68,20 +69,6 @@ STANDSTILL_TICKS = STANDSTILL_CLOCKS // 32
 MASK48 = (1 << 48) - 1
 
 
-class GlobalReg(IntEnum):
-    """Global registers: the 7-bit address ``%011 JDX``."""
-
-    DATAGRAM_LOW = 0x30
-    DATAGRAM_HIGH = 0x31
-    COVER_POS_LEN = 0x32
-    COVER_DATAGRAM = 0x33
-    IF_CONFIGURATION = 0x34
-    POS_COMP = 0x35
-    POS_COMP_INT = 0x36
-    POWER_DOWN = 0x38
-    TYPE_VERSION = 0x39
-    REFERENCE_SWITCHES = 0x3E
-    SMGP = 0x3F
 
 
 def motor_address(motor: int, reg: MotorReg | int) -> int:

@@ -68,6 +68,23 @@ class MotorReg(IntEnum):
     USTEP_COUNT = 0xF
 
 
+class GlobalReg(IntEnum):
+    """The family's global registers (SMDA = %11): the 7-bit address ``%011 JDX``; the TMC4210
+    has them at the same addresses."""
+
+    DATAGRAM_LOW = 0x30
+    DATAGRAM_HIGH = 0x31
+    COVER_POS_LEN = 0x32
+    COVER_DATAGRAM = 0x33
+    IF_CONFIGURATION = 0x34
+    POS_COMP = 0x35
+    POS_COMP_INT = 0x36
+    POWER_DOWN = 0x38
+    TYPE_VERSION = 0x39
+    REFERENCE_SWITCHES = 0x3E
+    SMGP = 0x3F
+
+
 #: Axis registers that are plain storage: attribute and the bits that exist (tmc4210.md §3.2).
 #: The A_THRESHOLD slot's mask is the chip's (``MotorEngine.a_threshold_mask``).
 MOTOR_PLAIN_REGISTERS: dict[int, tuple[str, int]] = {

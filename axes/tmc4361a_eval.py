@@ -252,11 +252,7 @@ class TMC4361AEvalAxis:
 
     def set_switch(self, name: str, switch: Switch | None) -> None:
         self._sync()
-        if switch is None:
-            self.board.world.switches.pop(name, None)
-        else:
-            self.board.world.switches[name] = switch
-        self.board.world_changed()
+        self.board.set_switch(name, switch)
         self._pins_changed()
 
     def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:

@@ -17,6 +17,8 @@ pytrinamic class names.
 
 from __future__ import annotations
 
+from typing import Any
+
 from tmcl_spec.commands import Opcode
 from tmcl_spec.modules import ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
@@ -174,6 +176,19 @@ COORDINATES = 21  # 0..20 as across the TMCL family; coordinate 0 is RAM only
 
 # -- the profiles ------------------------------------------------------------------------------
 
+#: What the three modules have in common (each profile adds its own).
+_FAMILY: dict[str, Any] = dict(
+    storable_user_variables=STORABLE_USER_VARIABLES,
+    outputs=8,
+    coordinates=COORDINATES,
+    program_memory=PROGRAM_MEMORY,
+    chip_core="tmc429",
+    commands=frozenset(Opcode),
+    analog_full_scale=ANALOG_FULL_SCALE,
+    digital_threshold=DIGITAL_THRESHOLD,
+    nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
+)
+
 TMCM_1110 = ModuleType(
     key="tmcm-1110",
     name="TMCM-1110",
@@ -184,18 +199,10 @@ TMCM_1110 = ModuleType(
     global_parameters={0: bank0(IO_MODE, END_SWITCH_POLARITY, REVERSE_SHAFT), 2: BANK2_PARAMETERS,
                        3: bank3(switch_motors=3, inputs=7)},
     storable_axis_parameters=storable(AXIS_PARAMETERS_1110),
-    storable_user_variables=STORABLE_USER_VARIABLES,
     digital_inputs=7,
     analog_inputs=7,
-    outputs=8,
-    coordinates=COORDINATES,
-    program_memory=PROGRAM_MEMORY,
-    chip_core="tmc429",
-    commands=frozenset(Opcode),
-    analog_full_scale=ANALOG_FULL_SCALE,
-    digital_threshold=DIGITAL_THRESHOLD,
     supply_voltage_channel=None,
-    nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
+    **_FAMILY,
 )
 
 TMCM_3110 = ModuleType(
@@ -208,20 +215,12 @@ TMCM_3110 = ModuleType(
     global_parameters={0: bank0(END_SWITCH_POLARITY, REVERSE_SHAFT), 2: BANK2_PARAMETERS,
                        3: bank3(switch_motors=3, inputs=8)},
     storable_axis_parameters=storable(AXIS_PARAMETERS_3110),
-    storable_user_variables=STORABLE_USER_VARIABLES,
     digital_inputs=8,
     analog_inputs=8,
     analog_channels=frozenset({0, 4}),  # AIN0, AIN4
-    outputs=8,
     pullup_ports=1,  # SIO 0, 0, 0|1: the limit switches' pull-ups (TMCM-Lib)
-    coordinates=COORDINATES,
-    program_memory=PROGRAM_MEMORY,
-    chip_core="tmc429",
-    commands=frozenset(Opcode),
-    analog_full_scale=ANALOG_FULL_SCALE,
-    digital_threshold=DIGITAL_THRESHOLD,
     supply_voltage_channel=SUPPLY_VOLTAGE_CHANNEL,
-    nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
+    **_FAMILY,
 )
 
 TMCM_6110 = ModuleType(
@@ -234,18 +233,10 @@ TMCM_6110 = ModuleType(
     global_parameters={0: bank0(END_SWITCH_POLARITY, REVERSE_SHAFT), 2: BANK2_PARAMETERS,
                        3: bank3(switch_motors=6, inputs=8)},
     storable_axis_parameters=storable(AXIS_PARAMETERS_6110),
-    storable_user_variables=STORABLE_USER_VARIABLES,
     digital_inputs=8,
     analog_inputs=8,
     analog_channels=frozenset({0, 4}),  # AIN0, AIN4
-    outputs=8,
     pullup_ports=1,
-    coordinates=COORDINATES,
-    program_memory=PROGRAM_MEMORY,
-    chip_core="tmc429",
-    commands=frozenset(Opcode),
-    analog_full_scale=ANALOG_FULL_SCALE,
-    digital_threshold=DIGITAL_THRESHOLD,
     supply_voltage_channel=SUPPLY_VOLTAGE_CHANNEL,
-    nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
+    **_FAMILY,
 )
