@@ -5,7 +5,13 @@
    simulation (module, event planning), in TMCL instructions per wall-clock second.
    Goal: at least 1,000,000 per second.  Also with a breakpoint set (on the STOP, never
    reached): the interpreter then runs its checking loop, one instruction at a time.
-2. Direct-mode latency while a program runs: a busy program on a real clock, and a host
+2. What one instruction costs, by kind, on the virtual clock: CALC (the interpreter alone),
+   GGP/AGP (a trip into the module), GAP of a stored parameter, GAP of the actual position on
+   an idle and on a moving axis (the chip is brought to the instruction's instant and read over
+   SPI).  Each as wall-clock microseconds per instruction and as a multiple of CALC; at the
+   modelled 10 us per instruction, a program of such instructions needs cost/10 us of a core
+   on a real clock (docs/scheduling.md).
+3. Direct-mode latency while a program runs: a busy program on a real clock, and a host
    sending GAP over TCP; round-trip times of the replies.
 
     .venv/bin/python scripts/bench_interpreter.py [--seconds S] [--requests N]
@@ -66,6 +72,36 @@ def throughput(simulated_s: float, breakpoint: bool = False) -> float:
     return (module.program.interpreter.executed - before) / elapsed
 
 
+#: Six axes turning at 100,000 pps, for the "moving axis" rows.
+_TURNING = "".join(f"    SAP 4, {a}, 200000\n    SAP 5, {a}, 400000\n    ROR {a}, 100000\n"
+                   for a in range(6))
+
+#: (what, the instruction repeated in the loop, setup before the loop)
+INSTRUCTION_KINDS = [
+    ("CALC ADD", "CALC ADD, 1", ""),
+    ("GGP (user variable)", "GGP 1, 2", ""),
+    ("AGP (user variable)", "AGP 1, 2", ""),
+    ("GAP 4 (stored parameter)", "GAP 4, 0", _TURNING),
+    ("GAP 1, idle axis", "GAP 1, 0", ""),
+    ("GAP 1, moving axis", "GAP 1, 0", _TURNING),
+]
+
+
+def instruction_cost_us(body: str, setup: str, simulated_s: float) -> float:
+    """Wall-clock microseconds per instruction of a loop of nine ``body`` and one JA."""
+    module = TMCM6212()
+    simulation = Simulation([module], VirtualClock())
+    source = setup + "Loop:\n" + f"    {body}\n" * 9 + "    JA Loop\n"
+    module.program.interpreter.load(assemble(source).instructions)
+    module.program.interpreter.start(0)
+    simulation.advance(0.01)  # past the setup
+    before = module.program.interpreter.executed
+    t0 = time.perf_counter()
+    simulation.advance(simulated_s)
+    elapsed = time.perf_counter() - t0
+    return elapsed / (module.program.interpreter.executed - before) * 1e6
+
+
 def latency(requests: int) -> list[float]:
     with SimulatorThread(clock="real", tcp=["127.0.0.1:0"]) as sim:
         program = assemble(BUSY_PROGRAM).instructions
@@ -108,6 +144,15 @@ def main() -> int:
     checked = [throughput(args.seconds / 4, breakpoint=True) for _ in range(args.repeat)]
     print(f"the same with a breakpoint set (checking loop): best {max(checked):,.0f} instr/s, "
           f"median {statistics.median(checked):,.0f} instr/s")
+
+    print("cost of one instruction, virtual clock (median of the repeats):")
+    base = None
+    for what, body, setup in INSTRUCTION_KINDS:
+        cost = statistics.median(instruction_cost_us(body, setup, args.seconds / 20)
+                                 for _ in range(args.repeat))
+        base = base or cost
+        print(f"  {what:26s} {cost:6.2f} us  {cost / base:5.1f} x CALC  "
+              f"({cost / 10:4.0%} of a core at 100,000 instructions/s)")
 
     times = sorted(latency(args.requests))
     ms = [t * 1000 for t in times]
