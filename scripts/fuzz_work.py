@@ -26,6 +26,10 @@ from tmcl_spec.commands import Opcode
 #: (module type, chip core) pairs: every core the simulator has, on the modules it serves.
 CORES = [("tmcm-6212", None), ("tmcm-1110", None), ("tmcm-6110", None),
          ("tmcm-6212", "tmc4361a")]
+#: Rows that shape the motion (speeds, accelerations, dividers, switches, reference search).
+MOTION_PARAMETERS = frozenset({4, 5, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26,
+                               27, 28, 31, 130, 135, 138, 140, 149, 153, 154, 193, 194, 195,
+                               200, 254, 255})
 EXTREMES = (0, 1, -1, 2, 2**31 - 1, -2**31, 2047, 2048, 65535, 1 << 23, -(1 << 23))
 
 
@@ -94,8 +98,9 @@ def trial(number: int, rng: random.Random, kind: str, core: str | None, director
         module.set_axis_stuck(motor, True, rng.choice([None, 0]))
         sim.notify_changed()
         ops.append("stuck")
+    motion = [s for s in params if s.number in MOTION_PARAMETERS]
     for _ in range(rng.randint(1, 10)):
-        spec = rng.choice(params)
+        spec = rng.choice(motion if motion and rng.random() < 0.6 else params)
         send(Opcode.SAP, spec.number, motor, values_for(spec, rng))
     if rng.random() < 0.3:
         for _ in range(rng.randint(1, 4)):
