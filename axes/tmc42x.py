@@ -467,7 +467,9 @@ class MotorEngine:
             return None
         d = abs(dx)
         mag = abs(vt)
-        if mag == self.v_max:
+        if mag == self.v_max and self.v_min >= self.v_max:
+            low = 1  # V_MIN >= V_MAX: the clamped curve is V_MAX all the way to the target
+        elif mag == self.v_max:
             low = self._distance_for(self.v_max)
             if low is None:
                 return None
@@ -662,7 +664,35 @@ class MotorEngine:
         return None
 
     def _can_fast(self) -> bool:
-        return self.mode != RampMode.HOLD and self.ramp_div >= self.pulse_div
+        return self.mode != RampMode.HOLD
+
+    def _pulse_plan(self, nr: int) -> tuple[int, int, int]:
+        """How pulse ticks fall on the ramp ticks from ``nr`` on: (pulses per ramp tick,
+        ramp ticks per pulse, index of the first ramp tick with a pulse).  With
+        PULSE_DIV <= RAMP_DIV every ramp period has 2**(RAMP_DIV-PULSE_DIV) pulses, all at the
+        speed its ramp tick set; with PULSE_DIV > RAMP_DIV a pulse tick falls on every
+        2**(PULSE_DIV-RAMP_DIV)-th ramp tick (after it, at the same clk32 tick)."""
+        rd, pd = self.ramp_div, self.pulse_div
+        if rd >= pd:
+            return 1 << (rd - pd), 1, 0
+        return 1, 1 << (pd - rd), ((-nr) & ((1 << pd) - 1)) >> rd
+
+    def _slew_steps(self, k: int, w: int, acc: int, rising: bool,
+                    plan: tuple[int, int, int]) -> tuple[int, int]:
+        """(steps, accumulator) after ``k`` ramp ticks that each change the speed ``w`` by
+        A_MAX (up if ``rising``), pulses as ``plan`` says (floor sums, not a loop)."""
+        per_ramp, every, phase = plan
+        pulses = 0 if k <= phase else (k - 1 - phase) // every + 1
+        if pulses == 0:
+            return acc >> 11, acc & 2047
+        a = self.a_max
+        if rising:
+            speeds = floor_sum(pulses, 256, every * a, w + (phase + 1) * a)
+        else:
+            speeds = floor_sum(pulses, 256, every * a,
+                               w - (phase + 1 + (pulses - 1) * every) * a)
+        total = acc + per_ramp * speeds
+        return total >> 11, total & 2047
 
     def _switch_in_play(self, direction: int) -> bool:
         """True if the stop switch ahead (in ``direction``) is active and enabled: the ramp
@@ -681,8 +711,9 @@ class MotorEngine:
         if not self.dx_ref_tolerance:
             return 0
         x = signed(self.x_actual, 24)
-        steps = (self.dx_ref_tolerance - x) if direction > 0 else (x + self.dx_ref_tolerance)
-        return max(0, steps)
+        if abs(x) >= self.dx_ref_tolerance:
+            return 0
+        return (self.dx_ref_tolerance - x) if direction > 0 else (x + self.dx_ref_tolerance)
 
     def _fast(self, until: int) -> Stop | None:
         """Ramp ticks one per iteration with their pulses counted in bulk (no switches active).
@@ -693,8 +724,10 @@ class MotorEngine:
         """
         rd = self.ramp_div
         period = 1 << rd
-        per_ramp = period >> self.pulse_div
         nr = self.ramp_next
+        plan = self._pulse_plan(nr)
+        per_ramp, every = plan[0], plan[1]
+        pulse_mask = (1 << self.pulse_div) - 1
         v = self.v
         acc = self.acc
         a_max = self.a_max
@@ -740,7 +773,7 @@ class MotorEngine:
         vt_reg = self.v_target
         last = until - period + 1
         is_ramp = mode == RampMode.RAMP
-        batch = self._linear_batch(w, acc, d, room, (last - nr) // period + 1, per_ramp,
+        batch = self._linear_batch(w, acc, d, room, (last - nr) // period + 1, plan,
                                    positioning, vt_fixed * direction if not positioning else 0)
         if batch is not None:
             ticks, w, acc, steps, vt_reg_mag = batch
@@ -780,7 +813,8 @@ class MotorEngine:
                 if nw < target:
                     nw = target
             vi = nw >> 8
-            total = acc + vi * per_ramp
+            # every == 1: per_ramp pulses per ramp period; else a pulse on some ramp ticks
+            total = acc + vi * (per_ramp if every == 1 else nr & pulse_mask == 0)
             steps = total >> 11
             if steps >= room:
                 break
@@ -831,11 +865,11 @@ class MotorEngine:
         batch = None
         if room > 0 and nr <= last:
             batch = self._linear_batch(abs(self.v), self.acc, 0, room, (last - nr) // period + 1,
-                                       period >> self.pulse_div, False, 0)
+                                       self._pulse_plan(nr), False, 0)
         if batch is None:
             return self._slow_tick(nr)
         ticks, w, acc, steps, _ = batch
-        before = self._steps_after(ticks - 1, abs(self.v), self.acc, period >> self.pulse_div)
+        before, _ = self._slew_steps(ticks - 1, abs(self.v), self.acc, False, self._pulse_plan(nr))
         mag = min(max(self._curve(d + before), self.v_min), self.v_max)
         self.v = w * travel
         self.acc = acc
@@ -846,12 +880,8 @@ class MotorEngine:
         self.t = self.ramp_next - 1
         return None
 
-    def _steps_after(self, k: int, w: int, acc: int, per_ramp: int) -> int:
-        """Steps made by ``k`` ticks slowing down from ``w`` by A_MAX each (see _linear_batch)."""
-        speeds = floor_sum(k, 256, self.a_max, w - k * self.a_max)
-        return (acc + per_ramp * speeds) >> 11
-
-    def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int, per_ramp: int,
+    def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int,
+                      plan: tuple[int, int, int],
                       positioning: bool, fixed_target: int
                       ) -> tuple[int, int, int, int, int | None] | None:
         """Many ramp ticks of full-A_MAX slew at once (floor sums instead of a loop).
@@ -879,12 +909,7 @@ class MotorEngine:
 
         def after(k: int) -> tuple[int, int]:
             """(steps, accumulator) after k full-slew ticks."""
-            if rising:
-                speeds = floor_sum(k, 256, a_max, w + a_max)
-            else:
-                speeds = floor_sum(k, 256, a_max, w - k * a_max)
-            total = acc + per_ramp * speeds
-            return total >> 11, total & 2047
+            return self._slew_steps(k, w, acc, rising, plan)
 
         def fits(k: int) -> bool:
             steps, _ = after(k)

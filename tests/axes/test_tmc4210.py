@@ -193,6 +193,7 @@ def _run_both(chip: TMC4210, ref: ReferenceChip, until: int, arrivals: list[int]
 change = st.one_of(
     st.tuples(st.just("x_target"), st.integers(-20000, 20000)),
     st.tuples(st.just("v_max"), st.integers(0, 2047)),
+    st.tuples(st.just("v_min"), st.integers(0, 2047)),  # V_MIN > V_MAX too
     st.tuples(st.just("a_max"), st.integers(1, 2047)),
     st.tuples(st.just("v_target"), st.integers(-2047, 2047)),
     st.tuples(st.just("mode"), st.sampled_from([RampMode.RAMP, RampMode.SOFT, RampMode.VELOCITY])),
@@ -240,6 +241,12 @@ def test_engine_matches_the_tick_by_tick_reference(pulse_div: int, span: int, a_
 @example(pulse_div=0, span=0, a_max=3, v_max=900, left=False, right=True, soft=True,
          tolerance=0, disable=0, first_target=-3000,  # reversed against a soft stop
          changes=[(3000, ("x_target", 20000)), (20000, ("x_target", -20000))])
+@example(pulse_div=0, span=0, a_max=0, v_max=354, left=False, right=True, soft=False,
+         tolerance=3, disable=0, first_target=-9843,  # overshoot, back towards a blocking switch
+         changes=[(1, ("a_max", 210))])
+@example(pulse_div=0, span=3, a_max=1, v_max=1000, left=False, right=False, soft=False,
+         tolerance=0, disable=0, first_target=0,  # V_MIN above V_MAX: cruise to the target
+         changes=[(8, ("v_min", 1001)), (8, ("x_target", 9000))])
 @example(pulse_div=0, span=0, a_max=0, v_max=500, left=True, right=False, soft=False,
          tolerance=0, disable=0, first_target=0,  # no acceleration: nothing ever moves
          changes=[(10, ("mode", RampMode.VELOCITY)), (10, ("v_target", -500))])
