@@ -437,12 +437,27 @@ class MotorEngine:
             # Ramp ticks cannot change the velocity: hold mode; no acceleration; or at rest
             # with a target speed of zero (V_MAX 0, a curve value of 0, a blocking switch),
             # which stays zero while the motor does not move.
-            window = v and self.dx_ref_tolerance and (self.left_active or self.right_active)
-            return None if window else -1
+            if v:
+                window = self._window_steps(1 if v > 0 else -1)
+                if window:  # inside the tolerance window: leaving it may stop the motor
+                    return window
+            # Outside it a switch ahead would stop the motor hard (handled above), or
+            # softly, which a_max = 0 cannot do: the velocity stays.
+            return -1
         if v != vt << 8:
             return None
-        if v and self.dx_ref_tolerance and (self.left_active or self.right_active):
-            return None  # crossing the tolerance window may change the switch stop
+        window = None
+        if v:
+            window = self._window_steps(1 if v > 0 else -1)
+            if window == 0:
+                return None  # outside the window with a switch ahead: not steady
+        steady = self._steady_positioning(v, vt)
+        if window is None or steady is None:
+            return steady
+        return window if steady == -1 else min(steady, window)
+
+    def _steady_positioning(self, v: int, vt: int) -> int | None:
+        """_steady_steps for a velocity at its ramp target (see there)."""
         if self.mode == RampMode.VELOCITY:
             return -1
         dx = sdiff24(self.x_target, self.x_actual)
@@ -452,7 +467,9 @@ class MotorEngine:
             return None
         d = abs(dx)
         mag = abs(vt)
-        if mag == self.v_max:
+        if mag == self.v_max and self.v_min >= self.v_max:
+            low = 1  # V_MIN >= V_MAX: the clamped curve is V_MAX all the way to the target
+        elif mag == self.v_max:
             low = self._distance_for(self.v_max)
             if low is None:
                 return None
@@ -647,8 +664,56 @@ class MotorEngine:
         return None
 
     def _can_fast(self) -> bool:
-        return (self.mode != RampMode.HOLD and self.ramp_div >= self.pulse_div
-                and not (self.left_active or self.right_active))
+        return self.mode != RampMode.HOLD
+
+    def _pulse_plan(self, nr: int) -> tuple[int, int, int]:
+        """How pulse ticks fall on the ramp ticks from ``nr`` on: (pulses per ramp tick,
+        ramp ticks per pulse, index of the first ramp tick with a pulse).  With
+        PULSE_DIV <= RAMP_DIV every ramp period has 2**(RAMP_DIV-PULSE_DIV) pulses, all at the
+        speed its ramp tick set; with PULSE_DIV > RAMP_DIV a pulse tick falls on every
+        2**(PULSE_DIV-RAMP_DIV)-th ramp tick (after it, at the same clk32 tick)."""
+        rd, pd = self.ramp_div, self.pulse_div
+        if rd >= pd:
+            return 1 << (rd - pd), 1, 0
+        return 1, 1 << (pd - rd), ((-nr) & ((1 << pd) - 1)) >> rd
+
+    def _slew_steps(self, k: int, w: int, acc: int, rising: bool,
+                    plan: tuple[int, int, int]) -> tuple[int, int]:
+        """(steps, accumulator) after ``k`` ramp ticks that each change the speed ``w`` by
+        A_MAX (up if ``rising``), pulses as ``plan`` says (floor sums, not a loop)."""
+        per_ramp, every, phase = plan
+        pulses = 0 if k <= phase else (k - 1 - phase) // every + 1
+        if pulses == 0:
+            return acc >> 11, acc & 2047
+        a = self.a_max
+        if rising:
+            speeds = floor_sum(pulses, 256, every * a, w + (phase + 1) * a)
+        else:
+            speeds = floor_sum(pulses, 256, every * a,
+                               w - (phase + 1 + (pulses - 1) * every) * a)
+        total = acc + per_ramp * speeds
+        return total >> 11, total & 2047
+
+    def _switch_in_play(self, direction: int) -> bool:
+        """True if the stop switch ahead (in ``direction``) is active and enabled: the ramp
+        tick may then stop the motor (or will once it leaves the tolerance window).  A switch
+        behind the motor, or one that is off or disabled, leaves the ramp alone: its pin only
+        changes at a board mark, where the pulse generator stops anyway."""
+        if direction < 0:
+            return self.left_active and not self.ref_conf & DISABLE_STOP_L
+        return self.right_active and not self.ref_conf & DISABLE_STOP_R
+
+    def _window_steps(self, direction: int) -> int | None:
+        """Steps until the motor leaves the switch tolerance window while a switch ahead is in
+        play (None: no such limit); 0 when outside it already."""
+        if not self._switch_in_play(direction):
+            return None
+        if not self.dx_ref_tolerance:
+            return 0
+        x = signed(self.x_actual, 24)
+        if abs(x) >= self.dx_ref_tolerance:
+            return 0
+        return (self.dx_ref_tolerance - x) if direction > 0 else (x + self.dx_ref_tolerance)
 
     def _fast(self, until: int) -> Stop | None:
         """Ramp ticks one per iteration with their pulses counted in bulk (no switches active).
@@ -659,8 +724,10 @@ class MotorEngine:
         """
         rd = self.ramp_div
         period = 1 << rd
-        per_ramp = period >> self.pulse_div
         nr = self.ramp_next
+        plan = self._pulse_plan(nr)
+        per_ramp, every = plan[0], plan[1]
+        pulse_mask = (1 << self.pulse_div) - 1
         v = self.v
         acc = self.acc
         a_max = self.a_max
@@ -681,6 +748,8 @@ class MotorEngine:
                 return self._slow_tick(nr)
             direction = 1 if dx > 0 else -1
             d = abs(dx)
+            if v * direction < 0:
+                return self._fast_away(until, d)
         else:
             vt_fixed = max(-v_max, min(v_max, self.v_target))
             direction = (v > 0) - (v < 0) or (vt_fixed > 0) - (vt_fixed < 0)
@@ -692,6 +761,11 @@ class MotorEngine:
         room, _ = self._stop_distance(direction)
         if room is None:
             room = 1 << 62
+        window = self._window_steps(direction)
+        if window is not None:  # a switch ahead: go no further than its tolerance window
+            if window == 0:
+                return self._slow_tick(nr)
+            room = min(room, window)
         w = v * direction  # speed along the direction of travel, 1/256 units, >= 0
         walked = 0
         applied = 0
@@ -699,7 +773,7 @@ class MotorEngine:
         vt_reg = self.v_target
         last = until - period + 1
         is_ramp = mode == RampMode.RAMP
-        batch = self._linear_batch(w, acc, d, room, (last - nr) // period + 1, per_ramp,
+        batch = self._linear_batch(w, acc, d, room, (last - nr) // period + 1, plan,
                                    positioning, vt_fixed * direction if not positioning else 0)
         if batch is not None:
             ticks, w, acc, steps, vt_reg_mag = batch
@@ -739,7 +813,8 @@ class MotorEngine:
                 if nw < target:
                     nw = target
             vi = nw >> 8
-            total = acc + vi * per_ramp
+            # every == 1: per_ramp pulses per ramp period; else a pulse on some ramp ticks
+            total = acc + vi * (per_ramp if every == 1 else nr & pulse_mask == 0)
             steps = total >> 11
             if steps >= room:
                 break
@@ -771,7 +846,42 @@ class MotorEngine:
             return None
         return self._slow_tick(nr)
 
-    def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int, per_ramp: int,
+    def _fast_away(self, until: int, d: int) -> Stop | None:
+        """Positioning while moving away from the target (a move reversed in flight): every
+        ramp tick slows the motor by A_MAX until it is nearly stopped, since the ramp target
+        points the other way; those ticks go in one batch.  Entered with ``t == ramp_next - 1``;
+        ``d`` is the distance to the target."""
+        nr = self.ramp_next
+        period = 1 << self.ramp_div
+        travel = 1 if self.v > 0 else -1
+        room, _ = self._stop_distance(travel)
+        if room is None:
+            room = 1 << 62
+        window = self._window_steps(travel)
+        if window is not None:
+            room = min(room, window)
+        room = min(room, HALF24 - 1 - d)  # past that the 24-bit distance changes sign
+        last = until - period + 1
+        batch = None
+        if room > 0 and nr <= last:
+            batch = self._linear_batch(abs(self.v), self.acc, 0, room, (last - nr) // period + 1,
+                                       self._pulse_plan(nr), False, 0)
+        if batch is None:
+            return self._slow_tick(nr)
+        ticks, w, acc, steps, _ = batch
+        before, _ = self._slew_steps(ticks - 1, abs(self.v), self.acc, False, self._pulse_plan(nr))
+        mag = min(max(self._curve(d + before), self.v_min), self.v_max)
+        self.v = w * travel
+        self.acc = acc
+        self.a_actual = max(-2048, min(2047, -self.a_max * travel))
+        self.v_target = -mag * travel
+        self._apply_steps(steps, travel)
+        self.ramp_next = nr + ticks * period
+        self.t = self.ramp_next - 1
+        return None
+
+    def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int,
+                      plan: tuple[int, int, int],
                       positioning: bool, fixed_target: int
                       ) -> tuple[int, int, int, int, int | None] | None:
         """Many ramp ticks of full-A_MAX slew at once (floor sums instead of a loop).
@@ -799,12 +909,7 @@ class MotorEngine:
 
         def after(k: int) -> tuple[int, int]:
             """(steps, accumulator) after k full-slew ticks."""
-            if rising:
-                speeds = floor_sum(k, 256, a_max, w + a_max)
-            else:
-                speeds = floor_sum(k, 256, a_max, w - k * a_max)
-            total = acc + per_ramp * speeds
-            return total >> 11, total & 2047
+            return self._slew_steps(k, w, acc, rising, plan)
 
         def fits(k: int) -> bool:
             steps, _ = after(k)

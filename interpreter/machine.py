@@ -165,6 +165,9 @@ class Interpreter:
         self.memory_revision = 0
         #: Instructions executed since creation (benchmarks, tests).
         self.executed = 0
+        #: The instruction in progress ends no earlier than this (0: no such hold), set by
+        #: :meth:`busy_until` while the module executes it (an EEPROM write cycle).
+        self._hold_ns = 0
         self.triggers: dict[int, Trigger] = {}
         self._timers: dict[int, _Timer] = {}
         #: Addresses a running program stops at, before executing the instruction there (a
@@ -361,6 +364,12 @@ class Interpreter:
         return self.status is ApplicationStatus.RUN and (
             self.wait is None or bool(self._dispatchable()))
 
+    def busy_until(self, t_ns: int) -> None:
+        """Called by the module during a command: the instruction ends no earlier than
+        ``t_ns`` (the module was busy, e.g. writing its EEPROM), so the program's next
+        instruction starts then."""
+        self._hold_ns = max(self._hold_ns, t_ns)
+
     def skip_to(self, t_ns: int) -> None:
         """Let time pass to ``t_ns`` without executing (a CPU too slow for its program); when
         it resumes, elapsed timers fire once and a WAIT past its deadline ends."""
@@ -523,6 +532,10 @@ class Interpreter:
         self.zero_source, self.compare_source = zero, cmp_
         self.executed += n
         self.time_ns += n * cost
+        if self._hold_ns:
+            if self._hold_ns > self.time_ns:
+                self.time_ns = self._hold_ns
+            self._hold_ns = 0
         return outcome
 
     def _execute_checked(self, limit_ns: int) -> int:
@@ -676,7 +689,7 @@ class Interpreter:
             if status == STATUS_OK and (loads or (op == Opcode.RFS and ty == RfsType.STATUS)):
                 self.accumulator = self.zero_source = wrap32(value)
         self.pc += 1
-        return _YIELD if replan else _CONTINUE
+        return _YIELD if replan or self._hold_ns else _CONTINUE
 
 
 # Outcomes of _execute / _execute_other.

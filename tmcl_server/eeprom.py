@@ -1,7 +1,10 @@
 """The module's non-volatile memory: one JSON file per module, written atomically.
 
-Every store is write-through (write a temporary file, fsync, rename over the old file, fsync
-the directory), so a crash at any instant leaves either the old or the new state on disk.
+Every store is written atomically (write a temporary file, fsync, rename over the old file,
+fsync the directory), so a crash at any instant leaves either the old or the new state on disk.
+A store from a host command is on disk before the reply; stores a TMCL program makes in a loop
+are coalesced when a server lends a timer (:meth:`Eeprom.coalesce`): at most one file write per
+:data:`FLUSH_INTERVAL_S` (docs/eeprom.md, "Write time and coalescing").
 A file that cannot be read is never overwritten: the module runs on factory defaults with
 persistence switched off and says so (docs/eeprom.md).
 """
@@ -11,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +28,11 @@ TEMPORARY_PREFIX, TEMPORARY_SUFFIX = ".eeprom-", ".tmp"
 
 #: Sections of the file; each maps a decimal key to a JSON value.
 SECTIONS = ("globals", "user_variables", "coordinates", "axis_parameters", "program")
+#: Simulated time one store takes (an EEPROM write cycle, docs/eeprom.md): a TMCL program's
+#: store instruction lasts this long, so a store loop cannot outrun the part.
+WRITE_TIME_NS = 5_000_000
+#: While coalescing, stores within this many seconds of the last file write share one write.
+FLUSH_INTERVAL_S = 0.1
 
 
 class EepromCorrupt(RuntimeError):
@@ -38,6 +47,15 @@ class Eeprom:
         self._data: dict[str, dict[str, Any]] = {s: {} for s in SECTIONS}
         #: Set when the file on disk was unusable; persistence is then off for this run.
         self.problem: str | None = None
+        #: Store operations so far (each one write cycle of the part, whatever it changed).
+        self.stores = 0
+        #: Writes of the file so far (fewer than stores while a program's stores coalesce).
+        self.file_writes = 0
+        #: Set while a TMCL program's command runs: its stores may be coalesced.
+        self.deferring = False
+        self._schedule: Callable[[float, Callable[[], None]], object] | None = None
+        self._dirty = False  # a coalesced store is not on disk yet
+        self._last_write = float("-inf")
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._remove_torn_writes(self.path.parent)
@@ -109,6 +127,55 @@ class Eeprom:
         finally:
             os.close(dir_fd)
 
+    # -- write scheduling ---------------------------------------------------------------------
+
+    def coalesce(self, schedule: Callable[[float, Callable[[], None]], object]) -> None:
+        """Coalesce program stores: ``schedule(delay_s, callback)`` runs a callback later (the
+        server's event loop); :meth:`flush` must run before the process ends."""
+        self._schedule = schedule
+
+    def _persist(self) -> None:
+        """A store happened: write the file now, or once the flush interval is over when a
+        program stores in quick succession (the file stays atomic either way)."""
+        self.stores += 1
+        if self._schedule is not None and self.deferring and self.persistent:
+            import time
+
+            wait = self._last_write + FLUSH_INTERVAL_S - time.monotonic()
+            if wait > 0 or self._dirty:
+                if not self._dirty:
+                    self._dirty = True
+                    self._schedule(wait, self._flush_later)
+                return
+        self._write_now()
+
+    def _write_now(self) -> None:
+        self._dirty = False
+        if self.persistent:
+            self.file_writes += 1
+        if self._schedule is not None:
+            import time
+
+            self._last_write = time.monotonic()
+        self._save()
+
+    def flush(self) -> None:
+        """Write a coalesced store now (the timer, and shutdown)."""
+        if self._dirty:
+            self._write_now()
+
+    def _flush_later(self) -> None:
+        """The timer's flush: a failure is logged (no command waits for this write)."""
+        try:
+            self.flush()
+        except OSError as exc:
+            log.error("writing %s failed: %s", self.path, exc)
+
+    @property
+    def pending(self) -> bool:
+        """A coalesced store waits for its file write."""
+        return self._dirty
+
     # -- access -------------------------------------------------------------------------------
 
     def get(self, section: str, key: int | str, default: Any = None) -> Any:
@@ -129,13 +196,15 @@ class Eeprom:
                 target[str(key)] = value
                 changed = True
         if changed:
-            self._save()
+            self._persist()
+        else:
+            self.stores += 1  # the part writes the same value again
 
     def replace_section(self, section: str, values: dict[Any, Any]) -> None:
         self._data[section] = {str(k): v for k, v in values.items()}
-        self._save()
+        self._persist()
 
     def erase(self) -> None:
         """Factory reset: forget everything stored (command 137)."""
         self._data = {s: {} for s in SECTIONS}
-        self._save()
+        self._persist()

@@ -21,7 +21,7 @@ from interpreter.interrupts import Trigger
 from interpreter.isa import Instruction
 from interpreter.machine import Interpreter
 from tmcl_server.dispatch import CommandError, Interface, ReplySink
-from tmcl_server.eeprom import Eeprom
+from tmcl_server.eeprom import WRITE_TIME_NS, Eeprom
 from tmcl_server.protocol import RawReply, Request, checksum
 from tmcl_spec.commands import (
     CALC_MAX_OPERATION,
@@ -118,8 +118,16 @@ class ProgramSupport:
                 value: int) -> tuple[int, int, bool]:
         module = self.module
         module.catch_up(time_ns)
-        status, result = module.perform(tuple.__new__(
-            Request, (module.address, opcode, type_, motor, value)))  # hot path: no __new__
+        eeprom = module.eeprom
+        stores = eeprom.stores
+        eeprom.deferring = True  # a program's stores may share a file write (coalesced)
+        try:
+            status, result = module.perform(tuple.__new__(
+                Request, (module.address, opcode, type_, motor, value)))  # hot path: no __new__
+        finally:
+            eeprom.deferring = False
+        if eeprom.stores != stores:  # the program waits for the part's write cycles
+            self.interpreter.busy_until(time_ns + (eeprom.stores - stores) * WRITE_TIME_NS)
         return status, result, module.may_reschedule(opcode, motor)
 
     def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:

@@ -162,6 +162,8 @@ class Server:
     async def start(self) -> dict[str, list[str]]:
         self._loop = asyncio.get_running_loop()
         self.simulation.on_change = self._reschedule
+        for module in self.simulation.modules:  # a program's store loop: one write per interval
+            module.eeprom.coalesce(self._loop.call_later)
         try:
             self.observers.start(self._loop)
             if self.config.faults:
@@ -194,6 +196,11 @@ class Server:
             except Exception:  # keep closing the others
                 log.exception("closing %s failed", transport.kind)
         self.transports.clear()
+        for module in self.simulation.modules:  # stores a program made and not yet written
+            try:
+                module.eeprom.flush()
+            except OSError:
+                log.exception("module %d: writing the EEPROM file failed", module.slot)
         if self._can_bus is not None and self._can_bus.timing is not None:
             self._can_bus.timing.close()
         self.observers.close()

@@ -161,8 +161,11 @@ class TMC4361A:
     def at_rest(self) -> bool:
         """Stopped, and nothing will start the motor without a datagram or a pin change."""
         r = self._ramp
-        return (r.w == 0 and not r.wait and not r.stopping
-                and r.decide(self._context())[0] == A_IDLE)
+        if r.w or r.wait or r.stopping:
+            return False
+        ctx = self._context()
+        kind = r.decide(ctx)[0]
+        return kind == A_IDLE or (kind == A_START and r.start_is_void(ctx))
 
     def set_pins(self, left: bool, right: bool, home: bool) -> None:
         """Drive STOPL, STOPR and HOME_REF (electrical levels); edges act at once."""

@@ -1006,6 +1006,8 @@ class Ramp:
         if kind == A_WAIT:
             return min(self.wait + 1, limit + 1)
         if seg is None:
+            if kind == A_START and self.start_is_void(ctx):
+                return limit + 1  # the start changes nothing, at every tick: at rest
             return 1
         best = limit + 1 if kind == A_NORAMP else self._slope_horizon(action, seg, limit)
         if self.w or seg[0] or seg[1]:
@@ -1023,6 +1025,14 @@ class Ramp:
             best = self._braking_limit(seg, action[1], best - 1)
             best = min(best, self._rem_sign_limit(action[1], seg, best - 1))
         return best
+
+    def start_is_void(self, ctx: Context) -> bool:
+        """True if a start tick leaves the ramp exactly as it is (e.g. DMAX = 0: a move that
+        could never brake does not begin), so every later tick does the same until a register
+        or a pin changes: the motor is at rest although a start is pending."""
+        twin = self.copy()
+        twin.tick(ctx)
+        return all(getattr(twin, name) == getattr(self, name) for name in _STATE_SLOTS)
 
     def _rem_sign_limit(self, rem: int, seg: tuple[int, int, int], limit: int) -> int:
         """The tick after the one that reaches the aim point (the decision changes there)."""
@@ -1090,5 +1100,11 @@ class Ramp:
         if kind == A_WAIT:
             self.wait -= k
             return
+        if seg is None and kind == A_START:
+            return  # a void start (horizon checked it): nothing changes
         assert seg is not None
         self._advance_segment(k, seg)
+
+
+#: The slots that make up the motion state (what a tick may change).
+_STATE_SLOTS = tuple(name for name in Ramp.__slots__ if name not in ("P", "_distances"))

@@ -2,7 +2,9 @@
 
 Slow on purpose: it is the yardstick the fast engine in axes/tmc4210.py is tested against
 (tests/test_tmc4210.py), not part of the simulator.
-No switches, latch or interrupts: those are checked separately.
+Stop switches are modelled as levels that stay put (``left`` / ``right`` active, the soft-stop
+bit, the disable bits and the tolerance window of REF_CONF): what the ramp generator does with
+them.  Edges, the latch and interrupts are checked separately.
 """
 
 from __future__ import annotations
@@ -23,6 +25,9 @@ class ReferenceChip:
         self.v = 0
         self.acc = 0
         self.t = 0
+        self.left = self.right = False  # stop switch levels (active), constant
+        self.soft_stop = self.disable_left = self.disable_right = False
+        self.tolerance = 0
         self.arrivals: list[int] = []
 
     def tick(self) -> None:
@@ -49,6 +54,19 @@ class ReferenceChip:
         elif self.mode == RampMode.VELOCITY:
             vt = max(-self.v_max, min(self.v_max, self.v_target))
         else:
+            vt = 0
+        direction = (self.v > 0) - (self.v < 0) or (vt > 0) - (vt < 0)
+        x = self.x_actual - (1 << 24) if self.x_actual & 1 << 23 else self.x_actual
+        outside = abs(x) >= self.tolerance
+        if direction < 0 and self.left and not self.disable_left and outside:
+            vt = max(vt, 0)
+            if self.mode == RampMode.HOLD or not self.soft_stop:
+                self.v = 0
+        elif direction > 0 and self.right and not self.disable_right and outside:
+            vt = min(vt, 0)
+            if self.mode == RampMode.HOLD or not self.soft_stop:
+                self.v = 0
+        if self.mode == RampMode.HOLD:
             return
         target = vt * 256
         if self.v < target:

@@ -193,6 +193,7 @@ def _run_both(chip: TMC4210, ref: ReferenceChip, until: int, arrivals: list[int]
 change = st.one_of(
     st.tuples(st.just("x_target"), st.integers(-20000, 20000)),
     st.tuples(st.just("v_max"), st.integers(0, 2047)),
+    st.tuples(st.just("v_min"), st.integers(0, 2047)),  # V_MIN > V_MAX too
     st.tuples(st.just("a_max"), st.integers(1, 2047)),
     st.tuples(st.just("v_target"), st.integers(-2047, 2047)),
     st.tuples(st.just("mode"), st.sampled_from([RampMode.RAMP, RampMode.SOFT, RampMode.VELOCITY])),
@@ -228,6 +229,64 @@ def test_engine_matches_the_tick_by_tick_reference(pulse_div: int, span: int, a_
             ref.v_target = value
         elif what == "mode":
             chip.write(Reg.REF_CONF_RAMP_MODE, value)
+            ref.mode = RampMode(value)
+        else:
+            chip.write(getattr(Reg, what.upper()), value)
+            setattr(ref, what, value)
+    _run_both(chip, ref, t + 150_000, arrivals)
+    assert arrivals == ref.arrivals
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(pulse_div=0, span=0, a_max=3, v_max=900, left=False, right=True, soft=True,
+         tolerance=0, disable=0, first_target=-3000,  # reversed against a soft stop
+         changes=[(3000, ("x_target", 20000)), (20000, ("x_target", -20000))])
+@example(pulse_div=0, span=0, a_max=0, v_max=354, left=False, right=True, soft=False,
+         tolerance=3, disable=0, first_target=-9843,  # overshoot, back towards a blocking switch
+         changes=[(1, ("a_max", 210))])
+@example(pulse_div=0, span=3, a_max=1, v_max=1000, left=False, right=False, soft=False,
+         tolerance=0, disable=0, first_target=0,  # V_MIN above V_MAX: cruise to the target
+         changes=[(8, ("v_min", 1001)), (8, ("x_target", 9000))])
+@example(pulse_div=0, span=0, a_max=0, v_max=500, left=True, right=False, soft=False,
+         tolerance=0, disable=0, first_target=0,  # no acceleration: nothing ever moves
+         changes=[(10, ("mode", RampMode.VELOCITY)), (10, ("v_target", -500))])
+@given(pulse_div=st.integers(0, 3), span=st.integers(-2, 4), a_max=st.integers(0, 40),
+       v_max=st.integers(0, 2047), left=st.booleans(), right=st.booleans(), soft=st.booleans(),
+       tolerance=st.sampled_from([0, 3, 300, 4095]), disable=st.integers(0, 3),
+       first_target=st.integers(-20000, 20000),
+       changes=st.lists(st.tuples(st.integers(1, 60000), change), max_size=4))
+def test_engine_matches_the_reference_with_switches_and_slow_ramps(
+        pulse_div: int, span: int, a_max: int, v_max: int, left: bool, right: bool, soft: bool,
+        tolerance: int, disable: int, first_target: int,
+        changes: list[tuple[int, tuple[str, int]]]) -> None:
+    """Stop switches that stay active (ahead of the motor or behind it, hard or soft, inside
+    or outside the tolerance window, disabled), small or no acceleration, moves reversed in
+    flight: the closed forms agree with the tick-by-tick reference."""
+    ramp_div = max(0, pulse_div + span)
+    chip = _configured(v_max=v_max, a_max=a_max, pulse_div=pulse_div, ramp_div=ramp_div)
+    chip.write(Reg.SMGP, MOT1R)  # wire the right switch
+    chip.write(Reg.DX_REF_TOLERANCE, tolerance)
+    conf = soft << 10 | disable << 8
+    chip.write(Reg.REF_CONF_RAMP_MODE, conf | chip.mode)
+    chip.set_pins(left, right, False)
+    ref = _reference_for(chip)
+    ref.left, ref.right, ref.soft_stop, ref.tolerance = left, right, soft, tolerance
+    ref.disable_left, ref.disable_right = bool(disable & 1), bool(disable & 2)
+    chip.write(Reg.X_TARGET, first_target & MASK24)
+    ref.x_target = first_target & MASK24
+    arrivals: list[int] = []
+    t = 0
+    for gap, (what, value) in changes:
+        t += gap
+        _run_both(chip, ref, t, arrivals)
+        if what == "x_target":
+            chip.write(Reg.X_TARGET, value & MASK24)
+            ref.x_target = value & MASK24
+        elif what == "v_target":
+            chip.write(Reg.V_TARGET, value & 0xFFF)
+            ref.v_target = value
+        elif what == "mode":
+            chip.write(Reg.REF_CONF_RAMP_MODE, conf | value)
             ref.mode = RampMode(value)
         else:
             chip.write(getattr(Reg, what.upper()), value)

@@ -1,0 +1,147 @@
+"""Random parameter combinations against every chip core, with the CPU time of each operation.
+
+Shared by ``tests/tmcl_server/test_bounded_work.py`` (a short seeded run in the suite) and
+``scripts/fuzz_work.py`` (long runs, profiles, the worst sequences).  A trial builds a module
+on the virtual clock, maybe places or forces a switch or sticks the axis, writes random axis
+parameters (range ends and extreme values, motion rows more often), maybe raw chip registers
+(command 146), starts motions (MVP, ROL/ROR, RFS) and advances the clock by up to 10 s,
+asking for the position on the way.  Each operation's CPU time (``time.process_time``) is
+recorded with the operations that led to it.
+"""
+
+from __future__ import annotations
+
+import random
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from tmcl_server.clock import VirtualClock
+from tmcl_server.eeprom import Eeprom
+from tmcl_server.module import TMCLModule
+from tmcl_server.protocol import Request
+from tmcl_server.simulation import Simulation
+from tmcl_spec.commands import Opcode
+from tmcl_spec.parameters import ParamSpec
+
+#: (module type, chip core) pairs: every core the simulator has, on the modules it serves.
+CORES: list[tuple[str, str | None]] = [
+    ("tmcm-6212", None), ("tmcm-1110", None), ("tmcm-6110", None), ("tmcm-6212", "tmc4361a")]
+#: Rows that shape the motion (speeds, accelerations, dividers, switches, reference search).
+MOTION_PARAMETERS = frozenset({4, 5, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26,
+                               27, 28, 31, 130, 135, 138, 140, 149, 153, 154, 193, 194, 195,
+                               200, 254, 255})
+EXTREMES = (0, 1, -1, 2, 2**31 - 1, -2**31, 2047, 2048, 65535, 1 << 23, -(1 << 23))
+ADVANCES = (0.001, 0.1, 1.0, 4.0, 10.0)
+
+
+@dataclass
+class Cost:
+    """One operation: its CPU seconds (inf: it ran past the limit), what it was, the trial's
+    operations up to it, and the trial's number."""
+
+    seconds: float
+    label: str
+    ops: list[str]
+    trial: int
+
+
+class OverLimit(Exception):
+    """An operation ran past the CPU limit (the alarm of :func:`arm_limit`)."""
+
+
+def arm_limit() -> None:
+    """Let :func:`trial` interrupt an operation that passes its CPU limit (main thread)."""
+
+    def _alarm(signum: int, frame: object) -> None:
+        raise OverLimit
+
+    signal.signal(signal.SIGPROF, _alarm)
+
+
+def _value(spec: ParamSpec, rng: random.Random) -> int:
+    pool = list(EXTREMES)
+    if spec.allowed:
+        pool += sorted(spec.allowed)
+    else:
+        pool += [spec.minimum, spec.maximum, spec.minimum + 1, spec.maximum - 1]
+        if spec.maximum - spec.minimum > 2:
+            pool.append(rng.randint(spec.minimum, spec.maximum))
+    return rng.choice(pool)
+
+
+def trial(number: int, rng: random.Random, kind: str, core: str | None, directory: Path,
+          costs: list[Cost], limit: float | None = None) -> None:
+    """One random sequence on a fresh module; every operation's cost goes to ``costs``.
+    With ``limit`` (after :func:`arm_limit`) an operation past it raises :class:`OverLimit`."""
+    module = TMCLModule(1, Eeprom(directory), kind=kind, chip_core=core)
+    sim = Simulation([module], VirtualClock())
+    ops: list[str] = []
+    params = [s for s in module.type.axis_parameters.values() if s.writable]
+    motion = [s for s in params if s.number in MOTION_PARAMETERS]
+
+    def timed(label: str, action: Callable[[], object]) -> None:
+        ops.append(label)
+        if limit is not None:
+            signal.setitimer(signal.ITIMER_PROF, limit)
+        start = time.process_time()
+        try:
+            action()
+        except OverLimit:
+            costs.append(Cost(float("inf"), label, list(ops), number))
+            raise
+        finally:
+            if limit is not None:
+                signal.setitimer(signal.ITIMER_PROF, 0)
+        costs.append(Cost(time.process_time() - start, label, list(ops), number))
+
+    def send(op: int, type_: int, motor: int, value: int) -> None:
+        value = (value + 2**31) % 2**32 - 2**31
+        frame = Request(1, op, type_, motor, value).encode()
+        name = Opcode(op).name if op in Opcode._value2member_map_ else str(op)
+        timed(f"{kind}/{core} {name} {type_} {motor} {value}",
+              lambda: sim.handle_serial_frame(frame))
+
+    motor = rng.randrange(len(module.axes))
+    if rng.random() < 0.3:
+        side = rng.choice(["left", "right", "home"])
+        where = rng.choice([None, 0, 100, -100, 10_000, -10_000])
+        if where is None:
+            module.force_switch(motor, side, True)
+        else:
+            module.set_switch(motor, side, where, rng.choice([None, 1, 1000]))
+        sim.notify_changed()
+        ops.append(f"switch {side} at {'forced' if where is None else where}")
+    if rng.random() < 0.1:
+        module.set_axis_stuck(motor, True, rng.choice([None, 0]))
+        sim.notify_changed()
+        ops.append("stuck")
+    for _ in range(rng.randint(1, 10)):
+        spec = rng.choice(motion if motion and rng.random() < 0.6 else params)
+        send(Opcode.SAP, spec.number, motor, _value(spec, rng))
+    if rng.random() < 0.3:
+        for _ in range(rng.randint(1, 4)):
+            send(Opcode.WRITE_MC, rng.randrange(0x80), motor,
+                 rng.choice((*EXTREMES, rng.getrandbits(24))))
+    for _ in range(rng.randint(1, 3)):
+        choice = rng.random()
+        if choice < 0.35:
+            send(Opcode.MVP, rng.choice([0, 1]), motor, rng.choice((*EXTREMES, 1000, -1000)))
+        elif choice < 0.7:
+            send(rng.choice([Opcode.ROR, Opcode.ROL]), 0, motor, rng.choice((*EXTREMES, 1000)))
+        elif choice < 0.85:
+            send(Opcode.RFS, 0, motor, 0)
+        else:
+            spec = rng.choice(params)
+            send(Opcode.SAP, spec.number, motor, _value(spec, rng))
+        for _ in range(rng.randint(1, 3)):
+            dt = rng.choice(ADVANCES)
+            timed(f"advance {dt}", lambda dt=dt: sim.advance(dt))
+            send(Opcode.GAP, 1, motor, 0)
+
+
+def trial_rng(seed: int, number: int) -> random.Random:
+    """Trial ``number`` of a run with ``seed``: reproducible alone (``--only``)."""
+    return random.Random(seed * 1_000_003 + number)
