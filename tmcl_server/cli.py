@@ -202,10 +202,6 @@ async def run(config: ServerConfig) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, server.request_stop)
     await server.start()
-    for module in server.simulation.modules:
-        if module.eeprom.problem:
-            print(f"warning: module {module.slot}: {module.eeprom.problem}; running on factory "
-                  "defaults, nothing is saved", file=sys.stderr, flush=True)
     addresses = ", ".join(str(m.address) for m in server.simulation.modules)
     kind = server.simulation.modules[0].type.name
     print(f"tmcl-server: {kind} module(s) at address {addresses}", flush=True)

@@ -42,8 +42,7 @@ class Eeprom:
                 self._data = self._load(self.path)
             except EepromCorrupt as exc:
                 self.problem = str(exc)
-                log.error("%s; starting from factory defaults, the file is left untouched and "
-                          "nothing is saved this run", exc)
+                self._warn()
 
     @property
     def persistent(self) -> bool:
@@ -55,7 +54,7 @@ class Eeprom:
             return {s: {} for s in SECTIONS}
         try:
             raw = json.loads(path.read_bytes())
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:
             raise EepromCorrupt(f"EEPROM file {path} is unreadable ({exc})") from exc
         if not isinstance(raw, dict) or raw.get("format") != FORMAT_NAME:
             raise EepromCorrupt(f"EEPROM file {path} is not a {FORMAT_NAME} file")
@@ -63,10 +62,31 @@ class Eeprom:
         if version != FORMAT_VERSION:
             raise EepromCorrupt(f"EEPROM file {path} has format version {version!r}; "
                                 f"this simulator reads version {FORMAT_VERSION}")
+        unknown = sorted(set(raw) - {"format", "version", *SECTIONS})
+        if unknown:
+            raise EepromCorrupt(f"EEPROM file {path}: field {unknown[0]!r}: not a field of "
+                                f"version {FORMAT_VERSION}")
         data = {s: raw.get(s, {}) for s in SECTIONS}
-        if not all(isinstance(v, dict) for v in data.values()):
-            raise EepromCorrupt(f"EEPROM file {path} has a malformed section")
+        for section, value in data.items():
+            if not isinstance(value, dict):
+                raise EepromCorrupt(f"EEPROM file {path}: field {section!r}: expected an object, "
+                                    f"found {type(value).__name__}")
         return data
+
+    def sections(self) -> dict[str, dict[str, Any]]:
+        """The image as loaded (read only), for checking it against a module type."""
+        return self._data
+
+    def reject(self, reason: str) -> None:
+        """The loaded image is unusable (``reason`` names the field): factory defaults, the
+        file left as it is, nothing saved this run."""
+        self.problem = f"EEPROM file {self.path}: {reason}"
+        self._data = {s: {} for s in SECTIONS}
+        self._warn()
+
+    def _warn(self) -> None:
+        log.warning("%s; starting from factory defaults, the file is left untouched and "
+                    "nothing is saved this run", self.problem)
 
     def _save(self) -> None:
         if not self.persistent:

@@ -30,6 +30,7 @@ from axes.world import (
 )
 from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
 from tmcl_server.eeprom import Eeprom
+from tmcl_server.eeprom_check import first_problem
 from tmcl_server.program import ProgramSupport
 from tmcl_server.protocol import AnyReply, RawReply, Reply, Request
 from tmcl_spec.commands import (
@@ -102,6 +103,10 @@ class TMCLModule:
         #: The address the module was created with; names its state directory.
         self.slot = slot
         self.eeprom = eeprom if eeprom is not None else Eeprom()
+        if self.eeprom.problem is None and self.eeprom.path is not None:
+            problem = first_problem(self.eeprom.sections(), self.type)
+            if problem is not None:
+                self.eeprom.reject(problem)
         #: The physical surroundings (switches, load, encoder slip); kept across restarts.
         self.world = world or World()
         #: Builds one axis by index (tests); None: the chip core builds the module's axes.
