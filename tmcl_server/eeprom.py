@@ -28,6 +28,11 @@ class EepromCorrupt(RuntimeError):
     """The state file exists but cannot be used."""
 
 
+class EepromWriteError(OSError):
+    """A store could not be written to disk (read-only or full state directory): the command
+    that stored answers status 5, the value stays in the RAM image (docs/eeprom.md)."""
+
+
 class Eeprom:
     """Sectioned key/value memory, persisted to ``directory/eeprom.json`` when a directory is set."""
 
@@ -36,6 +41,8 @@ class Eeprom:
         self._data: dict[str, dict[str, Any]] = {s: {} for s in SECTIONS}
         #: Set when the file on disk was unusable; persistence is then off for this run.
         self.problem: str | None = None
+        #: The last write failed (logged once until a write succeeds again).
+        self.write_failing = False
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             try:
@@ -91,6 +98,25 @@ class Eeprom:
     def _save(self) -> None:
         if not self.persistent:
             return
+        try:
+            self._write()
+        except OSError as exc:
+            self._write_failed(exc)
+        else:
+            if self.write_failing:
+                self.write_failing = False
+                log.warning("EEPROM file %s: writing works again", self.path)
+
+    def _write_failed(self, exc: OSError) -> None:
+        """Log the first of a run of failed writes (one line, no traceback) and raise."""
+        if not self.write_failing:
+            self.write_failing = True
+            log.error("EEPROM file %s: cannot write (%s); commands that store answer status 5 "
+                      "until it can be written again", self.path, exc)
+        raise EepromWriteError(exc.errno, f"cannot write {self.path}: {exc}") from exc
+
+    def _write(self) -> None:
+        """Write the whole image atomically (temporary file, fsync, rename, fsync directory)."""
         assert self.path is not None
         document = {"format": FORMAT_NAME, "version": FORMAT_VERSION, **self._data}
         payload = json.dumps(document, indent=1, sort_keys=True).encode()
@@ -132,7 +158,7 @@ class Eeprom:
             if target.get(str(key)) != value:
                 target[str(key)] = value
                 changed = True
-        if changed:
+        if changed or self.write_failing:  # a failed write is retried, not reported as done
             self._save()
 
     def replace_section(self, section: str, values: dict[Any, Any]) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 
 import pytest
 
@@ -134,3 +135,94 @@ def test_server_process_starts_and_names_file_and_field(tmp_path, name):
     assert len(named) == 1 and field in named[0] and named[0].startswith("WARNING"), err
     assert "Traceback" not in err
     assert path.read_bytes() == content
+
+
+# == item 7: a store that cannot be written ===================================================
+
+
+def _file_size_limit(limit: int):
+    def apply() -> None:  # runs in the child: writes past `limit` bytes fail with EFBIG
+        import resource
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return apply
+
+
+class LimitedServer(ServerProcess):
+    """A server process whose files cannot grow past 120 bytes (the ready file fits, an
+    EEPROM image does not): a write failure even root cannot get around."""
+
+    def __init__(self, tmp_path, *args: str) -> None:
+        import subprocess
+        import sys
+        import time
+        self.ready_file = tmp_path / "r.json"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "tmcl_server", "--ready-file", str(self.ready_file), *args],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            preexec_fn=_file_size_limit(120))
+        deadline = time.monotonic() + 20
+        while not self.ready_file.exists():  # written atomically
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                out, err = self.proc.communicate(timeout=5)
+                raise AssertionError(f"server did not start: {out}\n{err}")
+            time.sleep(0.01)
+        self.endpoints = json.loads(self.ready_file.read_text())
+
+
+def _read_only_state(tmp_path):
+    """A state directory the server cannot write in, and the server on it."""
+    state = tmp_path / "state"
+    (state / "module-1").mkdir(parents=True)
+    (state / "module-1").chmod(0o555)
+    if os.access(state / "module-1", os.W_OK):  # root: permissions do not stop it
+        (state / "module-1").chmod(0o755)
+        return LimitedServer(tmp_path, "--tcp", "127.0.0.1:0", "--state-dir", str(state))
+    return ServerProcess(tmp_path, "--tcp", "127.0.0.1:0", "--state-dir", str(state))
+
+
+def test_failed_store_answers_status_5_and_keeps_the_connection(tmp_path):
+    server = _read_only_state(tmp_path)
+    try:
+        client = RawClient(server.endpoints["tcp"][0])
+        assert client.request(1, Opcode.SGP, 20, 2, 2020).status == 100
+        for _ in range(3):  # STGP, STAP, an auto-stored global: each answers 5
+            assert client.request(1, Opcode.STGP, 20, 2).status == 5
+        assert client.request(1, Opcode.SAP, 4, 0, 1000).status == 100
+        assert client.request(1, Opcode.STAP, 4, 0).status == 5
+        reply = client.request(1, Opcode.SGP, GP.HOST_ADDRESS, 0, 3)
+        assert reply.status == 5
+        assert client.request(1, Opcode.GGP, 20, 2).value == 2020  # the connection is alive
+        assert client.request(1, Opcode.GGP, GP.HOST_ADDRESS, 0).value == 3  # set in RAM
+        other = RawClient(server.endpoints["tcp"][0])
+        assert other.request(1, Opcode.GAP, 4, 0).value == 1000
+        other.close()
+        client.close()
+    finally:
+        (tmp_path / "state" / "module-1").chmod(0o755)
+        code, _, err = server.stop()
+    assert code == 0
+    lines = [line for line in err.splitlines() if "cannot write" in line]
+    assert len(lines) == 1, err  # one line for the run of failures
+    assert "Traceback" not in err
+    assert not list((tmp_path / "state" / "module-1").iterdir())  # no temporary file left
+
+
+def test_failed_factory_reset_restarts_and_answers_status_5(tmp_path, monkeypatch):
+    b = Bench(TMCM6212(1, Eeprom(tmp_path)))
+    b.ok(Opcode.SGP, GP.HOST_ADDRESS, 0, 7)
+    before = (tmp_path / FILE_NAME).read_bytes()
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(os, "replace", refuse)  # the filesystem refuses, not our code
+    assert b.status(Opcode.SGP, GP.TELEGRAM_PAUSE, 0, 4) == 5
+    assert b.ok(Opcode.GGP, GP.TELEGRAM_PAUSE, 0) == 4
+    assert b.status(137, 0, 0, 1234) == 5
+    assert b.ok(Opcode.GGP, GP.HOST_ADDRESS, 0) == 2  # restarted on factory settings
+    monkeypatch.undo()
+    assert (tmp_path / FILE_NAME).read_bytes() == before
+    b.ok(Opcode.SGP, 0, 2, 9)
+    b.ok(Opcode.STGP, 0, 2)  # writable again: the next store writes the whole image,
+    document = json.loads((tmp_path / FILE_NAME).read_text())  # the reset included
+    assert document["globals"] == {} and document["user_variables"] == {"0": 9}
