@@ -237,3 +237,56 @@ def test_slcan_lines_round_trip(can_id: int, data: bytes, extended: bool, remote
     assert line is not None and line.endswith(b"\r")
     decoded = decode_slcan_transmit(line[:-1])
     assert decoded is not None and decoded.equals(frame, timestamp_delta=None)
+
+
+# == issue 11 item 5: every malformed line gets one BEL and nothing after it is lost =========
+
+MALFORMED_LINES = [
+    b"t00170601000",                   # odd number of data digits
+    b"t0017060100000",                 # DLC 7, six data bytes
+    b"t00170601000000000000",          # DLC 7, nine data bytes
+    b"t001706010000000G",              # bad hex digit
+    b"t0G17060100000000",              # bad hex in the id
+    b"t0019" + b"00" * 9,              # DLC 9
+    b"t00" ,                           # cut short
+    b"T1FFFFFFF" + b"7",               # extended id, DLC 7, no data
+    b"T2000000007" + b"00" * 7,        # extended id above 29 bits
+    b"r0017AA",                        # remote frame with data
+    b"d0011" + b"00",                  # unknown command letter
+    b"S9", b"S", b"s12", b"Z2", b"M123", b"Q",  # control commands with bad arguments
+    b"V1", b"\xff\xfe\x80", b"\x00",   # junk bytes
+    b"t" * 64, b"x" * 65,              # at and over the line length limit
+]
+
+
+def test_every_malformed_line_in_one_write_gets_one_bel_then_the_valid_line_counts(
+        port: SlcanPort) -> None:
+    assert port.ask(b"O") == b"\r"
+    port.write(b"".join(line + b"\r" for line in MALFORMED_LINES)
+               + tmcl_line(1, Opcode.GGP, GP.CAN_ID) + b"\r")
+    answers = [port.answer() for _ in MALFORMED_LINES]
+    assert answers == [b"\a"] * len(MALFORMED_LINES)
+    assert port.answer() == b"z\r"
+    reply = decode_slcan_transmit(port.answer().rstrip(b"\r"))
+    assert reply is not None and decode_can_reply(reply.data).value == 1
+
+
+def test_a_line_without_cr_is_bounded_in_memory(sim: SimulatorThread, port: SlcanPort) -> None:
+    from tmcl_server.transports.can.slcan import MAX_LINE, SlcanPtyTransport
+
+    assert port.ask(b"O") == b"\r"
+    chunk = b"t0017" + b"0" * 4091
+    for _ in range(256):  # 1 MiB without a CR, as fast as the pty takes it
+        view = memoryview(chunk)
+        while view:
+            try:
+                view = view[os.write(port.fd, view):]
+            except BlockingIOError:
+                select.select([], [port.fd], [], WAIT_S)
+    transport = next(t for t in sim.server.transports if isinstance(t, SlcanPtyTransport))
+    # the adapter keeps at most one line's worth of it (asked on the server's loop)
+    assert sim.call(lambda: len(transport.session._line)) <= MAX_LINE
+    assert port.ask(b"") == b"\a"  # the end of the overlong line: one BEL
+    assert port.ask(tmcl_line(1, Opcode.GGP, GP.CAN_ID)) == b"z\r"  # and on it goes
+    reply = decode_slcan_transmit(port.answer().rstrip(b"\r"))
+    assert reply is not None and decode_can_reply(reply.data).value == 1
