@@ -19,6 +19,8 @@ log = logging.getLogger(__name__)
 FORMAT_NAME = "tmcl-sim-eeprom"
 FORMAT_VERSION = 1
 FILE_NAME = "eeprom.json"
+#: Name of the file being written before it is renamed over FILE_NAME.
+TEMPORARY_PREFIX, TEMPORARY_SUFFIX = ".eeprom-", ".tmp"
 
 #: Sections of the file; each maps a decimal key to a JSON value.
 SECTIONS = ("globals", "user_variables", "coordinates", "axis_parameters", "program")
@@ -45,11 +47,24 @@ class Eeprom:
         self.write_failing = False
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._remove_torn_writes(self.path.parent)
             try:
                 self._data = self._load(self.path)
             except EepromCorrupt as exc:
                 self.problem = str(exc)
                 self._warn()
+
+    @staticmethod
+    def _remove_torn_writes(directory: Path) -> None:
+        """Delete temporary files a crash left mid-write (never renamed, so never the state).
+
+        A state directory belongs to one server: no other process can be writing them.
+        """
+        for leftover in directory.glob(f"{TEMPORARY_PREFIX}*{TEMPORARY_SUFFIX}"):
+            try:
+                leftover.unlink()
+            except OSError as exc:
+                log.warning("cannot remove %s left by an interrupted write: %s", leftover, exc)
 
     @property
     def persistent(self) -> bool:
@@ -123,7 +138,8 @@ class Eeprom:
         directory = self.path.parent
         import tempfile  # only when something is stored
 
-        fd, tmp = tempfile.mkstemp(prefix=".eeprom-", suffix=".tmp", dir=directory)
+        fd, tmp = tempfile.mkstemp(prefix=TEMPORARY_PREFIX, suffix=TEMPORARY_SUFFIX,
+                                   dir=directory)
         try:
             with os.fdopen(fd, "wb") as f:
                 f.write(payload)
