@@ -185,7 +185,7 @@ def test_failed_store_answers_status_5_and_keeps_the_connection(tmp_path):
     try:
         client = RawClient(server.endpoints["tcp"][0])
         assert client.request(1, Opcode.SGP, 20, 2, 2020).status == 100
-        for _ in range(3):  # STGP, STAP, an auto-stored global: each answers 5
+        for _ in range(3):  # each retry writes again (and fails again), none "succeeds"
             assert client.request(1, Opcode.STGP, 20, 2).status == 5
         assert client.request(1, Opcode.SAP, 4, 0, 1000).status == 100
         assert client.request(1, Opcode.STAP, 4, 0).status == 5
