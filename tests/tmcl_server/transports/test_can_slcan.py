@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import select
+import socket
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -290,3 +291,40 @@ def test_a_line_without_cr_is_bounded_in_memory(sim: SimulatorThread, port: Slca
     assert port.ask(tmcl_line(1, Opcode.GGP, GP.CAN_ID)) == b"z\r"  # and on it goes
     reply = decode_slcan_transmit(port.answer().rstrip(b"\r"))
     assert reply is not None and decode_can_reply(reply.data).value == 1
+
+
+def test_a_host_that_does_not_read_loses_whole_lines_never_parts(sim: SimulatorThread,
+                                                                  port: SlcanPort) -> None:
+    """Frames for a host that stops reading are dropped (the F overrun flag says so), but
+    never cut: every line it reads afterwards is a whole frame."""
+    assert port.ask(b"O") == b"\r"
+    host, tcp_port = sim.endpoints["socketcand"][0].rsplit(":", 1)
+    count = 20_000  # ~ 530 KB of SLCAN lines: far more than a pty buffers
+    with socket.create_connection((host, int(tcp_port)), timeout=WAIT_S) as lan:
+        lan.recv(64)
+        lan.sendall(b"< open can0 >" + b"".join(
+            f"< send 7{n % 256:02X} 8 {' '.join(['%02X' % (n % 256)] * 8)} >".encode()
+            for n in range(count)))
+        deadline = time.monotonic() + 30
+        sent = lambda: sim.call(lambda: _socketcand(sim).stats["sent"])  # noqa: E731
+        while sent() < count:  # until the bus has carried every frame
+            assert time.monotonic() < deadline, "frames not all sent"
+            time.sleep(0.05)
+    data = b""
+    while True:
+        readable, _, _ = select.select([port.fd], [], [], 0.5)
+        if not readable:
+            break
+        data += os.read(port.fd, 65536)
+    lines = data.split(b"\r")
+    assert lines[-1] == b""
+    bad = [line for line in lines[:-1] if decode_slcan_transmit(line) is None]
+    assert not bad, bad[:3]
+    assert 0 < len(lines) - 1 < count  # some arrived, the rest were dropped whole
+    assert port.ask(b"F") == b"F08\r"  # data overrun
+
+
+def _socketcand(sim: SimulatorThread) -> object:
+    assert sim.server is not None
+    (transport,) = [t for t in sim.server.transports if t.kind == "socketcand"]
+    return transport
