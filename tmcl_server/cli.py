@@ -185,8 +185,18 @@ def _record_axes(text: str, kind: str) -> list[int]:
     return chosen
 
 
+#: Options whose values name something (an endpoint, a file): none may be empty.
+_NAMING_OPTIONS = ("tcp", "pty", "serial", "can", "slcan_pty", "socketcand", "mqtt", "http",
+                   "state_dir", "world", "record", "trace", "faults", "ready_file", "can_bus")
+
+
 def _check_paths(args: argparse.Namespace) -> None:
     """Files and directories named on the command line, before anything starts."""
+    for name in _NAMING_OPTIONS:
+        value = getattr(args, name)
+        values = value if isinstance(value, list) else [value]
+        if any(v is not None and not v.strip() for v in values):
+            raise UsageError(f"argument --{name.replace('_', '-')}: an empty value names nothing")
     for option, path in (("--trace", None if args.trace in (None, "-") else args.trace),
                          ("--record", args.record)):
         if path is not None and not Path(path).absolute().parent.is_dir():
@@ -200,6 +210,8 @@ def _check_paths(args: argparse.Namespace) -> None:
         except ValueError as exc:
             raise UsageError(f"argument --record: {exc}") from None
     if args.state_dir is not None:
+        if Path(args.state_dir).exists() and not Path(args.state_dir).is_dir():
+            raise UsageError(f"argument --state-dir: {args.state_dir} is not a directory")
         try:
             Path(args.state_dir).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -208,6 +220,7 @@ def _check_paths(args: argparse.Namespace) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> ServerConfig:
+    _check_paths(args)
     if args.address is not None:
         if not 1 <= args.address <= 255:
             raise UsageError("argument --address: must be 1..255")
@@ -252,7 +265,6 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
     except FaultSpecError as exc:
         raise UsageError(f"fault: {exc}") from None
     record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
-    _check_paths(args)
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock=args.clock, speed=args.speed, ready_file=args.ready_file,
                         mqtt_rate=args.mqtt_rate, can_bus_name=can_bus_name, world=args.world,
@@ -282,8 +294,10 @@ def _start_error(exc: Exception) -> StartError:
     text = str(exc) or type(exc).__name__
     option = exc.__notes__[-1] if getattr(exc, "__notes__", None) else None
     where = f"argument {option}: " if option and not text.startswith(option.split()[0]) else ""
-    refused = isinstance(exc, OSError) and (exc.errno in _REFUSED
-                                            or isinstance(exc, FileExistsError))
+    from tmcl_server.transports.pty import LinkInUseError
+
+    refused = isinstance(exc, LinkInUseError) or (isinstance(exc, OSError)
+                                                  and exc.errno in _REFUSED)
     return StartError(f"{where}{text}", 1 if refused else 2)
 
 

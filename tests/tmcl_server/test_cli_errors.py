@@ -67,6 +67,8 @@ CASES = [
     (["--loop", "bogus"], "--loop"), (["--module-type", "bogus"], "--module-type"),
     (["--axis-core", "bogus"], "--axis-core"), (["--log-level", "bogus"], "--log-level"),
     (["--no-such-option"], "unrecognized"), (["--no-tcp"], "no transport"),
+    (["--mqtt", ""], "--mqtt"), (["--state-dir", ""], "--state-dir"), (["--world", ""], "--world"),
+    (["--ready-file", ""], "--ready-file"), (["--pty", "{tmp}"], "not a symlink"),
 ]
 
 
