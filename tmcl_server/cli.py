@@ -305,6 +305,9 @@ async def run(config: ServerConfig) -> None:
     try:
         server = Server(config)
     except Exception as exc:  # a world file, the state directory, ... given on the command line
+        if (isinstance(exc, OSError) and config.state_dir
+                and str(exc.filename or "").startswith(str(config.state_dir))):
+            exc.add_note(f"--state-dir {config.state_dir}")
         raise _start_error(exc) from exc
     loop = asyncio.get_running_loop()
     log.info("event loop: %s", type(loop).__module__.split(".")[0])

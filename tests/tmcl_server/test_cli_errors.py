@@ -27,6 +27,8 @@ def _files(tmp: Path) -> dict[str, str]:
     }
     for name, text in made.items():
         (tmp / name).write_text(text)
+    (tmp / "state_with_file").mkdir()
+    (tmp / "state_with_file" / "module-1").write_text("not a directory")
     (tmp / "not_utf8.toml").write_bytes(b"\xff\xfe[chip]")
     (tmp / "not_utf8.txt").write_bytes(b"\xff\xfe")
     return {name: str(tmp / name) for name in [*made, "not_utf8.toml", "not_utf8.txt"]}
@@ -69,6 +71,7 @@ CASES = [
     (["--no-such-option"], "unrecognized"), (["--no-tcp"], "no transport"),
     (["--mqtt", ""], "--mqtt"), (["--state-dir", ""], "--state-dir"), (["--world", ""], "--world"),
     (["--ready-file", ""], "--ready-file"), (["--pty", "{tmp}"], "not a symlink"),
+    (["--state-dir", "{tmp}/state_with_file"], "--state-dir"),  # module-1 is a file there
 ]
 
 
