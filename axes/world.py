@@ -250,6 +250,9 @@ def load_world(path: str | Path, number_of_axes: int | None = None,
         text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise ValueError(f"world file {path}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"world file {path}: not UTF-8 text ({exc.reason} at byte "
+                         f"{exc.start})") from exc
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:  # its message ends with "(at line L, column C)"

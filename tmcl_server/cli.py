@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import errno
 import logging
+import math
 import signal
 import sys
+from pathlib import Path
+from typing import NoReturn
 
 from axes.cores import CHIP_CORES
 from tmcl_server.loops import LOOPS, new_event_loop
@@ -19,8 +23,51 @@ from tmcl_spec.package import add_version_option
 log = logging.getLogger("tmcl_server")
 
 
+class UsageError(SystemExit):
+    """A bad command-line value: one line on standard error, exit status 2 (as argparse)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(2)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        """One line, not the usage block: the line names the option and what is wrong."""
+        raise UsageError(f"{message} (tmcl-server --help lists the options)")
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def positive(text: str) -> float:
+    """A finite number > 0 (a rate, a speed factor, a resolution)."""
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be positive")
+    return value
+
+
+def non_negative(text: str) -> float:
+    """A finite number >= 0 (a duration)."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} cannot be negative")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="tmcl-server",
         description="Simulated TRINAMIC TMCL modules (by default TMCM-6212, firmware V1.05).")
     who = parser.add_mutually_exclusive_group()
@@ -56,12 +103,12 @@ def build_parser() -> argparse.ArgumentParser:
                         help="bridge to an MQTT broker, e.g. mqtt://127.0.0.1:1883/tmcl "
                              "(mqtts:// for TLS; credentials in the URL or in "
                              "TMCL_MQTT_USERNAME/TMCL_MQTT_PASSWORD)")
-    parser.add_argument("--mqtt-rate", type=float, default=10.0, metavar="HZ",
+    parser.add_argument("--mqtt-rate", type=positive, default=10.0, metavar="HZ",
                         help="at most this many state messages per module and second (default 10)")
     parser.add_argument("--state-dir", metavar="DIR",
                         help="keep each module's EEPROM in DIR/module-<address>/ "
                              "(default: nothing persists)")
-    parser.add_argument("--speed", type=float, default=1.0, metavar="X",
+    parser.add_argument("--speed", type=positive, default=1.0, metavar="X",
                         help="run simulated time X times faster than real time")
     parser.add_argument("--module-type", default=DEFAULT_MODULE_TYPE, choices=sorted(MODULE_TYPES),
                         help=f"which module every address holds (default {DEFAULT_MODULE_TYPE})")
@@ -85,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     watch.add_argument("--record", metavar="FILE",
                        help="record position, velocity, acceleration, current, switches and "
                             "events of the axes to FILE (.csv or .jsonl)")
-    watch.add_argument("--record-resolution", type=float, default=0.01, metavar="SECONDS",
+    watch.add_argument("--record-resolution", type=positive, default=0.01, metavar="SECONDS",
                        help="simulated time between two samples (default 0.01)")
     watch.add_argument("--record-axes", metavar="LIST",
                        help="axes to record, e.g. 0,1 (default: all)")
@@ -103,13 +150,13 @@ def build_parser() -> argparse.ArgumentParser:
     faults.add_argument("--wire-timing", action="store_true",
                         help="the pty and serial ports send each byte at the baud rate (GP 65, "
                              "or ,baud=N) and CAN frames take their time at GP 69's bit rate")
-    faults.add_argument("--processing-time", type=float, default=0.0002, metavar="SECONDS",
+    faults.add_argument("--processing-time", type=non_negative, default=0.0002, metavar="SECONDS",
                         help="with --wire-timing: the module's time between a request's last byte "
                              "and its reply's first (default 0.0002)")
     parser.add_argument("--clock", choices=["real", "lockstep"], default="real",
                         help="real: simulated time follows the wall clock (x --speed); "
                              "lockstep: it moves only by --request-time per request")
-    parser.add_argument("--request-time", type=float, default=0.001, metavar="SECONDS",
+    parser.add_argument("--request-time", type=non_negative, default=0.001, metavar="SECONDS",
                         help="with --clock lockstep: simulated time each request takes "
                              "(default 0.001)")
     parser.add_argument("--log-level", default="WARNING",
@@ -126,15 +173,62 @@ def _firmware() -> str:
     return f"V{major}.{minor:02d}"
 
 
+def _record_axes(text: str, kind: str) -> list[int]:
+    axes = module_type(kind).number_of_axes
+    try:
+        chosen = [int(a) for a in text.split(",") if a.strip()]
+    except ValueError:
+        raise UsageError(f"argument --record-axes: bad list {text!r}") from None
+    wrong = [a for a in chosen if not 0 <= a < axes]
+    if wrong or not chosen:
+        raise UsageError(f"argument --record-axes: {text!r}: the axes are 0..{axes - 1}")
+    return chosen
+
+
+#: Options whose values name something (an endpoint, a file): none may be empty.
+_NAMING_OPTIONS = ("tcp", "pty", "serial", "can", "slcan_pty", "socketcand", "mqtt", "http",
+                   "state_dir", "world", "record", "trace", "faults", "ready_file", "can_bus")
+
+
+def _check_paths(args: argparse.Namespace) -> None:
+    """Files and directories named on the command line, before anything starts."""
+    for name in _NAMING_OPTIONS:
+        value = getattr(args, name)
+        values = value if isinstance(value, list) else [value]
+        if any(v is not None and not v.strip() for v in values):
+            raise UsageError(f"argument --{name.replace('_', '-')}: an empty value names nothing")
+    for option, path in (("--trace", None if args.trace in (None, "-") else args.trace),
+                         ("--record", args.record)):
+        if path is not None and not Path(path).absolute().parent.is_dir():
+            raise UsageError(f"argument {option}: directory {Path(path).absolute().parent} "
+                             "does not exist")
+    if args.record is not None:
+        from tmcl_server.record import file_format
+
+        try:
+            file_format(args.record)
+        except ValueError as exc:
+            raise UsageError(f"argument --record: {exc}") from None
+    if args.state_dir is not None:
+        if Path(args.state_dir).exists() and not Path(args.state_dir).is_dir():
+            raise UsageError(f"argument --state-dir: {args.state_dir} is not a directory")
+        try:
+            Path(args.state_dir).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"argument --state-dir: cannot use {args.state_dir}: "
+                             f"{exc.strerror or exc}") from None
+
+
 def config_from_args(args: argparse.Namespace) -> ServerConfig:
+    _check_paths(args)
     if args.address is not None:
         if not 1 <= args.address <= 255:
-            raise SystemExit("tmcl-server: --address must be 1..255")
+            raise UsageError("argument --address: must be 1..255")
         addresses = [args.address]
     else:
         count = args.modules if args.modules is not None else 1
         if not 1 <= count <= 255:
-            raise SystemExit("tmcl-server: --modules must be 1..255")
+            raise UsageError("argument --modules: must be 1..255")
         addresses = list(range(1, count + 1))
     endpoints: dict[str, list[str]] = {}
     tcp = args.tcp if args.tcp else ([] if args.no_tcp else [DEFAULT_TCP])
@@ -151,39 +245,26 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
     if args.mqtt:
         endpoints["mqtt"] = args.mqtt
     if not endpoints:
-        raise SystemExit("tmcl-server: no transport left to serve on")
+        raise UsageError("no transport left to serve on")
     if args.http:  # not a transport for hosts: it does not count as one to serve on
         import importlib.util
 
         if importlib.util.find_spec("aiohttp") is None:
-            raise SystemExit("tmcl-server: --http needs aiohttp: pip install 'tmcl-sim[http]'")
+            raise UsageError("argument --http: needs aiohttp: pip install 'tmcl-sim[http]'")
         endpoints["http"] = args.http
-    if args.speed <= 0:
-        raise SystemExit("tmcl-server: --speed must be positive")
-    if args.mqtt_rate <= 0:
-        raise SystemExit("tmcl-server: --mqtt-rate must be positive")
     try:
-        can_bus_name = check_bus_name(args.can_bus) if args.can_bus else DEFAULT_BUS_NAME
+        can_bus_name = (check_bus_name(args.can_bus) if args.can_bus is not None
+                        else DEFAULT_BUS_NAME)
     except ValueError as exc:
-        raise SystemExit(f"tmcl-server: --can-bus: {exc}") from None
-    if args.record_resolution <= 0:
-        raise SystemExit("tmcl-server: --record-resolution must be positive")
-    if args.request_time < 0:
-        raise SystemExit("tmcl-server: --request-time cannot be negative")
-    if args.processing_time < 0:
-        raise SystemExit("tmcl-server: --processing-time cannot be negative")
+        raise UsageError(f"argument --can-bus: {exc}") from None
     from tmcl_server.faults import FaultSpecError, load_fault_file, parse_fault
 
     try:
         faults = [spec for path in args.faults for spec in load_fault_file(path)]
         faults += [parse_fault(text) for text in args.fault]
     except FaultSpecError as exc:
-        raise SystemExit(f"tmcl-server: fault: {exc}") from None
-    try:
-        record_axes = ([int(a) for a in args.record_axes.split(",") if a.strip()]
-                       if args.record_axes else None)
-    except ValueError:
-        raise SystemExit(f"tmcl-server: --record-axes: bad list {args.record_axes!r}") from None
+        raise UsageError(f"fault: {exc}") from None
+    record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock=args.clock, speed=args.speed, ready_file=args.ready_file,
                         mqtt_rate=args.mqtt_rate, can_bus_name=can_bus_name, world=args.world,
@@ -195,17 +276,47 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         processing_time=args.processing_time)
 
 
+#: Errors at start that say the surroundings refused (exit status 1), not that a value given
+#: on the command line is wrong (exit status 2): a port or pty link in use, no permission.
+_REFUSED = frozenset({errno.EADDRINUSE, errno.EBUSY, errno.EACCES, errno.EPERM})
+
+
+class StartError(Exception):
+    """The server could not start: one line for standard error, and the exit status."""
+
+    def __init__(self, message: str, status: int) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+def _start_error(exc: Exception) -> StartError:
+    """Name the option whose value failed (Server.start notes it) and pick the status."""
+    text = str(exc) or type(exc).__name__
+    option = exc.__notes__[-1] if getattr(exc, "__notes__", None) else None
+    where = f"argument {option}: " if option and not text.startswith(option.split()[0]) else ""
+    from tmcl_server.transports.pty import LinkInUseError
+
+    refused = isinstance(exc, LinkInUseError) or (isinstance(exc, OSError)
+                                                  and exc.errno in _REFUSED)
+    return StartError(f"{where}{text}", 1 if refused else 2)
+
+
 async def run(config: ServerConfig) -> None:
-    server = Server(config)
+    try:
+        server = Server(config)
+    except Exception as exc:  # a world file, the state directory, ... given on the command line
+        if (isinstance(exc, OSError) and config.state_dir
+                and str(exc.filename or "").startswith(str(config.state_dir))):
+            exc.add_note(f"--state-dir {config.state_dir}")
+        raise _start_error(exc) from exc
     loop = asyncio.get_running_loop()
     log.info("event loop: %s", type(loop).__module__.split(".")[0])
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, server.request_stop)
-    await server.start()
-    for module in server.simulation.modules:
-        if module.eeprom.problem:
-            print(f"warning: module {module.slot}: {module.eeprom.problem}; running on factory "
-                  "defaults, nothing is saved", file=sys.stderr, flush=True)
+    try:
+        await server.start()
+    except Exception as exc:  # an endpoint that cannot be opened as given
+        raise _start_error(exc) from exc
     addresses = ", ".join(str(m.address) for m in server.simulation.modules)
     kind = server.simulation.modules[0].type.name
     print(f"tmcl-server: {kind} module(s) at address {addresses}", flush=True)
@@ -220,12 +331,20 @@ async def run(config: ServerConfig) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
-    config = config_from_args(args)
+    """Exit status 0 after a clean stop, 2 for a bad command-line value (one line on standard
+    error, as argparse), 1 when the surroundings refuse (a port in use) or serving fails."""
     try:
+        args = build_parser().parse_args(argv)
+        logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
+        config = config_from_args(args)
         with asyncio.Runner(loop_factory=lambda: new_event_loop(args.loop)) as runner:
             runner.run(run(config))
+    except UsageError as exc:
+        print(f"tmcl-server: error: {exc.message}", file=sys.stderr)
+        return 2
+    except StartError as exc:
+        print(f"tmcl-server: {'error: ' if exc.status == 2 else ''}{exc}", file=sys.stderr)
+        return exc.status
     except (OSError, ValueError) as exc:
         print(f"tmcl-server: {exc}", file=sys.stderr)
         return 1

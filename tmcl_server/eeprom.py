@@ -11,6 +11,7 @@ persistence switched off and says so (docs/eeprom.md).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -39,6 +40,11 @@ class EepromCorrupt(RuntimeError):
     """The state file exists but cannot be used."""
 
 
+class EepromWriteError(OSError):
+    """A store could not be written to disk (read-only or full state directory): the command
+    that stored answers status 5, the value stays in the RAM image (docs/eeprom.md)."""
+
+
 class Eeprom:
     """Sectioned key/value memory, persisted to ``directory/eeprom.json`` when a directory is set."""
 
@@ -56,6 +62,8 @@ class Eeprom:
         self._schedule: Callable[[float, Callable[[], None]], object] | None = None
         self._dirty = False  # a coalesced store is not on disk yet
         self._last_write = float("-inf")
+        #: The last write failed (logged once until a write succeeds again).
+        self.write_failing = False
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._remove_torn_writes(self.path.parent)
@@ -63,8 +71,7 @@ class Eeprom:
                 self._data = self._load(self.path)
             except EepromCorrupt as exc:
                 self.problem = str(exc)
-                log.error("%s; starting from factory defaults, the file is left untouched and "
-                          "nothing is saved this run", exc)
+                self._warn()
 
     @staticmethod
     def _remove_torn_writes(directory: Path) -> None:
@@ -88,7 +95,7 @@ class Eeprom:
             return {s: {} for s in SECTIONS}
         try:
             raw = json.loads(path.read_bytes())
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RecursionError) as exc:
             raise EepromCorrupt(f"EEPROM file {path} is unreadable ({exc})") from exc
         if not isinstance(raw, dict) or raw.get("format") != FORMAT_NAME:
             raise EepromCorrupt(f"EEPROM file {path} is not a {FORMAT_NAME} file")
@@ -96,14 +103,54 @@ class Eeprom:
         if version != FORMAT_VERSION:
             raise EepromCorrupt(f"EEPROM file {path} has format version {version!r}; "
                                 f"this simulator reads version {FORMAT_VERSION}")
+        unknown = sorted(set(raw) - {"format", "version", *SECTIONS})
+        if unknown:
+            raise EepromCorrupt(f"EEPROM file {path}: field {unknown[0]!r}: not a field of "
+                                f"version {FORMAT_VERSION}")
         data = {s: raw.get(s, {}) for s in SECTIONS}
-        if not all(isinstance(v, dict) for v in data.values()):
-            raise EepromCorrupt(f"EEPROM file {path} has a malformed section")
+        for section, value in data.items():
+            if not isinstance(value, dict):
+                raise EepromCorrupt(f"EEPROM file {path}: field {section!r}: expected an object, "
+                                    f"found {type(value).__name__}")
         return data
+
+    def sections(self) -> dict[str, dict[str, Any]]:
+        """The image as loaded (read only), for checking it against a module type."""
+        return self._data
+
+    def reject(self, reason: str) -> None:
+        """The loaded image is unusable (``reason`` names the field): factory defaults, the
+        file left as it is, nothing saved this run."""
+        self.problem = f"EEPROM file {self.path}: {reason}"
+        self._data = {s: {} for s in SECTIONS}
+        self._warn()
+
+    def _warn(self) -> None:
+        log.warning("%s; starting from factory defaults, the file is left untouched and "
+                    "nothing is saved this run", self.problem)
 
     def _save(self) -> None:
         if not self.persistent:
             return
+        try:
+            self._write()
+        except OSError as exc:
+            self._write_failed(exc)
+        else:
+            if self.write_failing:
+                self.write_failing = False
+                log.warning("EEPROM file %s: writing works again", self.path)
+
+    def _write_failed(self, exc: OSError) -> None:
+        """Log the first of a run of failed writes (one line, no traceback) and raise."""
+        if not self.write_failing:
+            self.write_failing = True
+            log.error("EEPROM file %s: cannot write (%s); commands that store answer status 5 "
+                      "until it can be written again", self.path, exc)
+        raise EepromWriteError(exc.errno, f"cannot write {self.path}: {exc}") from exc
+
+    def _write(self) -> None:
+        """Write the whole image atomically (temporary file, fsync, rename, fsync directory)."""
         assert self.path is not None
         document = {"format": FORMAT_NAME, "version": FORMAT_VERSION, **self._data}
         payload = json.dumps(document, indent=1, sort_keys=True).encode()
@@ -165,11 +212,10 @@ class Eeprom:
             self._write_now()
 
     def _flush_later(self) -> None:
-        """The timer's flush: a failure is logged (no command waits for this write)."""
-        try:
+        """The timer's flush: no command waits for it, so a failure is only logged (by
+        _write_failed, once per run of failures); the next store retries."""
+        with contextlib.suppress(OSError):
             self.flush()
-        except OSError as exc:
-            log.error("writing %s failed: %s", self.path, exc)
 
     @property
     def pending(self) -> bool:
@@ -195,7 +241,7 @@ class Eeprom:
             if target.get(str(key)) != value:
                 target[str(key)] = value
                 changed = True
-        if changed:
+        if changed or self.write_failing:  # a failed write is retried, not reported as done
             self._persist()
         else:
             self.stores += 1  # the part writes the same value again

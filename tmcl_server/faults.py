@@ -369,6 +369,9 @@ def load_fault_file(path: str | Path) -> list[FaultSpec]:
         text = source.read_text(encoding="utf-8")
     except OSError as exc:
         raise FaultSpecError(f"fault file {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise FaultSpecError(f"fault file {path}: not UTF-8 text ({exc.reason} at byte "
+                             f"{exc.start})") from None
     try:
         if source.suffix == ".toml":
             import tomllib
@@ -389,6 +392,8 @@ def load_fault_file(path: str | Path) -> list[FaultSpec]:
         return [fault_from_mapping(table) for table in data]
     except (ValueError, TypeError) as exc:  # tomllib and json errors are ValueErrors
         raise FaultSpecError(f"fault file {path}: {exc}") from exc
+    except RecursionError:  # JSON nested deeper than the parser goes
+        raise FaultSpecError(f"fault file {path}: nested too deeply") from None
 
 
 # == what the wire carries ======================================================================

@@ -29,7 +29,8 @@ from axes.world import (
     check_supply_voltage,
 )
 from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
-from tmcl_server.eeprom import Eeprom
+from tmcl_server.eeprom import Eeprom, EepromWriteError
+from tmcl_server.eeprom_check import first_problem
 from tmcl_server.program import ProgramSupport
 from tmcl_server.protocol import AnyReply, RawReply, Reply, Request
 from tmcl_spec.commands import (
@@ -102,6 +103,10 @@ class TMCLModule:
         #: The address the module was created with; names its state directory.
         self.slot = slot
         self.eeprom = eeprom if eeprom is not None else Eeprom()
+        if self.eeprom.problem is None and self.eeprom.path is not None:
+            problem = first_problem(self.eeprom.sections(), self.type)
+            if problem is not None:
+                self.eeprom.reject(problem)
         #: The physical surroundings (switches, load, encoder slip); kept across restarts.
         self.world = world or World()
         #: Builds one axis by index (tests); None: the chip core builds the module's axes.
@@ -285,6 +290,8 @@ class TMCLModule:
             result = handler(request, sink, interface)
         except CommandError as exc:
             return exc.status, request.value
+        except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
+            return Status.EEPROM_LOCKED, request.value
         finally:
             if self.may_reschedule(opcode, request.motor):
                 self._stale_axes |= touched  # the command may start, stop or move an event
@@ -681,9 +688,6 @@ class TMCLModule:
             if number == GP.RANDOM_NUMBER:
                 self._random.seed(value)
                 return
-            spec = self.type.global_parameters[0][number]
-            if spec.auto_stored:
-                self.eeprom.put("globals", number, value)
         old = self.globals[bank][number]
         self.globals[bank][number] = value
         self.program.global_written(bank, number, value, old)
@@ -696,6 +700,8 @@ class TMCLModule:
                 self._copy_coordinates_to_eeprom(range(1, self.type.coordinates))
             elif number == GP.END_SWITCH_POLARITY:
                 self._apply_switch_polarity()
+            if self.type.global_parameters[0][number].auto_stored:  # last: it may fail (status 5)
+                self.eeprom.put("globals", number, value)
 
     def _apply_switch_polarity(self) -> None:
         """GP 79 (TMC429 modules): 1 inverts every axis's limit switches, as the TMCM-6212's
@@ -877,7 +883,12 @@ class TMCLModule:
                                       interface: Interface) -> object:
         if req.value != FACTORY_RESET_KEY:
             raise CommandError(Status.INVALID_VALUE)
-        self.factory_reset()
+        try:
+            self.factory_reset()
+        except EepromWriteError:  # restarted on factory settings, but the file still holds
+            self.power_up()       # the old ones: say so with status 5
+            self.emit("factory_reset", None)
+            raise
         self.emit("factory_reset", None)
         return NO_REPLY
 

@@ -107,6 +107,12 @@ def build_simulation(config: ServerConfig) -> Simulation:
     return Simulation(modules, clock)
 
 
+#: Endpoint kind -> the tmcl-server option that names it (for error messages).
+OPTION_NAMES = {"tcp": "--tcp", "pty": "--pty", "serial": "--serial", "can": "--can",
+                "slcan": "--slcan-pty", "socketcand": "--socketcand", "mqtt": "--mqtt",
+                "http": "--http"}
+
+
 def write_atomically(path: str | os.PathLike[str], text: str) -> None:
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -173,9 +179,14 @@ class Server:
             for kind, arguments in self.config.endpoints.items():
                 cls = transport_class(kind)
                 for argument in arguments:
-                    transport = cls.build(self, argument)
-                    self.transports.append(transport)
-                    self.endpoints.setdefault(transport.kind, []).extend(await transport.start())
+                    try:
+                        transport = cls.build(self, argument)
+                        self.transports.append(transport)
+                        started = await transport.start()
+                    except Exception as exc:  # the command line can name the endpoint
+                        exc.add_note(f"{OPTION_NAMES.get(kind, kind)} {argument}")
+                        raise
+                    self.endpoints.setdefault(transport.kind, []).extend(started)
         except BaseException:
             await self.stop()
             raise

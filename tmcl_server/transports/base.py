@@ -186,5 +186,11 @@ class StreamSession:
     def send_unsolicited(self, reply: Reply) -> None:
         self._send(reply.encode())
 
+    def reading_resumed(self) -> None:
+        """We stopped reading (the peer did not read its replies): that wait was ours, not
+        a pause on the line, so it must not tear the frame in progress."""
+        if self._assembler.buffer:
+            self._assembler.last_byte_ns = time.monotonic_ns()
+
     def close(self) -> None:
         self.closed = True

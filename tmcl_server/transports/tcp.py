@@ -26,6 +26,10 @@ from tmcl_server.transports.base import (
 log = logging.getLogger(__name__)
 
 DEFAULT_TCP = "127.0.0.1:2323"
+#: A client that sends requests but does not read the replies: past this much unsent output
+#: the server stops reading its requests until it reads again (TCP back-pressure), so its
+#: replies cost bounded memory and none is dropped.
+MAX_WRITE_BUFFER = 1 << 20
 
 
 def parse_host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
@@ -72,6 +76,7 @@ class _TcpProtocol(asyncio.Protocol):
         # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
         self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
+        self.transport.set_write_buffer_limits(high=MAX_WRITE_BUFFER, low=MAX_WRITE_BUFFER // 4)
         peer = transport.get_extra_info("peername")
         self._session = StreamSession(self._simulation, transport.write, asyncio.get_running_loop(),
                                       self._mode, f"tcp {peer[0]}:{peer[1]}" if peer else "tcp")
@@ -80,6 +85,16 @@ class _TcpProtocol(asyncio.Protocol):
     def data_received(self, data: bytes) -> None:
         assert self._session is not None
         self._session.feed(data)
+
+    def pause_writing(self) -> None:
+        if self.transport is not None:
+            self.transport.pause_reading()
+
+    def resume_writing(self) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            if self._session is not None:
+                self._session.reading_resumed()
+            self.transport.resume_reading()
 
     def connection_lost(self, exc: Exception | None) -> None:
         if self._session is not None:

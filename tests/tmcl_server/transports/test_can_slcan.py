@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import select
+import socket
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -237,3 +238,93 @@ def test_slcan_lines_round_trip(can_id: int, data: bytes, extended: bool, remote
     assert line is not None and line.endswith(b"\r")
     decoded = decode_slcan_transmit(line[:-1])
     assert decoded is not None and decoded.equals(frame, timestamp_delta=None)
+
+
+# == issue 11 item 5: every malformed line gets one BEL and nothing after it is lost =========
+
+MALFORMED_LINES = [
+    b"t00170601000",                   # odd number of data digits
+    b"t0017060100000",                 # DLC 7, six data bytes
+    b"t00170601000000000000",          # DLC 7, nine data bytes
+    b"t001706010000000G",              # bad hex digit
+    b"t0G17060100000000",              # bad hex in the id
+    b"t0019" + b"00" * 9,              # DLC 9
+    b"t00" ,                           # cut short
+    b"T1FFFFFFF" + b"7",               # extended id, DLC 7, no data
+    b"T2000000007" + b"00" * 7,        # extended id above 29 bits
+    b"r0017AA",                        # remote frame with data
+    b"d0011" + b"00",                  # unknown command letter
+    b"S9", b"S", b"s12", b"Z2", b"M123", b"Q",  # control commands with bad arguments
+    b"V1", b"\xff\xfe\x80", b"\x00",   # junk bytes
+    b"t" * 64, b"x" * 65,              # at and over the line length limit
+]
+
+
+def test_every_malformed_line_in_one_write_gets_one_bel_then_the_valid_line_counts(
+        port: SlcanPort) -> None:
+    assert port.ask(b"O") == b"\r"
+    port.write(b"".join(line + b"\r" for line in MALFORMED_LINES)
+               + tmcl_line(1, Opcode.GGP, GP.CAN_ID) + b"\r")
+    answers = [port.answer() for _ in MALFORMED_LINES]
+    assert answers == [b"\a"] * len(MALFORMED_LINES)
+    assert port.answer() == b"z\r"
+    reply = decode_slcan_transmit(port.answer().rstrip(b"\r"))
+    assert reply is not None and decode_can_reply(reply.data).value == 1
+
+
+def test_a_line_without_cr_is_bounded_in_memory(sim: SimulatorThread, port: SlcanPort) -> None:
+    from tmcl_server.transports.can.slcan import MAX_LINE, SlcanPtyTransport
+
+    assert port.ask(b"O") == b"\r"
+    chunk = b"t0017" + b"0" * 4091
+    for _ in range(256):  # 1 MiB without a CR, as fast as the pty takes it
+        view = memoryview(chunk)
+        while view:
+            try:
+                view = view[os.write(port.fd, view):]
+            except BlockingIOError:
+                select.select([], [port.fd], [], WAIT_S)
+    transport = next(t for t in sim.server.transports if isinstance(t, SlcanPtyTransport))
+    # the adapter keeps at most one line's worth of it (asked on the server's loop)
+    assert sim.call(lambda: len(transport.session._line)) <= MAX_LINE
+    assert port.ask(b"") == b"\a"  # the end of the overlong line: one BEL
+    assert port.ask(tmcl_line(1, Opcode.GGP, GP.CAN_ID)) == b"z\r"  # and on it goes
+    reply = decode_slcan_transmit(port.answer().rstrip(b"\r"))
+    assert reply is not None and decode_can_reply(reply.data).value == 1
+
+
+def test_a_host_that_does_not_read_loses_whole_lines_never_parts(sim: SimulatorThread,
+                                                                  port: SlcanPort) -> None:
+    """Frames for a host that stops reading are dropped (the F overrun flag says so), but
+    never cut: every line it reads afterwards is a whole frame."""
+    assert port.ask(b"O") == b"\r"
+    host, tcp_port = sim.endpoints["socketcand"][0].rsplit(":", 1)
+    count = 20_000  # ~ 530 KB of SLCAN lines: far more than a pty buffers
+    with socket.create_connection((host, int(tcp_port)), timeout=WAIT_S) as lan:
+        lan.recv(64)
+        lan.sendall(b"< open can0 >" + b"".join(
+            f"< send 7{n % 256:02X} 8 {' '.join(['%02X' % (n % 256)] * 8)} >".encode()
+            for n in range(count)))
+        deadline = time.monotonic() + 30
+        sent = lambda: sim.call(lambda: _socketcand(sim).stats["sent"])  # noqa: E731
+        while sent() < count:  # until the bus has carried every frame
+            assert time.monotonic() < deadline, "frames not all sent"
+            time.sleep(0.05)
+    data = b""
+    while True:
+        readable, _, _ = select.select([port.fd], [], [], 0.5)
+        if not readable:
+            break
+        data += os.read(port.fd, 65536)
+    lines = data.split(b"\r")
+    assert lines[-1] == b""
+    bad = [line for line in lines[:-1] if decode_slcan_transmit(line) is None]
+    assert not bad, bad[:3]
+    assert 0 < len(lines) - 1 < count  # some arrived, the rest were dropped whole
+    assert port.ask(b"F") == b"F08\r"  # data overrun
+
+
+def _socketcand(sim: SimulatorThread) -> object:
+    assert sim.server is not None
+    (transport,) = [t for t in sim.server.transports if t.kind == "socketcand"]
+    return transport

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import select
 import socket
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable, Iterator
 
@@ -81,9 +83,15 @@ def server_stats(sim: SimulatorThread) -> Counter[str]:
 class RawClient:
     """A socketcand client by hand, for what python-can never sends."""
 
-    def __init__(self, sim: SimulatorThread, open_bus: str | None = "can0") -> None:
+    def __init__(self, sim: SimulatorThread, open_bus: str | None = "can0",
+                 small_buffers: bool = False) -> None:
         host, port = sim.endpoints["socketcand"][0].rsplit(":", 1)
-        self.sock = socket.create_connection((host, int(port)), timeout=WAIT_S)
+        self.sock = socket.socket()
+        if small_buffers:  # before connect, so the window is small from the start
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8192)
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 8192)
+        self.sock.settimeout(WAIT_S)
+        self.sock.connect((host, int(port)))
         self._buffer = b""
         assert self.element() == "< hi >"
         if open_bus is not None:
@@ -224,3 +232,58 @@ def test_an_unknown_bus_is_refused(sim: SimulatorThread) -> None:
     assert client.sock.recv(1) == b""  # and the connection is closed, as socketcand does
     with pytest.raises(can.CanError):
         CanHost(sim, channel="vcan9")
+
+
+def _socketcand(sim: SimulatorThread) -> object:
+    assert sim.server is not None
+    (transport,) = [t for t in sim.server.transports if t.kind == "socketcand"]
+    return transport
+
+
+def test_echo_to_a_client_that_never_reads_stays_bounded_and_loses_nothing(
+        sim: SimulatorThread, make_host: Callable[..., CanHost]) -> None:
+    """Issue 11 item 8: ``< echo >`` answers pile up for a client that never reads; the server
+    keeps at most MAX_WRITE_BUFFER of them and stops reading that client's commands meanwhile."""
+    from tmcl_server.transports.can.socketcand import MAX_WRITE_BUFFER
+
+    flooder = RawClient(sim, small_buffers=True)  # the kernel holds little on our side
+    assert flooder.element() == "< ok >"
+    sock = flooder.sock
+    sock.setblocking(False)
+    burst = b"< echo >" * 8192
+    limit = 64 * 1024 * 1024  # far past the cap and any kernel buffers: only back-pressure
+    sent = 0                  # stops the flood before this
+    stalled_since: float | None = None
+    while sent < limit:
+        try:
+            sent += sock.send(burst[sent % len(burst):])
+            stalled_since = None
+        except BlockingIOError:  # the server took no more: wait until it stays that way
+            now = time.monotonic()
+            stalled_since = stalled_since or now
+            if now - stalled_since > 1.0:
+                break
+            select.select([], [sock], [], 0.05)
+    transport = _socketcand(sim)
+    buffered = sim.call(lambda: max(c.transport.get_write_buffer_size()  # type: ignore[attr-defined]
+                                    for c in transport.clients if c.transport))  # type: ignore[attr-defined]
+    assert sent < limit, "the server read everything: no back-pressure"
+    assert buffered <= MAX_WRITE_BUFFER + 64 * 1024, buffered
+    # another client is served meanwhile
+    other = make_host()
+    assert other.command(1, Opcode.GAP, AP.MAX_SPEED, 0).status == Status.OK
+    # the flooder starts reading: every echo it sent arrives, none lost
+    sock.setblocking(True)
+    sock.settimeout(WAIT_S)
+    rest = len(b"< echo >") - sent % len(b"< echo >")
+    if rest != len(b"< echo >"):  # finish the element cut by the full socket
+        threading.Thread(target=sock.sendall, args=(b"< echo >"[-rest:],), daemon=True).start()
+        sent += rest
+    expected = sent // len(b"< echo >") * len(b"< echo >")
+    received = len(flooder._buffer)
+    while received < expected:
+        chunk = sock.recv(1 << 20)
+        assert chunk, "closed"
+        received += len(chunk)
+    assert received == expected
+    sock.close()

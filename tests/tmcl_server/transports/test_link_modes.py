@@ -176,7 +176,7 @@ def test_a_second_server_process_says_why_it_cannot_start(tmp_path: Path):
 
 def test_a_pty_in_a_missing_directory_fails_and_creates_nothing(tmp_path: Path, capsys):
     link = tmp_path / "nonexistent" / "dir" / "x"
-    assert main(["--no-tcp", "--pty", str(link)]) == 1
+    assert main(["--no-tcp", "--pty", str(link)]) == 2  # a bad value (issue 11 item 9)
     err = capsys.readouterr().err
     assert f"directory {link.parent} does not exist" in err
     assert not (tmp_path / "nonexistent").exists()

@@ -211,6 +211,14 @@ def test_response_topic_and_correlation_data(broker, sim):
     (b'{"type": 4}', 'needs "cmd"'),
     (b"[1, 2]", "must be a JSON object"),
     (b"\x01\x02\x03", "not valid JSON"),
+    # issue 11 item 10
+    (b"[" * 100_000 + b"]" * 100_000, "longer than 65536"),
+    (b'{"cmd": ' + b"[" * 5_000 + b"]" * 5_000 + b"}", "nested deeper than 16"),
+    (bytes(range(246, 256)), "not UTF-8 text"),  # 10 binary bytes: not a frame, not text
+    (b'{"cmd": "SAP", "type": 4, "value": 1e999}', "out of range"),
+    (b'{"cmd": "SAP", "type": 4, "value": NaN}', "NaN is not a number"),
+    (b'{"cmd": "SAP", "type": 4, "value": -Infinity}', "-Infinity is not a number"),
+    (b'{"cmd": "SAP", "value": ' + b"9" * 5000 + b"}", "not valid JSON"),
 ])
 def test_bad_requests_get_clear_errors(broker, sim, payload, message):
     async def scenario():
@@ -426,3 +434,50 @@ def test_every_event_kind_is_documented():
     doc = (root / "docs" / "mqtt.md").read_text()
     undocumented = sorted(k for k in kinds if f"`{k}`" not in doc)
     assert not undocumented, f"event kinds missing from docs/mqtt.md: {undocumented}"
+
+
+#: (topic under rig/tmcl/1/sim/, payload, words of the sim_error answer), issue 11 item 10
+BAD_SIM_MESSAGES = [
+    ("switch/0/left", b'{"position": 1e999}', "out of range"),
+    ("switch/0/left", b'{"position": NaN}', "NaN"),
+    ("switch/0/left", b'{"position": 1.5}', "position must be an integer"),
+    ("switch/0/left", b'{"position": 0, "width": Infinity}', "Infinity"),
+    ("switch/0/left", b'{"position": 0, "side": 5}', "side must be a string"),
+    ("load/0", b'{"zones": [[-1e999, 5, 0]]}', "out of range"),
+    ("load/0", b'{"zones": [["a", 5, 0]]}', "zone start must be an integer"),
+    ("encoder_slip/0", b"NaN", "NaN"),
+    ("supply", b"Infinity", "Infinity"),
+    ("supply", b'"24"', "supply voltage must be a number"),
+    ("input/0", bytes(range(246, 256)), "not UTF-8 text"),
+    ("input/0", b"[" * 5_000 + b"]" * 5_000, "nested deeper than 16"),
+    ("input/0", b"[" * 100_000 + b"]" * 100_000, "longer than 65536"),
+    ("fault", b'{"kind": "delay", "ms": NaN}', "NaN"),
+    ("fault", b'{"kind": "delay", "ms": 1e999}', "out of range"),
+    ("fault", b"\xff\xfe", "not UTF-8 text"),
+    ("fault", b"{" * 5_000, "nested deeper than 16"),
+]
+
+
+def test_bad_sim_messages_get_a_clear_error_and_change_nothing(broker, sim):
+    async def scenario():
+        async with probing(broker) as probe:
+            await probe.client.subscribe("rig/tmcl/1/sim_error", qos=1)
+            for topic, payload, words in BAD_SIM_MESSAGES:
+                seen = probe.mark()
+                await probe.client.publish(f"rig/tmcl/1/sim/{topic}", payload, qos=1)
+                error = json_of(await probe.wait(lambda m: True, since=seen))
+                assert error["topic"] == f"sim/{topic}" and words in error["error"], (topic, error)
+            # and the bridge still works: a good message after all of them is applied
+            await probe.client.subscribe("rig/tmcl/1/reply", qos=1)
+            await probe.client.publish("rig/tmcl/1/request", b'{"cmd": "GAP", "type": 1}', qos=1)
+            reply = await probe.wait(lambda m: m.topic.value == "rig/tmcl/1/reply")
+            assert json_of(reply)["status_name"] == "OK"
+
+    asyncio.run(scenario())
+    module = sim.server.simulation.modules[0]
+    world = sim.call(lambda: module.axis_world(0))
+    assert "left" not in world.switches and world.encoder_slip == 0
+    assert sim.call(lambda: module.supply_voltage) == module.type.nominal_supply_voltage
+    assert sim.call(lambda: list(module.axis_world(0).load_zones)) == []
+    from tmcl_server.faults import FaultInjector
+    assert sim.call(lambda: dict(FaultInjector.of(sim.server.simulation).faults)) == {}

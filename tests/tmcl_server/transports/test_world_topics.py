@@ -53,6 +53,16 @@ def test_load_and_encoder_slip(module):
     (["gravity"], b"1", "unknown sim topic"),
     (["input", "0"], b"maybe", "cannot read value"),
     (["switch", "0", "left"], b'{"position": 5, "side": "inside"}', "unknown switch side"),
+    # issue 11 item 10: nothing non-finite, nothing but UTF-8, bounded nesting
+    (["switch", "0", "left"], b'{"position": 1e999}', "out of range"),
+    (["switch", "0", "left"], b'{"position": 2e5}', "position must be an integer"),
+    (["switch", "0", "left"], b'{"position": 0, "normally_closed": "yes"}', "expected 0/1"),
+    (["load", "0"], b'{"free": NaN}', "NaN is not a number"),
+    (["load", "0"], b'{"zones": [[0, Infinity, 0]]}', "Infinity is not a number"),
+    (["encoder_slip", "0"], b"-Infinity", "-Infinity is not a number"),
+    (["supply"], b"1e400", "out of range"),
+    (["input", "0"], b"\xc3\x28", "not UTF-8 text"),
+    (["input", "0"], b"[" * 17 + b"]" * 17, "nested deeper than 16"),
 ])
 def test_bad_messages_say_what_is_wrong(module, path, payload, message):
     with pytest.raises(WorldTopicError, match=message):

@@ -32,7 +32,9 @@ MAX_ELEMENT = 4096
 #: share a TCP segment with the ``< ok >``: python-can reads that answer with a single recv()
 #: and compares it verbatim.  Nothing is lost: the held frames follow right after.
 RAWMODE_GRACE_S = 0.02
-#: A client that stops reading loses frames (like a full socket receive queue), not memory.
+#: A client that stops reading loses frames (like a full socket receive queue), not memory;
+#: its own commands' answers (``< echo >``, ``< ok >``, errors) are not lost: past this much
+#: unsent output the server stops reading its commands until it reads again (TCP back-pressure).
 MAX_WRITE_BUFFER = 1 << 20
 
 HI = b"< hi >"
@@ -89,6 +91,8 @@ class SocketcandClient(asyncio.Protocol):
         self.transport: asyncio.Transport | None = None
         self._buffer = bytearray()
         self._held: list[bytes] | None = None
+        #: The client does not read: its commands wait (in the kernel) until it does.
+        self._output_full = False
 
     @property
     def stats(self) -> Counter[str]:
@@ -100,6 +104,7 @@ class SocketcandClient(asyncio.Protocol):
         # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
         self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
+        self.transport.set_write_buffer_limits(high=MAX_WRITE_BUFFER, low=MAX_WRITE_BUFFER // 4)
         self.server.clients.add(self)
         self.stats["connections"] += 1
         transport.write(HI)
@@ -113,12 +118,24 @@ class SocketcandClient(asyncio.Protocol):
         if self.transport is not None and not self.transport.is_closing():
             self.transport.write(data)
 
+    def pause_writing(self) -> None:
+        """Over MAX_WRITE_BUFFER unsent: stop taking commands whose answers would pile up."""
+        self._output_full = True
+        if self.transport is not None:
+            self.transport.pause_reading()
+
+    def resume_writing(self) -> None:
+        self._output_full = False
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.resume_reading()
+            self.data_received(b"")  # the commands left over when the output filled
+
     # -- client -> bus ------------------------------------------------------------------------
 
     def data_received(self, data: bytes) -> None:
         buffer = self._buffer
         buffer += data
-        while buffer:
+        while buffer and not self._output_full:
             start = buffer.find(b"<")
             if start < 0:
                 self._junk(buffer)

@@ -13,11 +13,11 @@ a message it cannot use gets an answer on ``PREFIX/A/sim_error`` (docs/mqtt.md).
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from tmcl_server.faults import FaultInjector, FaultSpecError, fault_from_mapping, parse_fault
 from tmcl_server.module import TMCLModule
+from tmcl_server.transports.mqtt.payload import PayloadError, decode_text, parse_json
 
 #: The ``sim/`` topics this file serves.
 FAULT_TOPICS = ("fault", "power_cycle")
@@ -26,7 +26,10 @@ FAULT_TOPICS = ("fault", "power_cycle")
 def apply_fault_message(injector: FaultInjector, module: TMCLModule, path: list[str],
                         payload: bytes) -> None:
     """Act on one ``sim/fault...`` or ``sim/power_cycle`` message; FaultSpecError if unusable."""
-    text = payload.decode(errors="replace").strip()
+    try:
+        text = decode_text(payload)
+    except PayloadError as exc:
+        raise FaultSpecError(str(exc)) from None
     match path:
         case ["power_cycle"]:
             injector.power_cycle(module)
@@ -45,8 +48,8 @@ def apply_fault_message(injector: FaultInjector, module: TMCLModule, path: list[
 def _spec(text: str, module: TMCLModule) -> Any:
     if text.startswith("{"):
         try:
-            table = json.loads(text)
-        except ValueError as exc:
+            table = parse_json(text)
+        except PayloadError as exc:
             raise FaultSpecError(f"fault is not valid JSON: {exc}") from None
         if not isinstance(table, dict):
             raise FaultSpecError("a JSON fault must be an object with a 'kind'")

@@ -10,10 +10,10 @@ fields are 0.  Anything else is a :class:`RequestError` that says what was wrong
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from tmcl_server.protocol import AnyReply, RawReply, Request
+from tmcl_server.transports.mqtt.payload import PayloadError, decode_text, parse_json
 from tmcl_spec.commands import TYPE_SYMBOLS, Opcode, Status
 from tmcl_spec.numbers import to_int32
 
@@ -54,9 +54,10 @@ def _type(opcode: int, raw: Any) -> int:
 
 def request_from_json(payload: bytes | str, address: int = 1) -> Request:
     try:
-        body = json.loads(payload)
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise RequestError(f"request is not valid JSON: {exc}") from None
+        text = decode_text(payload) if isinstance(payload, bytes) else payload
+        body = parse_json(text)
+    except PayloadError as exc:
+        raise RequestError(f"request is not a 9-byte TMCL frame nor JSON: {exc}") from None
     if not isinstance(body, dict):
         raise RequestError("request must be a JSON object")
     unknown = sorted(set(body) - set(FIELDS))

@@ -15,11 +15,14 @@ docs/mqtt.md and docs/world.md describe the units (positions are mechanical posi
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 from axes.world import LOAD_MAX, SWITCH_NAMES
 from tmcl_server.module import TMCLModule
+from tmcl_server.transports.mqtt.payload import PayloadError, decode_text, parse_json
+
+#: Positions are mechanical microsteps; this bounds them far beyond any travel.
+POSITION_LIMIT = 2**62
 
 _SWITCH_FIELDS = {"position", "width", "side", "normally_closed"}
 
@@ -29,16 +32,23 @@ class WorldTopicError(ValueError):
 
 
 def _parse(payload: bytes) -> Any:
-    text = payload.decode(errors="replace").strip()
     try:
-        return json.loads(text)
-    except ValueError:
-        lowered = text.lower()
-        if lowered in ("on", "high", "active"):
-            return True
-        if lowered in ("off", "low", "inactive"):
-            return False
-        raise WorldTopicError(f"cannot read value {text!r}") from None
+        text = decode_text(payload)
+    except PayloadError as exc:
+        raise WorldTopicError(str(exc)) from None
+    lowered = text.lower()
+    if lowered in ("on", "high", "active"):
+        return True
+    if lowered in ("off", "low", "inactive"):
+        return False
+    try:
+        return parse_json(text)
+    except PayloadError as exc:
+        raise WorldTopicError(f"cannot read value {_short(text)}: {exc}") from None
+
+
+def _short(text: str) -> str:
+    return repr(text) if len(text) <= 40 else repr(text[:37] + "...")
 
 
 def _index(text: str, what: str, count: int) -> int:
@@ -77,8 +87,14 @@ def _switch(module: TMCLModule, axis: int, name: str, value: Any) -> None:
         if unknown or "position" not in value:
             raise WorldTopicError(f"a switch placement needs position (and may have width, "
                                   f"side, normally_closed); got {sorted(value)}")
-        module.set_switch(axis, name, value["position"], value.get("width"), value.get("side"),
-                          bool(value.get("normally_closed", False)))
+        width = value.get("width")
+        side = value.get("side")
+        if side is not None and not isinstance(side, str):
+            raise WorldTopicError(f"side must be a string, got {side!r}")
+        module.set_switch(axis, name,
+                          _integer(value["position"], "position", -POSITION_LIMIT, POSITION_LIMIT),
+                          None if width is None else _integer(width, "width", 0, POSITION_LIMIT),
+                          side, _level(value.get("normally_closed", False)))
     else:
         module.force_switch(axis, name, _level(value))
 
@@ -90,8 +106,9 @@ def _load(module: TMCLModule, axis: int, value: Any) -> None:
                 isinstance(z, list) and len(z) == 3 for z in zones):
             raise WorldTopicError("zones must be a list of [from, to, load]")
         free = value.get("free")
-        module.set_load(axis, [(int(a), int(b), _integer(c, "load", 0, LOAD_MAX))
-                               for a, b, c in zones],
+        module.set_load(axis, [(_integer(a, "zone start", -POSITION_LIMIT, POSITION_LIMIT),
+                                _integer(b, "zone end", -POSITION_LIMIT, POSITION_LIMIT),
+                                _integer(c, "load", 0, LOAD_MAX)) for a, b, c in zones],
                         None if free is None else _integer(free, "load", 0, LOAD_MAX))
     else:
         module.set_load(axis, [], _integer(value, "load", 0, LOAD_MAX))
@@ -116,6 +133,8 @@ def apply_sim_message(module: TMCLModule, path: list[str], payload: bytes) -> No
             case ["encoder_slip", axis]:
                 _slip(module, _index(axis, "axis", len(module.axes)), value)
             case ["supply"]:
+                if isinstance(value, bool) or not isinstance(value, int | float):
+                    raise WorldTopicError(f"supply voltage must be a number, got {value!r}")
                 module.set_supply_voltage(value)
             case _:
                 raise WorldTopicError(f"unknown sim topic {'/'.join(path)!r}")
