@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
+from functools import partial
 from typing import cast
 
 from tmcl_server.simulation import Simulation
@@ -19,6 +20,7 @@ from tmcl_server.transports.base import (
     StreamSession,
     Transport,
     TransportHost,
+    bytes_waiting,
     link_mode,
     split_endpoint_options,
 )
@@ -73,8 +75,10 @@ class _TcpProtocol(asyncio.Protocol):
         self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
         peer = transport.get_extra_info("peername")
+        sock = transport.get_extra_info("socket")
         self._session = StreamSession(self._simulation, transport.write, asyncio.get_running_loop(),
-                                      self._mode, f"tcp {peer[0]}:{peer[1]}" if peer else "tcp")
+                                      self._mode, f"tcp {peer[0]}:{peer[1]}" if peer else "tcp",
+                                      partial(bytes_waiting, sock.fileno()) if sock is not None else None)
         self._connections.add(self)
 
     def data_received(self, data: bytes) -> None:
