@@ -3,8 +3,15 @@ wire-driven log floods and the connection limit, memory per connection."""
 
 from __future__ import annotations
 
+import importlib.util
+import json
+import logging
 import os
+import resource
 import select
+import socket
+import subprocess
+import sys
 import time
 import tty
 from collections.abc import Iterator
@@ -15,6 +22,7 @@ import pytest
 
 from tests.conftest import RawClient
 from tmcl_server.embed import SimulatorThread
+from tmcl_server.lograte import REPEATS, WIRE_LOGGERS, RepeatFilter
 from tmcl_server.loops import uvloop_available
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_spec.commands import Opcode
@@ -126,3 +134,162 @@ def test_a_real_pause_on_an_idle_server_drops_the_fragment(loop, tmp_path):
                 assert silent(port, 0.03)
         finally:
             client.close()
+
+
+# -- item 6: what the wire can make us log, and how many clients it can make us hold ------------
+
+
+def test_repeat_filter_passes_the_first_then_one_summary_per_interval():
+    now = [0.0]
+    repeats = RepeatFilter(interval_s=5.0, clock=lambda: now[0])
+    logger = logging.getLogger("tests.lograte")
+    records: list[logging.LogRecord] = []
+
+    def emit(text: str = "port %s: reply dropped") -> bool:
+        record = logger.makeRecord(logger.name, logging.WARNING, __file__, 1, text, ("A",), None)
+        if repeats.filter(record):
+            records.append(record)
+            return True
+        return False
+
+    assert emit()
+    now[0] = 1.0
+    assert not any(emit() for _ in range(999))
+    assert emit("another message %s")  # another call site has its own count
+    now[0] = 6.5
+    assert emit()
+    assert records[-1].getMessage() == "port A: reply dropped (repeated 999 times in the last 6.5 s)"
+    now[0] = 12.0
+    assert emit()  # nothing held back since: no count
+    assert records[-1].getMessage() == "port A: reply dropped"
+
+
+@pytest.fixture
+def wire_log(caplog):
+    """Records the wire loggers let through (their shared filter starts afresh)."""
+    REPEATS.reset()
+    caplog.set_level(logging.WARNING)
+    yield caplog
+    REPEATS.reset()
+
+
+def test_a_pty_nobody_reads_logs_one_line_not_one_per_dropped_reply(tmp_path, wire_log):
+    link = tmp_path / "tty"
+    with SimulatorThread(clock="virtual", pty=[str(link)]), open_pty(link) as port:
+        os.set_blocking(port, False)
+        data = memoryview(GAP * 20_000)  # 180 KB of replies: far more than the pty holds
+        deadline = time.monotonic() + 20
+        while data and time.monotonic() < deadline:
+            select.select([], [port], [], 1.0)
+            data = data[os.write(port, data):]
+        assert not data
+        request = Request(1, Opcode.GGP, 66, 0, 0).encode()  # a last request, to know when ...
+        os.write(port, request)
+        time.sleep(0.2)  # ... the server has worked through the rest (its reply is dropped too)
+    dropped = [r for r in wire_log.records if "pty" in r.name and "dropped" in r.getMessage()]
+    assert 1 <= len(dropped) <= 2, [r.getMessage() for r in dropped]
+
+
+def test_an_over_speed_ror_flood_logs_one_line(wire_log):
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"]) as sim:
+        client = RawClient(sim.tcp)
+        try:
+            for n in range(500):
+                reply = client.request(1, Opcode.ROR, 0, n % 6, 2**31 - 1)
+                assert reply.status == 100
+        finally:
+            client.close()
+    beyond = [r for r in wire_log.records if "is beyond the" in r.getMessage()]
+    assert len(beyond) == 1
+
+
+def test_clients_over_the_connection_limit_are_closed_and_the_first_still_served(wire_log):
+    limit = 6
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], max_connections=limit) as sim:
+        clients = [RawClient(sim.tcp) for _ in range(limit)]
+        for client in clients:  # each served before the next one connects
+            assert client.request(1, Opcode.GAP, 4, 0).value == 51200
+        extra = [RawClient(sim.tcp) for _ in range(5)]
+        try:
+            for client in extra:  # accepted, then closed at once: end of stream, no reply
+                client.sock.settimeout(5)
+                assert client.sock.recv(9) == b""
+            for client in clients:
+                assert client.request(1, Opcode.GAP, 4, 0).value == 51200
+            clients.pop().close()  # a slot frees up: the next client is served
+            deadline = time.monotonic() + 5
+            while True:
+                late = RawClient(sim.tcp)
+                extra.append(late)
+                late.sock.settimeout(2)
+                late.send_raw(GAP)
+                if (data := late.sock.recv(9)) or time.monotonic() > deadline:
+                    break  # the close above may take a loop turn to be noticed
+            assert decode_reply(data).value == 51200
+        finally:
+            for client in clients + extra:
+                client.close()
+    refused = [r for r in wire_log.records if "--max-connections" in r.getMessage()]
+    assert 1 <= len(refused) <= 2
+
+
+@pytest.mark.parametrize("loop", LOOPS)
+def test_accept_at_the_descriptor_limit_neither_floods_the_log_nor_spins(loop, tmp_path):
+    """A server limited to 64 descriptors, 150 clients: a few log lines, little CPU, and the
+    clients it did accept are still served."""
+    ready = tmp_path / "ready.json"
+    log_path = tmp_path / "log"
+
+    def limit_descriptors() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (64, 64))
+
+    with open(log_path, "w") as log_file:
+        server = subprocess.Popen(
+            [sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0", "--loop", loop,
+             "--ready-file", str(ready)], preexec_fn=limit_descriptors, stderr=log_file,
+            stdout=subprocess.DEVNULL)
+    clients: list[socket.socket] = []
+    try:
+        deadline = time.monotonic() + 20
+        while not (ready.exists() and ready.read_text()):
+            assert time.monotonic() < deadline and server.poll() is None
+            time.sleep(0.02)
+        host, port = json.loads(ready.read_text())["tcp"][0].rsplit(":", 1)
+        for _ in range(150):
+            try:
+                clients.append(socket.create_connection((host, int(port)), timeout=0.5))
+            except OSError:  # the backlog is full: nobody accepts any more
+                break
+        cpu_before = process_cpu_s(server.pid)
+        time.sleep(2.0)
+        assert process_cpu_s(server.pid) - cpu_before < 0.5  # no busy loop
+        clients[0].settimeout(5)
+        clients[0].sendall(GAP)
+        assert decode_reply(clients[0].recv(9)).value == 51200
+    finally:
+        for client in clients:
+            client.close()
+        server.terminate()
+        server.wait(10)
+    text = log_path.read_text()
+    assert len(text) < 2000, text[:2000]
+    assert "Traceback" not in text
+
+
+def process_cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_every_wire_logger_is_rate_limited():
+    """Each module under transports/ (and the axes' speed limit) that has a logger is in the
+    list; each name in the list is a module."""
+    root = Path(__file__).resolve().parents[3]
+    logging_modules = {
+        ".".join(path.relative_to(root).with_suffix("").parts)
+        for folder in ("tmcl_server/transports", "axes")
+        for path in (root / folder).rglob("*.py")
+        if "getLogger(__name__)" in path.read_text()}
+    assert logging_modules <= set(WIRE_LOGGERS)
+    for name in WIRE_LOGGERS:
+        assert name == "asyncio" or importlib.util.find_spec(name) is not None, name
