@@ -3,6 +3,7 @@ wire-driven log floods and the connection limit, memory per connection."""
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import importlib.util
 import json
@@ -17,7 +18,7 @@ import sys
 import time
 import tracemalloc
 import tty
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -73,27 +74,59 @@ def assert_all_gap_replies(data: bytes, count: int) -> None:
 # -- item 2: the 5 ms pause is measured on the line, not in our processing ---------------------
 
 
+#: A pause longer than this (a loaded machine that did not run the test in time) makes a trial
+#: inconclusive: the server may rightly have dropped the fragment.
+SHORT_PAUSE_S = 0.004
+
+
+def drain(read: Callable[[], bytes]) -> None:
+    """After an inconclusive trial: let the fragment expire and take whatever replies come."""
+    time.sleep(0.03)
+    with contextlib.suppress(TimeoutError, BlockingIOError):
+        while read():
+            pass
+
+
 @pytest.mark.parametrize("loop", LOOPS)
 def test_a_short_host_pause_never_tears_a_frame_while_the_server_is_busy_elsewhere(loop, tmp_path):
     """Another client's flood keeps the server busy far longer than 5 ms right between the two
     pieces of a frame a host sent 1 ms apart (TCP and pty): still one request, every time."""
     link = tmp_path / "tty"
+    conclusive = {"tcp": 0, "pty": 0}
     with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], pty=[str(link)], loop=loop) as sim, \
             open_pty(link) as port:
         ours, busy = RawClient(sim.tcp, timeout=10), RawClient(sim.tcp, timeout=10)
         try:
-            for _ in range(3):
+            for _ in range(10):
                 ours.send_raw(GAP * 50 + GAP[:4])
+                sent_tcp = time.monotonic()
                 os.write(port, GAP * 50 + GAP[:4])
+                sent_pty = time.monotonic()
                 busy.send_raw(JUNK)  # tens of milliseconds of work, arriving with our pieces
                 time.sleep(0.001)  # the host's short pause
+                pause_tcp = time.monotonic() - sent_tcp
                 ours.send_raw(GAP[4:])
+                pause_pty = time.monotonic() - sent_pty
                 os.write(port, GAP[4:])
-                assert_all_gap_replies(ours.recv_exact(9 * 51), 51)
-                assert_all_gap_replies(read_exact(port, 9 * 51), 51)
+                if pause_tcp < SHORT_PAUSE_S:
+                    assert_all_gap_replies(ours.recv_exact(9 * 51), 51)
+                    conclusive["tcp"] += 1
+                else:
+                    ours.sock.settimeout(0.2)
+                    drain(lambda: ours.sock.recv(65536))
+                    ours.sock.settimeout(10)
+                if pause_pty < SHORT_PAUSE_S:
+                    assert_all_gap_replies(read_exact(port, 9 * 51), 51)
+                    conclusive["pty"] += 1
+                else:
+                    drain(lambda: read_exact(port, 1, 0.2))
+                if min(conclusive.values()) >= 3:
+                    break
         finally:
             ours.close()
             busy.close()
+    if min(conclusive.values()) == 0:
+        pytest.skip(f"the machine was too loaded to pause for only 1 ms: {conclusive}")
 
 
 def test_a_burst_torn_at_its_end_on_the_pty_is_one_request_per_frame(tmp_path):
@@ -101,19 +134,26 @@ def test_a_burst_torn_at_its_end_on_the_pty_is_one_request_per_frame(tmp_path):
     link = tmp_path / "tty"
     with SimulatorThread(clock="virtual", pty=[str(link)]), open_pty(link) as port:
         os.set_blocking(port, False)
-        data = memoryview(GAP * 2000 + GAP[:4])
-        replies = b""
-        while data:  # the pty holds a few KB: write as the server reads, collect its replies
-            readable, writable, _ = select.select([port], [port], [], 5.0)
-            assert readable or writable
-            if readable:
-                replies += os.read(port, 65536)
-            if writable:
-                data = data[os.write(port, data):]
-        time.sleep(0.001)
-        os.write(port, GAP[4:])
-        replies += read_exact(port, 9 * 2001 - len(replies))
-        assert_all_gap_replies(replies, 2001)
+        for _ in range(5):
+            data = memoryview(GAP * 2000 + GAP[:4])
+            replies = b""
+            while data:  # the pty holds a few KB: write as the server reads, collect its replies
+                readable, writable, _ = select.select([port], [port], [], 5.0)
+                assert readable or writable
+                if readable:
+                    replies += os.read(port, 65536)
+                if writable:
+                    data = data[os.write(port, data):]
+            sent = time.monotonic()
+            time.sleep(0.001)
+            pause = time.monotonic() - sent
+            os.write(port, GAP[4:])
+            if pause < SHORT_PAUSE_S:
+                replies += read_exact(port, 9 * 2001 - len(replies))
+                assert_all_gap_replies(replies, 2001)
+                return
+            drain(lambda: read_exact(port, 1, 0.2))
+    pytest.skip("the machine was too loaded to pause for only 1 ms")
 
 
 @pytest.mark.parametrize("loop", LOOPS)
