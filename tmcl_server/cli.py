@@ -80,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "port 0 picks a free port); addresses filter as on RS-485 unless "
                              "mode=usb")
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
+    parser.add_argument("--max-connections", type=_positive_int, default=256, metavar="N",
+                        help="clients each TCP endpoint serves at once; more are accepted and "
+                             "closed at once (default 256)")
     parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
                         help="open a virtual serial port and link PATH to it (repeatable); "
                              "mode usb answers any address like the module's USB port, rs485 "
@@ -166,6 +169,16 @@ def build_parser() -> argparse.ArgumentParser:
                              "DEBUG also failed writes and malformed input")
     add_version_option(parser, f"simulates a {module_type().name}, firmware {_firmware()}")
     return parser
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
 
 
 def _firmware() -> str:
@@ -273,7 +286,7 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         trace_format=args.trace_format, record=args.record,
                         record_resolution=args.record_resolution, record_axes=record_axes,
                         faults=faults, wire_timing=args.wire_timing,
-                        processing_time=args.processing_time)
+                        processing_time=args.processing_time, max_connections=args.max_connections)
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given

@@ -132,15 +132,16 @@ class FrameAssembler:
     """Cut a byte stream into 9-byte frames, discarding a partial frame after a 5 ms gap.
 
     Time is passed in by the caller (monotonic nanoseconds of the *wire*, not the simulated
-    clock), so the rule is deterministic under test.
+    clock), so the rule is deterministic under test.  A caller that cannot know when bytes
+    arrived (a socket read late because the server was busy) feeds without a time and decides
+    the pause itself, then calls :meth:`drop` (transports/base.py, :class:`StreamSession`).
     """
 
     __slots__ = ("buffer", "gap_ns", "last_byte_ns")
 
     def __init__(self, gap_ns: int = RESYNC_GAP_NS) -> None:
         #: Bytes of an incomplete frame.  Empty means a whole 9-byte read is a frame by
-        #: itself: stream sessions check this and skip :meth:`feed` on their hot path
-        #: (setting ``last_byte_ns`` themselves).
+        #: itself: stream sessions check this and skip :meth:`feed` on their hot path.
         self.buffer = bytearray()
         self.last_byte_ns: int | None = None
         self.gap_ns = gap_ns
@@ -155,11 +156,20 @@ class FrameAssembler:
         last = self.last_byte_ns
         return bool(self.buffer) and last is not None and now_ns - last > self.gap_ns
 
-    def feed(self, data: bytes, now_ns: int) -> Iterator[bytes]:
+    def drop(self) -> bytes:
+        """Discard the partial frame (the line paused); returns its bytes."""
+        data = bytes(self.buffer)
+        self.buffer.clear()
+        return data
+
+    def feed(self, data: bytes, now_ns: int | None = None) -> Iterator[bytes]:
+        """The frames ``data`` completes.  With ``now_ns``, a partial frame whose last byte is
+        more than the gap older is dropped first; without, no time rule applies here."""
         buffer = self.buffer
-        if self.expired(now_ns):
-            buffer.clear()
-        self.last_byte_ns = now_ns
+        if now_ns is not None:
+            if self.expired(now_ns):
+                buffer.clear()
+            self.last_byte_ns = now_ns
         if not buffer and len(data) == FRAME_LENGTH:
             yield bytes(data)
             return

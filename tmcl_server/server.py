@@ -20,6 +20,7 @@ from axes.cores import CHIP_CORES
 from axes.world import World, load_world
 from tmcl_server.clock import Clock, LockstepClock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
+from tmcl_server.lograte import limit_repeats
 from tmcl_server.module import TMCLModule
 from tmcl_server.observe import Observers
 from tmcl_server.simulation import PROGRAM_CHUNK_NS, Simulation
@@ -77,6 +78,8 @@ class ServerConfig:
     #: processing time between a request and its reply then.
     wire_timing: bool = False
     processing_time: float = 0.0002
+    #: Clients one TCP endpoint serves at once; more are accepted and closed at once.
+    max_connections: int = 256
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -170,6 +173,7 @@ class Server:
         self.simulation.on_change = self._reschedule
         for module in self.simulation.modules:  # a program's store loop: one write per interval
             module.eeprom.coalesce(self._loop.call_later)
+        limit_repeats()  # what a host can make us log, at most one line per call site in 5 s
         try:
             self.observers.start(self._loop)
             if self.config.faults:

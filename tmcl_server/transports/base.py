@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sys
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
@@ -114,18 +115,40 @@ class ByteSession(Protocol):
     def close(self) -> None: ...
 
 
+def bytes_waiting(fd: int) -> int:
+    """Bytes the kernel holds for reading on ``fd`` (a socket, a pty master, a tty): 0 if
+    it cannot tell."""
+    try:
+        import fcntl
+        import termios
+
+        return int.from_bytes(fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"), sys.byteorder,
+                              signed=True)
+    except (ImportError, OSError, ValueError):
+        return 0
+
+
 class StreamSession:
     """One byte stream speaking 9-byte TMCL frames: a TCP client, a pty, a serial port.
 
     It owns the 5 ms resynchronisation of torn frames and the GP 75 reply delay, and it is
     the sink for replies that arrive later (command 138 events).
+
+    The pause is a pause on the *line*, and a read tells only when the server got round to
+    the bytes, not when they arrived: a server busy with a burst, another client or a program
+    reads late.  So a partial frame is not judged when the next bytes are read but by a timer
+    5 ms after its last byte: if by then (however late the busy loop runs it) no bytes wait
+    in the kernel (``queued``), the line was silent and the fragment is dropped; otherwise the
+    waiting bytes continue it.  A short pause of the host never tears a frame, however busy
+    the server; a real pause on an idle server drops it within the loop's timer resolution.
     """
 
-    __slots__ = ("_assembler", "_loop", "_route", "_write", "closed", "endpoint", "rs485", "simulation")
+    __slots__ = ("_assembler", "_loop", "_queued", "_resync", "_route", "_write", "closed",
+                 "endpoint", "rs485", "simulation")
 
     def __init__(self, simulation: Simulation, write: Callable[[bytes], None],
                  loop: asyncio.AbstractEventLoop, mode: LinkMode = LinkMode.RS485,
-                 endpoint: str = "") -> None:
+                 endpoint: str = "", queued: Callable[[], int] | None = None) -> None:
         self.simulation = simulation
         #: How the trace names this stream (``tcp 127.0.0.1:40512``, ``pty /tmp/ttyTMCL0``).
         self.endpoint = endpoint
@@ -133,20 +156,20 @@ class StreamSession:
         self._loop = loop
         self._assembler = FrameAssembler()
         self._route = frame_router(simulation, mode)
+        #: How many bytes wait unread in the kernel (None: the transport cannot tell).
+        self._queued = queued
+        #: The timer that checks for a pause while a partial frame is held back.
+        self._resync: asyncio.TimerHandle | None = None
         #: GP 75 (telegram pause) delays replies on RS-485 only.
         self.rs485 = mode is LinkMode.RS485
         self.closed = False
 
     def feed(self, data: bytes) -> None:
         assembler = self._assembler
-        now = time.monotonic_ns()
         if len(data) == FRAME_LENGTH and not assembler.buffer:  # one whole frame: usual case
-            assembler.last_byte_ns = now
             frames: Iterable[bytes] = (data,)
         else:
-            if self.simulation.tracer is not None:  # a torn frame may be about to be dropped
-                self.simulation.tracer.torn_frame(self.endpoint, assembler, now)
-            frames = assembler.feed(data, now)
+            frames = assembler.feed(data)
         for frame in frames:
             for module, reply in self._route(frame, self):
                 delay = module.reply_delay_s if self.rs485 else 0.0
@@ -158,9 +181,38 @@ class StreamSession:
                     except OSError:
                         self.closed = True
         if assembler.buffer:
-            # The 5 ms pause is a pause on the line: it counts from when we are ready for
-            # more bytes again, not from when a long burst began to be processed.
+            # The pause counts from when we are ready for more bytes again, not from when a
+            # long burst began to be processed.
             assembler.last_byte_ns = time.monotonic_ns()
+            if self._resync is None and not self.closed:
+                self._resync = self._loop.call_later(assembler.gap_ns / 1e9, self._check_pause)
+
+    def _check_pause(self) -> None:
+        """The timer: drop the partial frame if the line has been silent for more than 5 ms."""
+        self._resync = None
+        assembler = self._assembler
+        if self.closed or not assembler.buffer or assembler.last_byte_ns is None:
+            return
+        now = time.monotonic_ns()
+        wait_ns = assembler.last_byte_ns + assembler.gap_ns - now
+        if wait_ns >= 0 or self._waiting():
+            # Too early (the loop's timers round to the millisecond, or bytes came since), or
+            # bytes arrived while we were busy and wait to be read: they continue the frame.
+            self._resync = self._loop.call_later(max(wait_ns, 0) / 1e9 + 0.0005, self._check_pause)
+            return
+        tracer = self.simulation.tracer
+        if tracer is not None:
+            tracer.torn_frame(self.endpoint, assembler, now)
+        assembler.drop()
+
+    def _waiting(self) -> bool:
+        queued = self._queued
+        if queued is None:
+            return False
+        try:
+            return queued() > 0
+        except (OSError, ValueError):
+            return False
 
     def _deliver(self, reply: AnyReply | Delivery, delay_s: float) -> None:
         """A reply after the GP 75 pause, or one the faults altered (late, torn, ...)."""
@@ -194,3 +246,6 @@ class StreamSession:
 
     def close(self) -> None:
         self.closed = True
+        if self._resync is not None:
+            self._resync.cancel()
+            self._resync = None

@@ -17,6 +17,7 @@ import fcntl
 import logging
 import os
 import tty
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,6 +28,7 @@ from tmcl_server.transports.base import (
     StreamSession,
     Transport,
     TransportHost,
+    bytes_waiting,
     link_mode,
     split_endpoint_options,
 )
@@ -147,7 +149,8 @@ class PtyTransport(Transport):
             first = self.simulation.modules[0] if self.simulation.modules else None
             return PacedStreamSession(self.simulation, self._write, loop, self.mode, f"pty {self.link}",
                                       baud=LineRate.uart(first, self.baud), timing=self.wire)
-        return StreamSession(self.simulation, self._write, loop, self.mode, f"pty {self.link}")
+        return StreamSession(self.simulation, self._write, loop, self.mode, f"pty {self.link}",
+                             partial(bytes_waiting, self._master) if self._master is not None else None)
 
     def _on_readable(self) -> None:
         assert self._master is not None and self._session is not None

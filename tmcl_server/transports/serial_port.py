@@ -83,8 +83,9 @@ class SerialPortTransport(Transport):
                 self.simulation, self._port.write, loop, self.mode, f"serial {self.device}",
                 baud=LineRate.uart(None, self.baudrate), timing=self.wire)
         else:
-            self._session = StreamSession(self.simulation, self._port.write, loop, self.mode,
-                                          f"serial {self.device}")
+            port = self._port
+            self._session = StreamSession(self.simulation, port.write, loop, self.mode,
+                                          f"serial {self.device}", lambda: port.in_waiting)
         try:
             fd = self._port.fileno()
         except (AttributeError, NotImplementedError, OSError, ValueError):

@@ -9,9 +9,11 @@ an RS-485 bus, TCP filters frames by address whatever the number of modules;
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 import socket
-from typing import cast
+from functools import partial
+from typing import Any, cast
 
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
@@ -19,6 +21,7 @@ from tmcl_server.transports.base import (
     StreamSession,
     Transport,
     TransportHost,
+    bytes_waiting,
     link_mode,
     split_endpoint_options,
 )
@@ -30,6 +33,9 @@ DEFAULT_TCP = "127.0.0.1:2323"
 #: the server stops reading its requests until it reads again (TCP back-pressure), so its
 #: replies cost bounded memory and none is dropped.
 MAX_WRITE_BUFFER = 1 << 20
+#: Clients one endpoint serves at once (``--max-connections``): far below a usual descriptor
+#: limit (1024), far above what hosts open (docs/robustness.md).
+DEFAULT_MAX_CONNECTIONS = 256
 
 
 def parse_host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
@@ -63,28 +69,78 @@ def disable_nagle(transport: asyncio.BaseTransport) -> None:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
 
+#: Accept errors that mean "out of descriptors or memory": the loop retries later by itself.
+_RESOURCE_ERRORS = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
+
+
+def quiet_accept_errors(loop: asyncio.AbstractEventLoop) -> None:
+    """One short line for accept() failing at the descriptor limit, not a traceback per attempt
+    (asyncio reports each one to the loop's exception handler, then waits a second)."""
+    previous = loop.get_exception_handler()
+    if getattr(previous, "quiet_accept_errors", False):
+        return
+
+    def handler(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        exc = context.get("exception")
+        if (isinstance(exc, OSError) and exc.errno in _RESOURCE_ERRORS
+                and "accept" in str(context.get("message", ""))):
+            log.error("cannot accept a TCP connection: %s; it waits in the backlog (raise the "
+                      "descriptor limit, ulimit -n, or lower --max-connections)", exc.strerror)
+        elif (isinstance(exc, ValueError)
+              and getattr(getattr(context.get("handle"), "_callback", None), "__name__", "")
+              == "_start_serving"):
+            # asyncio schedules one retry per failed accept, and those still pending when the
+            # listening socket closes fail on its closed descriptor: nothing is lost.
+            log.debug("accept retry after close: %s", exc)
+        elif previous is not None:
+            previous(loop, context)
+        else:
+            loop.default_exception_handler(context)
+
+    handler.quiet_accept_errors = True  # type: ignore[attr-defined]
+    loop.set_exception_handler(handler)
+
+
+def descriptor_limit() -> int | None:
+    """The process's soft limit on open descriptors, None if unlimited or unknown."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    return None if soft == resource.RLIM_INFINITY else soft
+
+
 class _TcpProtocol(asyncio.Protocol):
     def __init__(self, simulation: Simulation, connections: set[_TcpProtocol],
-                 mode: LinkMode) -> None:
+                 mode: LinkMode, limit: int) -> None:
         self._simulation = simulation
         self._connections = connections
         self._mode = mode
+        self._limit = limit
         self.transport: asyncio.Transport | None = None
         self._session: StreamSession | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        peer = transport.get_extra_info("peername")
+        if len(self._connections) >= self._limit:
+            log.warning("tcp: %d clients already connected (--max-connections); closing the "
+                        "connection from %s", len(self._connections), peer)
+            transport.close()
+            return
         # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
         self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
         self.transport.set_write_buffer_limits(high=MAX_WRITE_BUFFER, low=MAX_WRITE_BUFFER // 4)
-        peer = transport.get_extra_info("peername")
+        sock = transport.get_extra_info("socket")
         self._session = StreamSession(self._simulation, transport.write, asyncio.get_running_loop(),
-                                      self._mode, f"tcp {peer[0]}:{peer[1]}" if peer else "tcp")
+                                      self._mode, f"tcp {peer[0]}:{peer[1]}" if peer else "tcp",
+                                      partial(bytes_waiting, sock.fileno()) if sock is not None else None)
         self._connections.add(self)
 
     def data_received(self, data: bytes) -> None:
-        assert self._session is not None
-        self._session.feed(data)
+        if self._session is not None:  # None: refused, closing
+            self._session.feed(data)
 
     def pause_writing(self) -> None:
         if self.transport is not None:
@@ -99,17 +155,24 @@ class _TcpProtocol(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         if self._session is not None:
             self._session.close()
+            self._session = None
         self._connections.discard(self)
+        self.transport = None
 
 
 class TcpTransport(Transport):
     kind = "tcp"
 
     def __init__(self, simulation: Simulation, address: str = DEFAULT_TCP,
-                 mode: LinkMode = LinkMode.RS485) -> None:
+                 mode: LinkMode = LinkMode.RS485,
+                 max_connections: int = DEFAULT_MAX_CONNECTIONS) -> None:
+        if max_connections < 1:
+            raise ValueError(f"max_connections must be at least 1, got {max_connections}")
         self.simulation = simulation
         self.host, self.port = parse_host_port(address)
         self.mode = mode
+        #: Clients served at once; the next ones are accepted and closed at once.
+        self.max_connections = max_connections
         self._server: asyncio.Server | None = None
         self.connections: set[_TcpProtocol] = set()
 
@@ -118,14 +181,22 @@ class TcpTransport(Transport):
         """``HOST:PORT[,mode=rs485|usb]``; RS-485 addressing unless told otherwise."""
         address, options = split_endpoint_options(argument)
         return cls(host.simulation, address,
-                   link_mode(host.simulation, options, f"--tcp {address}", LinkMode.RS485))
+                   link_mode(host.simulation, options, f"--tcp {address}", LinkMode.RS485),
+                   host.option("max_connections"))
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
+        quiet_accept_errors(loop)
         self._server = await loop.create_server(
-            lambda: _TcpProtocol(self.simulation, self.connections, self.mode), self.host,
-            self.port, reuse_address=True)
-        return listening_endpoints(self._server)
+            lambda: _TcpProtocol(self.simulation, self.connections, self.mode, self.max_connections),
+            self.host, self.port, reuse_address=True)
+        endpoints = listening_endpoints(self._server)
+        descriptors = descriptor_limit()
+        if descriptors is not None and self.max_connections + 32 > descriptors:
+            log.warning("tcp %s: the descriptor limit (%d) is below --max-connections %d: "
+                        "clients beyond it wait unserved", endpoints[0], descriptors,
+                        self.max_connections)
+        return endpoints
 
     async def close(self) -> None:
         if self._server is not None:
