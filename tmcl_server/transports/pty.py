@@ -39,6 +39,10 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
+#: Output held back while the pty is full (only after a write it took in part).
+MAX_PENDING = 4096
+
+
 class LinkInUseError(FileExistsError):
     """Another live server serves the pty link."""
 
@@ -115,6 +119,9 @@ class PtyTransport(Transport):
         self._slave: int | None = None
         self._session: ByteSession | None = None
         self._lock = LinkLock(self.link)
+        #: The rest of output the pty took only in part: written when it has room again, so
+        #: the host never reads a cut reply (at most MAX_PENDING bytes more are queued).
+        self._pending = bytearray()
 
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> PtyTransport:
@@ -166,19 +173,60 @@ class PtyTransport(Transport):
             self._session.feed(data)
 
     def _write(self, data: bytes) -> None:
+        """Like a port whose host stopped reading: output is lost in whole writes (whole
+        replies or lines), never cut.  What the pty took only in part is finished first when
+        it has room, new output queues behind it up to MAX_PENDING bytes, beyond that it is
+        dropped."""
         assert self._master is not None
+        if self._pending:
+            if len(self._pending) + len(data) <= MAX_PENDING:
+                self._pending += data
+            else:
+                self._lost(len(data))
+            return
         try:
             written = os.write(self._master, data)
         except BlockingIOError:
-            log.warning("pty %s: nobody reads the port, reply dropped", self.link)
+            written = 0
+        if written == len(data):
+            self._delivered()
+        elif written == 0:
+            self._lost(len(data))
+        else:
+            self._set_pending(data[written:])  # a cut reply: its rest must follow
+
+    def _delivered(self) -> None:
+        """A write went out whole (the SLCAN adapter clears its overrun warning)."""
+
+    def _lost(self, size: int) -> None:
+        """Output dropped because nobody reads the port."""
+        log.warning("pty %s: nobody reads the port, %d bytes of replies dropped", self.link, size)
+
+    def _set_pending(self, data: bytes) -> None:
+        loop = asyncio.get_running_loop()
+        if data and not self._pending and self._master is not None:
+            loop.add_writer(self._master, self._flush_pending)
+        elif not data and self._pending and self._master is not None:
+            loop.remove_writer(self._master)
+        self._pending[:] = data
+
+    def _flush_pending(self) -> None:
+        if self._master is None:
             return
-        if written < len(data):
-            log.warning("pty %s: output buffer full, %d bytes dropped", self.link,
-                        len(data) - written)
+        try:
+            written = os.write(self._master, self._pending)
+        except BlockingIOError:
+            return
+        except OSError:
+            written = len(self._pending)
+        self._set_pending(self._pending[written:])
 
     async def close(self) -> None:
         if self._session is not None:
             self._session.close()
+        if self._master is not None and self._pending:
+            asyncio.get_running_loop().remove_writer(self._master)
+            self._pending.clear()
         if self._master is not None:
             asyncio.get_running_loop().remove_reader(self._master)
             for fd in (self._master, self._slave):

@@ -235,6 +235,27 @@ def test_a_pty_nobody_reads_logs_one_line_not_one_per_dropped_reply(tmp_path, wi
     assert 1 <= len(dropped) <= 2, [r.getMessage() for r in dropped]
 
 
+def test_a_pty_host_that_does_not_read_loses_whole_replies_never_parts(tmp_path):
+    """Replies for a host that stops reading are dropped whole: what it reads afterwards is
+    a run of complete 9-byte replies, never one cut by a write the pty took in part."""
+    link = tmp_path / "tty"
+    count = 20_000  # 180 KB of replies: far more than the pty holds
+    with SimulatorThread(clock="virtual", pty=[str(link)]), open_pty(link) as port:
+        os.set_blocking(port, False)
+        data = memoryview(GAP * count)
+        deadline = time.monotonic() + 20
+        while data and time.monotonic() < deadline:
+            select.select([], [port], [], 1.0)
+            data = data[os.write(port, data):]
+        assert not data
+        received = b""
+        while not silent(port, 0.5):  # until the server has nothing more to say
+            received += os.read(port, 65536)
+    assert 0 < len(received) < 9 * count  # some arrived, the rest were dropped
+    assert len(received) % 9 == 0
+    assert_all_gap_replies(received, len(received) // 9)
+
+
 def test_an_over_speed_ror_flood_logs_one_line(wire_log):
     with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"]) as sim:
         client = RawClient(sim.tcp)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import os
 import re
 import termios
 import time
@@ -33,8 +32,6 @@ OK = b"\r"
 ERROR = b"\a"
 #: Longest command line kept (``T`` + 8 id + 1 dlc + 16 data = 26); longer lines are junk.
 MAX_LINE = 64
-#: Output held back while the pty is full (only after a write it took in part).
-MAX_PENDING = 4096
 #: Lawicel ``Sn`` codes.
 BITRATES = {0: 10_000, 1: 20_000, 2: 50_000, 3: 100_000, 4: 125_000, 5: 250_000,
             6: 500_000, 7: 800_000, 8: 1_000_000}
@@ -224,9 +221,6 @@ class SlcanPtyTransport(PtyTransport):
         self.bus = bus
         self.session: SlcanSession | None = None
         self._warned_full = False
-        #: The rest of output the pty took only in part: written when it has room again, so
-        #: the host never reads a cut line (at most MAX_PENDING bytes more are queued).
-        self._pending = bytearray()
 
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> SlcanPtyTransport:
@@ -242,59 +236,14 @@ class SlcanPtyTransport(PtyTransport):
             with contextlib.suppress(termios.error):
                 termios.tcflush(self._slave, termios.TCIFLUSH)
 
-    def _write(self, data: bytes) -> None:
-        """Like a USB adapter whose host stopped reading: frames are lost, the F flags say so.
+    def _delivered(self) -> None:
+        self._warned_full = False
 
-        Output is lost in whole writes (whole lines), never cut: what the pty took only in
-        part is finished first when it has room, and new output queues behind it up to
-        MAX_PENDING bytes; beyond that it is dropped."""
-        assert self._master is not None
-        if self._pending:
-            if len(self._pending) + len(data) <= MAX_PENDING:
-                self._pending += data
-            else:
-                self._lost()
-            return
-        try:
-            written = os.write(self._master, data)
-        except BlockingIOError:
-            written = 0
-        if written == len(data):
-            self._warned_full = False
-            return
-        if written == 0:
-            self._lost()
-            return
-        self._set_pending(data[written:])  # a cut line: its rest must follow
-
-    def _lost(self) -> None:
+    def _lost(self, size: int) -> None:
+        """Like a USB adapter whose host stopped reading: frames are lost, the F flags say so."""
         if self.session is not None:
             self.session.overrun()
         if not self._warned_full:
             self._warned_full = True
             log.warning("slcan %s: nobody reads the port, frames dropped", self.link)
 
-    def _set_pending(self, data: bytes) -> None:
-        loop = asyncio.get_running_loop()
-        if data and not self._pending and self._master is not None:
-            loop.add_writer(self._master, self._flush_pending)
-        elif not data and self._pending and self._master is not None:
-            loop.remove_writer(self._master)
-        self._pending[:] = data
-
-    def _flush_pending(self) -> None:
-        if self._master is None:
-            return
-        try:
-            written = os.write(self._master, self._pending)
-        except BlockingIOError:
-            return
-        except OSError:
-            written = len(self._pending)
-        self._set_pending(self._pending[written:])
-
-    async def close(self) -> None:
-        if self._master is not None and self._pending:
-            asyncio.get_running_loop().remove_writer(self._master)
-            self._pending.clear()
-        await super().close()
