@@ -46,10 +46,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import json
 import os
 import random
 import selectors
+import shutil
 import signal
 import socket
 import struct
@@ -83,6 +85,10 @@ ECHOING = frozenset({Opcode.ROR, Opcode.ROL, Opcode.MST, Opcode.SAP, Opcode.SGP}
 GENERAL_ERRORS = frozenset({Status.INVALID_COMMAND, Status.WRONG_TYPE, Status.INVALID_VALUE,
                             Status.EEPROM_LOCKED})
 KNOWN_ITEMS = ("item1", "item2", "item3")
+#: ``--avoid item1``: speed and acceleration limits (max speed, max acceleration, reference
+#: search and switch speeds) are never set below this (0 and small values stall the server).
+ITEM1_LIMITS = frozenset({4, 5, 194, 195})
+ITEM1_FLOOR = 1000
 
 JOIN_PAUSE_S = 0.0005  # pieces of one frame: well under the 5 ms rule
 JOIN_MAX_S = 0.003  # a planned join whose real gap exceeded this is ambiguous: not judged
@@ -172,10 +178,10 @@ class Generator:
         away from the known open problems."""
         if op in GLOBAL_WRITERS and type_ in PROTECTED_GLOBALS:
             type_ = self.rng.choice(self.globals[0])
-        if "item1" in self.avoid:
-            if op == Opcode.SAP and type_ in (4, 5) and value == 0:
-                value = 1 + self.rng.randrange(2047)
-            if op == Opcode.AAP and type_ in (4, 5):
+        if "item1" in self.avoid:  # a low speed limit (not only 0) makes the look-ahead crawl
+            if op == Opcode.SAP and type_ in ITEM1_LIMITS and 0 <= value < ITEM1_FLOOR:
+                value = ITEM1_FLOOR + self.rng.randrange(2047)
+            if op == Opcode.AAP and type_ in ITEM1_LIMITS:
                 type_ = 0
         if "item3" in self.avoid and in_program and op in (Opcode.STAP, Opcode.STGP, Opcode.SCO,
                                                            Opcode.SGP, Opcode.AGP):
@@ -387,9 +393,11 @@ class ModuleModel:
 
     downloading: bool = False
     address: int = 0
+    program_started: bool = False  # 129 or 130 was accepted since the last 128/131/137
     memory: dict[int, tuple[int, int, int, int]] = field(default_factory=dict)
 
     def reset(self) -> None:
+        self.program_started = False
         self.downloading = False
         self.address = 0
         self.memory.clear()
@@ -454,8 +462,12 @@ def expect_for(frame: bytes, rs485: bool, model: ModuleModel) -> tuple[Expect | 
             body = struct.pack(">BBBBi", HOST_ADDRESS, *word[:3], word[3])
             return Expect(frame, body[:8] + bytes((sum(body[:8]) & 0xFF,))), False
         return Expect(frame, reply_bytes(Status.INVALID_VALUE, op, value)), False
-    if op in (Opcode.RUN_APPLICATION, Opcode.STEP_APPLICATION) and model.downloading:
-        return Expect(frame, reply_bytes(Status.COMMAND_NOT_AVAILABLE, op, value)), False
+    if op in (Opcode.RUN_APPLICATION, Opcode.STEP_APPLICATION):
+        if model.downloading:
+            return Expect(frame, reply_bytes(Status.COMMAND_NOT_AVAILABLE, op, value)), False
+        model.program_started = True
+    if op in (Opcode.STOP_APPLICATION, Opcode.RESET_APPLICATION):
+        model.program_started = False
     return Expect(frame, None, "status", GENERAL_ERRORS | {100}, op in ECHOING), False
 
 
@@ -589,6 +601,7 @@ class Stats:
     ambiguous_rounds: int = 0
     ambiguous_mismatches: int = 0
     stalls: int = 0
+    stalls_with_program: int = 0  # while a program the fuzzer started may be running
     max_latency_ms: float = 0.0
     latencies: list[float] = field(default_factory=list)  # a sample for percentiles
     by_kind: dict[str, int] = field(default_factory=dict)
@@ -624,6 +637,8 @@ class Fuzzer:
         self.rss_start = self.fds_start = 0
         self.rss_peak = 0
         self.needs_reset = False
+        #: Frames the module executed since it started or was last reset (for reductions).
+        self.journal: list[tuple[float, bytes]] = []
 
     # -- server lifecycle ----------------------------------------------------------------------
 
@@ -632,6 +647,7 @@ class Fuzzer:
         self.server = ServerProcess(self.workdir, self.servers)
         self.links = {"tcp": Link.tcp(self.server.tcp), "pty": Link.pty(self.server.link)}
         self.model.reset()
+        self.journal = []
 
     def stop_server(self, kill: bool = False) -> None:
         for link in self.links.values():
@@ -686,9 +702,14 @@ class Fuzzer:
                 self.stats.frames += 1
                 if exp is None:
                     self.stats.silent_checked += 1
+                    if frame[1] == Opcode.RESTORE_FACTORY_SETTINGS and (
+                            not link.rs485 or frame[0] == MODULE_ADDRESS):
+                        self.journal.clear()  # a factory reset: what came before no longer matters
                     continue
                 exp.end = start + (i + 1) * 9
                 queue.append(exp)
+                if exp.want is None or exp.want[2] != Status.WRONG_CHECKSUM:
+                    self.journal.append((time.monotonic(), frame))
             link.partial = stream_bytes[n * 9:]
             link.pending = len(link.partial)
             self.send(link, w.data, queue)
@@ -773,10 +794,13 @@ class Fuzzer:
                 self.stats.latencies.append(latency)
             if latency * 1000 > self.args.stall_ms:
                 self.stats.stalls += 1
+                if self.model.program_started:
+                    self.stats.stalls_with_program += 1
                 if len(self.stall_list) < 200:
                     self.stall_list.append({
                         "latency_ms": round(latency * 1000, 1), "stream": link.name,
                         "frame": exp.frame.hex(" "), "round": self.stats.rounds,
+                        "program": self.model.program_started,
                         "repro": self.repro(rnd, log)})
         return prev
 
@@ -826,6 +850,7 @@ class Fuzzer:
             self.drain(lk)
             lk.pending, lk.partial, lk.broken, lk.needs_drop = 0, b"", False, False
         self.model.reset()
+        self.journal = []
         for lk in self.links.values():
             os.write(lk.fd, encode(MODULE_ADDRESS, Opcode.GGP, 66, 0, 0))
             deadline = time.monotonic() + 2
@@ -894,7 +919,8 @@ class Fuzzer:
     def record_hang(self, rnd: Round, reason: str) -> None:
         assert self.server is not None
         self.hangs.append({"reason": reason, "stream": rnd.stream, "round": self.stats.rounds,
-                           "repro": self.repro(rnd, rnd.log)})
+                           "repro": self.repro(rnd, rnd.log),
+                           "journal": [[round(t, 4), f.hex()] for t, f in self.journal]})
         if not self.server.alive():
             self.record_crash(rnd)
             return
@@ -931,7 +957,8 @@ class Fuzzer:
             "events_138": s.events, "torn_pieces": s.torn, "dropped_partials": s.dropped_partials,
             "ambiguous_rounds": s.ambiguous_rounds, "ambiguous_mismatches": s.ambiguous_mismatches,
             "violations": len(self.violations),
-            "stalls": s.stalls, "stall_ms": self.args.stall_ms, "max_latency_ms": round(s.max_latency_ms, 1),
+            "stalls": s.stalls, "stalls_with_program": s.stalls_with_program,
+            "stall_ms": self.args.stall_ms, "max_latency_ms": round(s.max_latency_ms, 1),
             "latency_ms_p50": pct(0.5), "latency_ms_p99": pct(0.99), "hangs": len(self.hangs),
             "crashes": len(self.crashes), "tracebacks": self.tracebacks,
             "server_stderr_bytes": self.stderr_bytes, "servers_started": self.servers,
@@ -939,6 +966,122 @@ class Fuzzer:
             "fds_start": self.fds_start, "fds_end": fds_end, "seconds": round(elapsed, 1),
             "rounds_by_kind": s.by_kind,
         }
+
+
+# == reducing a hang or stall to a minimal sequence =============================================
+
+def describe(frame: bytes) -> str:
+    """A frame as ``SAP 5, 0, 0`` (mnemonic, type, motor, value)."""
+    try:
+        name = Opcode(frame[1]).name
+    except ValueError:
+        name = f"op{frame[1]}"
+    return f"{name} {frame[2]}, {frame[3]}, {i32(int.from_bytes(frame[4:8], 'big'))}"
+
+
+_REPLAYS = itertools.count(10_000)
+
+
+class Replayer:
+    """Replays executed frames one at a time on a fresh server over TCP (each frame readdressed
+    to the module) and reports the longest wait for a reply."""
+
+    def __init__(self, workdir: Path, timeout: float) -> None:
+        self.workdir = workdir
+        self.timeout = timeout
+        self.count = 0
+
+    def slowest(self, frames: list[bytes], gaps: list[float] | None = None) -> float:
+        self.count += 1
+        server = ServerProcess(self.workdir, next(_REPLAYS))
+        sock = socket.create_connection(server.tcp)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        worst = 0.0
+        try:
+            for i, raw in enumerate(frames):
+                frame = encode(MODULE_ADDRESS, raw[1], raw[2], raw[3],
+                               i32(int.from_bytes(raw[4:8], "big")))
+                if gaps:
+                    time.sleep(min(gaps[i], 0.5))
+                sent = time.monotonic()
+                sock.sendall(frame)
+                if (frame[1] == Opcode.RESTORE_FACTORY_SETTINGS
+                        and frame[4:8] == FACTORY_RESET_KEY.to_bytes(4, "big")):
+                    time.sleep(0.05)
+                    continue
+                got = b""
+                while True:
+                    sock.settimeout(max(0.001, sent + self.timeout - time.monotonic()))
+                    try:
+                        data = sock.recv(9 - len(got))
+                    except TimeoutError:
+                        return float("inf")
+                    if not data:
+                        return float("inf")
+                    got += data
+                    if len(got) == 9:
+                        if is_event(got):
+                            got = b""
+                            continue
+                        break
+                worst = max(worst, time.monotonic() - sent)
+            return worst
+        finally:
+            sock.close()
+            server.stop(kill=True)
+            shutil.rmtree(server.dir, ignore_errors=True)
+
+
+def ddmin(items: list[Any], test: Any, budget: float) -> list[Any]:
+    """Zeller's delta debugging: a 1-minimal sublist for which ``test`` holds (within a time
+    budget: then the smallest found so far)."""
+    deadline = time.monotonic() + budget
+    n = 2
+    while len(items) >= 2 and time.monotonic() < deadline:
+        size = len(items) // n
+        chunks = [items[i:i + size] for i in range(0, len(items), size)] if size else [items]
+        reduced = False
+        for i in range(len(chunks)):
+            complement = [x for j, c in enumerate(chunks) if j != i for x in c]
+            if complement and test(complement):
+                items, n, reduced = complement, max(n - 1, 2), True
+                break
+            if time.monotonic() > deadline:
+                break
+        if not reduced:
+            if n >= len(items):
+                break
+            n = min(len(items), n * 2)
+    return items
+
+
+def reduce_journal(journal: list[tuple[float, bytes]], workdir: Path, threshold: float,
+                   budget: float) -> dict[str, Any]:
+    """The fewest executed frames that still make one reply later than ``threshold``."""
+    replayer = Replayer(workdir, timeout=max(2 * threshold, threshold + 1.0))
+    frames = [f for _, f in journal]
+    times = [t for t, _ in journal]
+    gaps = [0.0] + [b - a for a, b in itertools.pairwise(times)]
+    timed = False
+    if replayer.slowest(frames) < threshold:
+        timed = True
+        if replayer.slowest(frames, gaps) < threshold:
+            return {"reproduced": False, "frames": len(frames), "replays": replayer.count}
+    indexed = list(range(len(frames)))
+
+    def test(sub: list[int]) -> bool:
+        return replayer.slowest([frames[i] for i in sub],
+                                [gaps[i] for i in sub] if timed else None) >= threshold
+
+    reads = {Opcode.GAP, Opcode.GGP, Opcode.GIO, Opcode.GCO, 134, 135, 136, 147, 148}
+    writes_only = [i for i in indexed if frames[i][1] not in reads]
+    if writes_only != indexed and writes_only and test(writes_only):
+        indexed = writes_only
+    minimal = ddmin(indexed, test, budget)
+    again = test(minimal)
+    return {"reproduced": True, "confirmed": again, "timed": timed, "from_frames": len(frames),
+            "replays": replayer.count, "minimal": [describe(frames[i]) for i in minimal],
+            "minimal_hex": [frames[i].hex(" ") for i in minimal]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -954,7 +1097,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--report", type=Path, help="write every finding with its repro (JSON)")
     parser.add_argument("--history", type=int, default=50, help="rounds kept for repros")
     parser.add_argument("--repro-rounds", type=int, default=3, help="earlier rounds in a repro")
+    parser.add_argument("--reduce", type=int, default=0, metavar="N",
+                        help="after the run, reduce the first N hangs to a minimal frame sequence")
+    parser.add_argument("--reduce-report", type=Path, metavar="FILE",
+                        help="only reduce the hangs of an earlier --report FILE")
+    parser.add_argument("--reduce-budget", type=float, default=300.0, metavar="S",
+                        help="seconds of replays per reduction")
     args = parser.parse_args(argv)
+    if args.reduce_report:
+        report = json.loads(args.reduce_report.read_text())
+        return reduce_hangs(report["hangs"][:args.reduce or None], args)
     bad = {a for a in args.avoid.split(",") if a.strip()} - {"known", *KNOWN_ITEMS}
     if bad:
         parser.error(f"--avoid: unknown item(s) {', '.join(sorted(bad))}")
@@ -964,16 +1116,36 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         fuzzer.stop_server(kill=True)
         fuzzer.tmp.cleanup()
-    if args.report:
-        args.report.write_text(json.dumps({"summary": summary, "violations": fuzzer.violations,
-                                           "stalls": fuzzer.stall_list, "hangs": fuzzer.hangs,
-                                           "crashes": fuzzer.crashes}, indent=1))
+    def write_report() -> None:
+        if args.report:
+            args.report.write_text(json.dumps({
+                "summary": summary, "violations": fuzzer.violations, "stalls": fuzzer.stall_list,
+                "hangs": fuzzer.hangs, "crashes": fuzzer.crashes}, indent=1))
+
+    write_report()
+    if args.reduce and fuzzer.hangs:
+        reduce_hangs(fuzzer.hangs[:args.reduce], args)
+        write_report()
     for kind, items in (("violation", fuzzer.violations), ("hang", fuzzer.hangs),
                         ("stall", fuzzer.stall_list[:10]), ("crash", fuzzer.crashes)):
         for item in items[:10]:
-            brief = {k: v for k, v in item.items() if k != "repro"}
+            brief = {k: v for k, v in item.items() if k not in ("repro", "journal")}
             print(f"fuzz: {kind}: {json.dumps(brief)[:400]}", file=sys.stderr)
     print(json.dumps(summary), flush=True)
+    return 0
+
+
+def reduce_hangs(hangs: list[dict[str, Any]], args: argparse.Namespace) -> int:
+    """Reduce each hang's journal to the fewest frames that still hang (> 1 s); print them."""
+    with tempfile.TemporaryDirectory(prefix="tmcl-fuzz-reduce-") as tmp:
+        for i, hang in enumerate(hangs):
+            journal = [(t, bytes.fromhex(h)) for t, h in hang.get("journal", [])]
+            if not journal:
+                continue
+            result = reduce_journal(journal, Path(tmp), threshold=1.0, budget=args.reduce_budget)
+            hang["reduced"] = result
+            print(f"fuzz: hang {i} ({hang['reason'][:60]}): {json.dumps(result)}", file=sys.stderr,
+                  flush=True)
     return 0
 
 
