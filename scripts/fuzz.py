@@ -146,7 +146,7 @@ class Generator:
         self.axis_params = sorted(PROFILE.axis_parameters)
         self.globals = {bank: sorted(n for n in table if not (bank == 0 and n in PROTECTED_GLOBALS))
                         for bank, table in PROFILE.global_parameters.items()}
-        kinds = {"single": 30, "burst": 25, "big_burst": 1, "torn": 12, "burst_torn": 1,
+        kinds = {"single": 30, "burst": 25, "big_burst": 2, "torn": 12, "burst_torn": 1,
                  "resync": 5, "junk": 3, "program": 5, "combo": 12, "control": 2}
         self.kinds = list(kinds)
         self.weights = list(kinds.values())
@@ -1150,6 +1150,7 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         parser.error(f"--avoid: unknown item(s) {', '.join(sorted(bad))}")
     fuzzer = Fuzzer(args)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # so that the server is stopped too
     try:
         summary = fuzzer.run()
     finally:
