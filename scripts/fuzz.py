@@ -512,7 +512,9 @@ class ServerProcess:
         self.stderr_path = self.dir / "stderr.log"
         self.stderr = open(self.stderr_path, "wb")  # noqa: SIM115 (closed in stop)
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0", "--pty", str(self.link),
+            # -X faulthandler: a hung server dumps its threads' stacks on SIGABRT (see stack())
+            [sys.executable, "-X", "faulthandler", "-m", "tmcl_server", "--tcp", "127.0.0.1:0",
+             "--pty", str(self.link),
              "--state-dir", str(self.dir / "state"), "--ready-file", str(ready)],
             stdout=subprocess.DEVNULL, stderr=self.stderr, cwd=str(Path(__file__).resolve().parent.parent))
         deadline = time.monotonic() + 30
@@ -556,6 +558,19 @@ class ServerProcess:
                 self.proc.wait()
         self.stderr.close()
         return self.proc.returncode
+
+    def stack(self) -> str:
+        """Where a hung server is: its threads' Python stacks (faulthandler, on SIGABRT)."""
+        if self.proc.poll() is not None:
+            return ""
+        self.proc.send_signal(signal.SIGABRT)
+        try:
+            self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            return ""
+        text = self.stderr_text()
+        at = text.rfind("Fatal Python error")
+        return text[at:at + 4000] if at >= 0 else ""
 
     def stderr_text(self) -> str:
         return self.stderr_path.read_text(errors="replace")
@@ -671,7 +686,7 @@ class Fuzzer:
             self.server.stop(kill)
             text = self.server.stderr_text()
             self.stderr_bytes += len(text.encode())
-            self.tracebacks += text.count("Traceback")
+            self.tracebacks += text.count("Traceback")  # (a faulthandler dump says "Stack")
             self.server = None
 
     def restart(self, reason: str) -> None:
@@ -826,6 +841,8 @@ class Fuzzer:
                         "latency_ms": round(latency * 1000, 1), "stream": link.name,
                         "frame": exp.frame.hex(" "), "round": self.stats.rounds,
                         "program": self.model.program_started,
+                        "program_words": ([[a, *w] for a, w in sorted(self.model.memory.items())]
+                                          if self.model.program_started else []),
                         "repro": self.repro(rnd, log)})
         return prev
 
@@ -956,10 +973,13 @@ class Fuzzer:
 
     def record_hang(self, rnd: Round, reason: str) -> None:
         assert self.server is not None
+        alive = self.server.alive()
         self.hangs.append({"reason": reason, "stream": rnd.stream, "round": self.stats.rounds,
+                           "program": self.model.program_started,
+                           "stack": self.server.stack() if alive else "",
                            "repro": self.repro(rnd, rnd.log),
                            "journal": [[round(t, 4), f.hex()] for t, f in self.journal]})
-        if not self.server.alive():
+        if not alive:
             self.record_crash(rnd)
             return
         self.restart("hang")
