@@ -86,13 +86,19 @@ GENERAL_ERRORS = frozenset({Status.INVALID_COMMAND, Status.WRONG_TYPE, Status.IN
                             Status.EEPROM_LOCKED})
 KNOWN_ITEMS = ("item1", "item2", "item3")
 #: ``--avoid item1``: speed and acceleration limits (max speed, max acceleration, reference
-#: search and switch speeds) are never set below this (0 and small values stall the server).
+#: search and switch speeds) and ROR/ROL speeds are never below this (0 and small values stall
+#: the server: the look-ahead walks a slow ramp one chip tick at a time).
 ITEM1_LIMITS = frozenset({4, 5, 194, 195})
 ITEM1_FLOOR = 1000
+#: ... nor are the pulse and ramp dividers (AP 153, 154) written, nor raw registers (146).
+ITEM1_DIVIDERS = frozenset({153, 154})
 
 JOIN_PAUSE_S = 0.0005  # pieces of one frame: well under the 5 ms rule
 JOIN_MAX_S = 0.002  # a planned join whose real gap exceeded this is ambiguous: not judged
 DROP_PAUSE_S = 0.030  # a partial frame followed by this pause must be dropped
+#: A reply outstanding this long while the server used less than IDLE_CPU_NS of CPU is lost.
+IDLE_CHECK_S = 0.5
+IDLE_CPU_NS = 5_000_000
 INT32 = (-0x8000_0000, 0x7FFF_FFFF)
 
 
@@ -178,11 +184,17 @@ class Generator:
         away from the known open problems."""
         if op in GLOBAL_WRITERS and type_ in PROTECTED_GLOBALS:
             type_ = self.rng.choice(self.globals[0])
-        if "item1" in self.avoid:  # a low speed limit (not only 0) makes the look-ahead crawl
+        if "item1" in self.avoid:  # a low speed (not only 0) makes the look-ahead crawl
             if op == Opcode.SAP and type_ in ITEM1_LIMITS and 0 <= value < ITEM1_FLOOR:
                 value = ITEM1_FLOOR + self.rng.randrange(2047)
-            if op == Opcode.AAP and type_ in ITEM1_LIMITS:
+            if op in (Opcode.ROR, Opcode.ROL) and 0 < abs(value) < ITEM1_FLOOR:
+                value = ITEM1_FLOOR + self.rng.randrange(2047)
+            if op == Opcode.SAP and type_ in ITEM1_DIVIDERS:
+                op = Opcode.GAP
+            if op == Opcode.AAP and type_ in ITEM1_LIMITS | ITEM1_DIVIDERS:
                 type_ = 0
+            if op == Opcode.WRITE_MC:  # a raw write can set any speed or divider
+                op = Opcode.READ_MC
         if "item3" in self.avoid and in_program and op in (Opcode.STAP, Opcode.STGP, Opcode.SCO,
                                                            Opcode.SGP, Opcode.AGP):
             op = Opcode.GGP
@@ -542,6 +554,13 @@ class ServerProcess:
         except (OSError, IndexError, ValueError):
             return 0
 
+    def cpu_ns(self) -> int:
+        """CPU time the server's event-loop thread has used (schedstat), 0 if unknown."""
+        try:
+            return int(Path(f"/proc/{self.proc.pid}/task/{self.proc.pid}/schedstat").read_text().split()[0])
+        except (OSError, IndexError, ValueError):
+            return 0
+
     def fds(self) -> int:
         return len(os.listdir(f"/proc/{self.proc.pid}/fd"))
 
@@ -850,15 +869,27 @@ class Fuzzer:
                      log: Any = None) -> None:
         last_progress = time.monotonic()
         count = len(queue)
+        assert self.server is not None
+        cpu, waited = self.server.cpu_ns(), self.server.run_delay_ns()
         while queue and not link.broken:
             self.sel_wait(link, timeout=0.05)
             prev = self.read_available(link, queue, rnd, prev, log)
             now = time.monotonic()
             if len(queue) != count:
                 count, last_progress = len(queue), now
-            elif now - last_progress > self.args.hang_s:
-                raise Hang(f"no reply for {self.args.hang_s:g} s, {len(queue)} outstanding "
-                           f"(next: {queue[0].frame.hex(' ')})")
+                cpu, waited = self.server.cpu_ns(), self.server.run_delay_ns()
+            elif now - last_progress > IDLE_CHECK_S:
+                used = self.server.cpu_ns() - cpu
+                kept_off = self.server.run_delay_ns() - waited
+                if 0 <= used < IDLE_CPU_NS and kept_off < IDLE_CPU_NS:
+                    # neither running nor waiting for a CPU, and it owes us a reply: lost
+                    self.violation(link, rnd, queue[0], b"", "no reply, the server is idle", log)
+                    queue.clear()
+                    return
+                cpu, waited = cpu + used, waited + kept_off
+                if now - last_progress > self.args.hang_s:
+                    raise Hang(f"no reply for {self.args.hang_s:g} s, {len(queue)} outstanding "
+                               f"(next: {queue[0].frame.hex(' ')})")
 
     def repro(self, rnd: Round | None, log: Any) -> list[dict[str, Any]]:
         rounds = list(self.history)[-self.args.repro_rounds:]
