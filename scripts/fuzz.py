@@ -683,6 +683,7 @@ class Fuzzer:
         self.stderr_bytes = 0
         self.tracebacks = 0
         self.rss_start = self.fds_start = 0
+        self.last_start = (0, 0, 0)  # RSS, descriptors and frames when the last server started
         self.rss_peak = 0
         self.needs_reset = False
         #: Frames the module executed since it started or was last reset (for reductions).
@@ -711,6 +712,9 @@ class Fuzzer:
     def restart(self, reason: str) -> None:
         self.stop_server(kill=True)
         self.start_server()
+        assert self.server is not None
+        time.sleep(0.2)
+        self.last_start = (self.server.rss_kb(), self.server.fds(), self.stats.frames)
         print(f"fuzz: server restarted ({reason})", file=sys.stderr)
 
     # -- one round -----------------------------------------------------------------------------
@@ -969,6 +973,7 @@ class Fuzzer:
         assert self.server is not None
         time.sleep(0.2)
         self.rss_start, self.fds_start = self.server.rss_kb(), self.server.fds()
+        self.last_start = (self.rss_start, self.fds_start, 0)
         started = time.monotonic()
         last_progress = started
         deadline = started + args.duration if args.duration else None
@@ -1053,7 +1058,11 @@ class Fuzzer:
             "crashes": len(self.crashes), "tracebacks": self.tracebacks,
             "server_stderr_bytes": self.stderr_bytes, "servers_started": self.servers,
             "rss_kb_start": self.rss_start, "rss_kb_end": rss_end, "rss_kb_peak": max(self.rss_peak, rss_end),
-            "fds_start": self.fds_start, "fds_end": fds_end, "seconds": round(elapsed, 1),
+            "fds_start": self.fds_start, "fds_end": fds_end,
+            # after a hang the server is restarted: the last one's own start and frames served
+            "last_server": {"rss_kb_start": self.last_start[0], "fds_start": self.last_start[1],
+                            "frames": s.frames - self.last_start[2]},
+            "seconds": round(elapsed, 1),
             "rounds_by_kind": s.by_kind,
         }
 
