@@ -4,7 +4,8 @@ the pty against a real ``tmcl-server`` process, every reply checked (scripts/fuz
 The full run (``scripts/fuzz.py --frames 1000000``) is not part of the test suite; this one uses
 the same generator and checker with a fixed seed.  Stalls (replies later than 50 ms after they
 were due) are counted and reported, but on a noisy 2-core CI machine a 50 ms bound would be
-flaky: here no reply may come later than 1 s (docs/robustness.md, "The fuzzer").
+flaky: here no reply may come later than 1 s (docs/robustness.md, "The fuzzer").  For the same
+reason a torn frame the server misjoined although nobody was measurably late is judged by rate.
 """
 
 from __future__ import annotations
@@ -38,6 +39,12 @@ def test_ten_thousand_fuzzed_frames_get_exactly_the_replies_the_wire_rules_deman
     assert summary["replies_checked"] + summary["silences_checked"] >= 9_000
     assert summary["torn_pieces"] > 0 and summary["dropped_partials"] > 0
     assert summary["violations"] == 0, findings["violations"][:3]
+    # A frame torn on purpose (pieces < 2 ms apart) that the server misjoined although neither the
+    # fuzzer nor the server's CPU was late: the kernel's own delivery of a pty's or socket's bytes
+    # may be late on a loaded machine, so these are judged by their rate.  Issue 11 item 2 (a
+    # frame torn after a burst) misjoins every such frame.
+    assert summary["torn_mismatches"] <= max(2, summary["torn_rounds"] // 50), \
+        findings["torn_mismatches"][:3]
     assert summary["crashes"] == 0 and summary["tracebacks"] == 0, brief
     assert summary["hangs"] == 0, [h["reason"] for h in findings["hangs"]]
     assert summary["max_latency_ms"] < CI_LATENESS_MS, findings["stalls"][:3]
