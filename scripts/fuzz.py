@@ -38,8 +38,9 @@ every frame and pause sent; only the server's timing differs between runs.
 
 The last line on standard output is a JSON summary; ``--report FILE`` writes every finding
 with its repro.  Known open problems can be left out with ``--avoid`` (issue 11):
-``item1`` (acceleration/speed 0 then a move), ``item2`` (a frame torn right after a big
-burst), ``item3`` (EEPROM stores in a program loop), or ``known`` for all three.
+``item1`` (slow ramps: speed/acceleration limits and ROR/ROL speeds below 1,000, the dividers,
+raw register writes), ``item2`` (a frame torn right after a big burst), ``item3`` (EEPROM
+stores in a program loop), or ``known`` for all three.
 """
 
 from __future__ import annotations
