@@ -200,6 +200,31 @@ change = st.one_of(
 )
 
 
+def _replay_changes(chip, ref, changes: list[tuple[int, tuple[str, int]]], conf: int = 0) -> None:
+    """Apply each change to the engine and the reference after its gap of clocks, run both
+    150,000 clocks past the last one, and compare the instants the target was reached.
+    ``conf``: the REF_CONF bits kept when the ramp mode is written."""
+    arrivals: list[int] = []
+    t = 0
+    for gap, (what, value) in changes:
+        t += gap
+        _run_both(chip, ref, t, arrivals)
+        if what == "x_target":
+            chip.write(Reg.X_TARGET, value & MASK24)
+            ref.x_target = value & MASK24
+        elif what == "v_target":
+            chip.write(Reg.V_TARGET, value & 0xFFF)
+            ref.v_target = value
+        elif what == "mode":
+            chip.write(Reg.REF_CONF_RAMP_MODE, conf | value)
+            ref.mode = RampMode(value)
+        else:
+            chip.write(getattr(Reg, what.upper()), value)
+            setattr(ref, what, value)
+    _run_both(chip, ref, t + 150_000, arrivals)
+    assert arrivals == ref.arrivals
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @example(pulse_div=0, span=3, a_max=165, v_max=18, first_target=18,  # a reversal's zero crossing
          changes=[(8, ("mode", RampMode.VELOCITY)), (2242, ("v_target", -18))])
@@ -216,25 +241,7 @@ def test_engine_matches_the_tick_by_tick_reference(pulse_div: int, span: int, a_
     ref = _reference_for(chip)
     chip.write(Reg.X_TARGET, first_target & MASK24)
     ref.x_target = first_target & MASK24
-    arrivals: list[int] = []
-    t = 0
-    for gap, (what, value) in changes:
-        t += gap
-        _run_both(chip, ref, t, arrivals)
-        if what == "x_target":
-            chip.write(Reg.X_TARGET, value & MASK24)
-            ref.x_target = value & MASK24
-        elif what == "v_target":
-            chip.write(Reg.V_TARGET, value & 0xFFF)
-            ref.v_target = value
-        elif what == "mode":
-            chip.write(Reg.REF_CONF_RAMP_MODE, value)
-            ref.mode = RampMode(value)
-        else:
-            chip.write(getattr(Reg, what.upper()), value)
-            setattr(ref, what, value)
-    _run_both(chip, ref, t + 150_000, arrivals)
-    assert arrivals == ref.arrivals
+    _replay_changes(chip, ref, changes)
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -274,25 +281,7 @@ def test_engine_matches_the_reference_with_switches_and_slow_ramps(
     ref.disable_left, ref.disable_right = bool(disable & 1), bool(disable & 2)
     chip.write(Reg.X_TARGET, first_target & MASK24)
     ref.x_target = first_target & MASK24
-    arrivals: list[int] = []
-    t = 0
-    for gap, (what, value) in changes:
-        t += gap
-        _run_both(chip, ref, t, arrivals)
-        if what == "x_target":
-            chip.write(Reg.X_TARGET, value & MASK24)
-            ref.x_target = value & MASK24
-        elif what == "v_target":
-            chip.write(Reg.V_TARGET, value & 0xFFF)
-            ref.v_target = value
-        elif what == "mode":
-            chip.write(Reg.REF_CONF_RAMP_MODE, conf | value)
-            ref.mode = RampMode(value)
-        else:
-            chip.write(getattr(Reg, what.upper()), value)
-            setattr(ref, what, value)
-    _run_both(chip, ref, t + 150_000, arrivals)
-    assert arrivals == ref.arrivals
+    _replay_changes(chip, ref, changes, conf)
 
 
 def test_24_bit_wrap_goes_the_short_way() -> None:
