@@ -653,6 +653,7 @@ class Stats:
     torn_rounds: int = 0  # rounds that joined a torn frame
     stalls: int = 0
     stalls_with_program: int = 0  # while a program the fuzzer started may be running
+    stalls_starved: int = 0  # the server waited for a CPU for over half the stall
     max_latency_ms: float = 0.0
     latencies: list[float] = field(default_factory=list)  # a sample for percentiles
     by_kind: dict[str, int] = field(default_factory=dict)
@@ -674,6 +675,8 @@ class Fuzzer:
         self.model = ModuleModel()
         self.violations: list[dict[str, Any]] = []
         self.excused: list[dict[str, Any]] = []  # mismatches while the server was starved
+        self.starved_ms = 0.0  # how long the server waited for a CPU between our last two reads
+        self.delay_at_read = 0
         self.torn_mismatches: list[dict[str, Any]] = []
         self.round_delay_start = 0
         self.stall_list: list[dict[str, Any]] = []
@@ -834,6 +837,9 @@ class Fuzzer:
             raise Hang("connection closed by the server")
         now = time.monotonic()
         link.inbox += data
+        delay = self.server.run_delay_ns() if self.server is not None else 0
+        self.starved_ms = (delay - self.delay_at_read) / 1e6  # since the previous read
+        self.delay_at_read = delay
         return self.consume(link, queue, now, prev, rnd, log)
 
     def consume(self, link: Link, queue: deque[Expect], now: float, prev: float,
@@ -865,11 +871,14 @@ class Fuzzer:
                 self.stats.latencies.append(latency)
             if latency * 1000 > self.args.stall_ms:
                 self.stats.stalls += 1
+                if self.starved_ms > latency * 1000 / 2:  # the OS kept the server off the CPU
+                    self.stats.stalls_starved += 1
                 if self.model.program_started:
                     self.stats.stalls_with_program += 1
                 if len(self.stall_list) < 200:
                     self.stall_list.append({
                         "latency_ms": round(latency * 1000, 1), "stream": link.name,
+                        "server_waited_for_cpu_ms": round(self.starved_ms, 1),
                         "frame": exp.frame.hex(" "), "round": self.stats.rounds,
                         "program": self.model.program_started,
                         "program_words": ([[a, *w] for a, w in sorted(self.model.memory.items())]
@@ -891,6 +900,12 @@ class Fuzzer:
                 count, last_progress = len(queue), now
                 cpu, waited = self.server.cpu_ns(), self.server.run_delay_ns()
             elif now - last_progress > IDLE_CHECK_S:
+                if link.ambiguous:
+                    # we paused longer than a join inside a frame: the server may rightly have
+                    # dropped the fragment, so no reply is owed (counted as ambiguous, not a hang)
+                    self.violation(link, rnd, queue[0], b"", "no reply after a late piece", log)
+                    queue.clear()
+                    return
                 used = self.server.cpu_ns() - cpu
                 kept_off = self.server.run_delay_ns() - waited
                 if 0 <= used < IDLE_CPU_NS and kept_off < IDLE_CPU_NS:
@@ -1077,6 +1092,7 @@ class Fuzzer:
             "torn_rounds": s.torn_rounds, "torn_mismatches": s.torn_mismatches,
             "violations": len(self.violations),
             "stalls": s.stalls, "stalls_with_program": s.stalls_with_program,
+            "stalls_starved": s.stalls_starved,
             "stall_ms": self.args.stall_ms, "max_latency_ms": round(s.max_latency_ms, 1),
             "latency_ms_p50": pct(0.5), "latency_ms_p99": pct(0.99), "hangs": len(self.hangs),
             "crashes": len(self.crashes), "tracebacks": self.tracebacks,
