@@ -62,7 +62,7 @@ import tempfile
 import termios
 import time
 import tty
-from collections import deque
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -95,6 +95,8 @@ ITEM1_FLOOR = 1000
 ITEM1_DIVIDERS = frozenset({153, 154})
 
 JOIN_PAUSE_S = 0.0005  # pieces of one frame: well under the 5 ms rule
+#: A reply this late makes the fuzzer ask the server for its stacks (SIGUSR1), once per wait.
+STACK_SAMPLE_S = 0.2
 JOIN_MAX_S = 0.002  # a planned join whose real gap exceeded this is ambiguous: not judged
 DROP_PAUSE_S = 0.030  # a partial frame followed by this pause must be dropped
 #: A reply outstanding this long while the server used less than IDLE_CPU_NS of CPU is lost.
@@ -597,6 +599,21 @@ class ServerProcess:
     def stderr_text(self) -> str:
         return self.stderr_path.read_text(errors="replace")
 
+    def sample_stack(self) -> None:
+        """Ask a busy server where it is: tmcl-server prints its stacks on SIGUSR1."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGUSR1)
+
+
+def stall_stacks(text: str, depth: int = 8) -> list[str]:
+    """The innermost frames of each stack a server printed on SIGUSR1, one string per dump."""
+    stacks = []
+    for block in text.split("Current thread ")[1:]:
+        frames = [line.strip() for line in block.splitlines()[1:] if line.strip().startswith("File ")]
+        stacks.append(" <- ".join(f.split('"')[1].rsplit("/", 2)[-1] + ":" + f.split("line ")[1]
+                                  for f in frames[:depth] if '"' in f and "line " in f))
+    return stacks
+
 
 class Link:
     """One byte stream to the server (a TCP connection or the pty), non-blocking."""
@@ -680,6 +697,8 @@ class Fuzzer:
         self.torn_mismatches: list[dict[str, Any]] = []
         self.round_delay_start = 0
         self.stall_list: list[dict[str, Any]] = []
+        #: Where the server was when a reply was late by STACK_SAMPLE_S (stack -> times seen).
+        self.stall_stacks: Counter[str] = Counter()
         self.hangs: list[dict[str, Any]] = []
         self.crashes: list[dict[str, Any]] = []
         self.history: deque[Round] = deque(maxlen=args.history)
@@ -715,6 +734,7 @@ class Fuzzer:
             self.server.stop(kill)
             text = self.server.stderr_text()
             self.stderr_bytes += len(text.encode())
+            self.stall_stacks.update(stall_stacks(text.split("Fatal Python error")[0]))
             self.tracebacks += text.count("Traceback")  # (a faulthandler dump says "Stack")
             self.server = None
 
@@ -892,6 +912,7 @@ class Fuzzer:
         count = len(queue)
         assert self.server is not None
         cpu, waited = self.server.cpu_ns(), self.server.run_delay_ns()
+        sampled = False
         while queue and not link.broken:
             self.sel_wait(link, timeout=0.05)
             prev = self.read_available(link, queue, rnd, prev, log)
@@ -899,6 +920,9 @@ class Fuzzer:
             if len(queue) != count:
                 count, last_progress = len(queue), now
                 cpu, waited = self.server.cpu_ns(), self.server.run_delay_ns()
+            elif not sampled and now - last_progress > STACK_SAMPLE_S:
+                self.server.sample_stack()  # a long stall in the making: where is the server?
+                sampled = True
             elif now - last_progress > IDLE_CHECK_S:
                 if link.ambiguous:
                     # we paused longer than a join inside a frame: the server may rightly have
@@ -1262,6 +1286,8 @@ def main(argv: list[str] | None = None) -> int:
                 "summary": summary, "violations": fuzzer.violations, "excused": fuzzer.excused,
                 "torn_mismatches": fuzzer.torn_mismatches,
                 "stalls": fuzzer.stall_list,
+                "stall_stacks": [{"count": n, "stack": k}
+                                 for k, n in fuzzer.stall_stacks.most_common(30)],
                 "hangs": fuzzer.hangs, "crashes": fuzzer.crashes}, indent=1))
 
     write_report()

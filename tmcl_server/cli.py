@@ -343,12 +343,23 @@ async def run(config: ServerConfig) -> None:
         print("tmcl-server: stopped", flush=True)
 
 
+def dump_stacks_on_sigusr1() -> None:
+    """``kill -USR1 PID`` prints every thread's Python stack to standard error: where a busy
+    server spends its time, without stopping it (docs/robustness.md)."""
+    import faulthandler
+    import signal
+
+    if hasattr(signal, "SIGUSR1"):
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Exit status 0 after a clean stop, 2 for a bad command-line value (one line on standard
     error, as argparse), 1 when the surroundings refuse (a port in use) or serving fails."""
     try:
         args = build_parser().parse_args(argv)
         logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
+        dump_stacks_on_sigusr1()
         config = config_from_args(args)
         with asyncio.Runner(loop_factory=lambda: new_event_loop(args.loop)) as runner:
             runner.run(run(config))
