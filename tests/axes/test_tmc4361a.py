@@ -291,6 +291,8 @@ change = st.one_of(
 @example(regs=Registers(rampmode=5, vmax=49251, vstart=1865, vstop=12969, amax=3181, dmax=2966,
                         clk_freq=1000, xtarget=MASK32), quantum=2,  # arrival inside the step
          changes=[(2110, "vmax", 1518), (2835, "xtarget", 13), (1615, "vmax", 35200)])
+@example(regs=Registers(rampmode=5, vmax=7680, vstop=31, amax=120, dmax=120, clk_freq=500,
+                        xtarget=MASK32), quantum=64, changes=[])  # S-ramp without bows, far target
 @given(regs=ramp_registers((0, 1, 1)), quantum=st.just(64),
        changes=st.lists(change, max_size=3))
 def test_trapezoid_and_sixpoint_ramps_match_the_reference(regs: Registers, quantum: int,
