@@ -451,7 +451,8 @@ class Ramp:
             return True, False
         if self.w == 0 and self.stage == Stage.IDLE:
             self.braking = False
-        return False, moving and self.w == 0
+        # a stop ends at rest: a BOW2 = BOW4 U-turn that hits v = 0 exactly passes through
+        return False, moving and self.w == 0 and self.stage == Stage.IDLE
 
     def _no_ramp_tick(self, ctx: Context) -> None:
         P = self.P

@@ -256,7 +256,7 @@ def ramp_registers(draw: st.DrawFn, profiles: tuple[int, ...]) -> Registers:
 
     regs = Registers(rampmode=(4 if positioning else 0) | profile, clk_freq=F_TEST,
                      vmax=(sign * v) & MASK32, amax=acc(), dmax=acc(),
-                     xtarget=draw(st.integers(-250, 250)) & MASK32,
+                     xtarget=draw(st.one_of(st.integers(-250, 250), st.integers(-3, 3))) & MASK32,
                      tzerowait=draw(st.sampled_from([0, 0, 37, 400])))
     if draw(st.booleans()):
         regs.vstart = draw(st.integers(0, v // 2))
@@ -304,6 +304,9 @@ def test_trapezoid_and_sixpoint_ramps_match_the_reference(regs: Registers, quant
 @example(regs=Registers(rampmode=6, vmax=7680, vstop=31, amax=120, dmax=120, bow1=200, bow2=200,
                         bow3=200, bow4=150, clk_freq=500, xtarget=100), quantum=8,
          changes=[(1, "xtarget", 0)])  # target = here while v is still 0: arrive once moving
+@example(regs=Registers(rampmode=2, vmax=-7680 & MASK32, amax=120, dmax=120, astart=120, bow1=76,
+                        bow2=76, bow3=76, bow4=76, clk_freq=500), quantum=4,
+         changes=[(1, "bow3", 125), (1, "rampmode", 6)])  # BOW2 = BOW4 U-turn hits v = 0 exactly
 @given(regs=ramp_registers((2,)), quantum=st.sampled_from([1, 2, 4, 8]),
        changes=st.lists(change, max_size=3))
 def test_s_ramps_match_the_reference(regs: Registers, quantum: int, changes: list) -> None:
