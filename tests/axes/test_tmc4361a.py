@@ -314,6 +314,18 @@ def test_s_ramps_match_the_reference(regs: Registers, quantum: int, changes: lis
     _compare(regs, quantum, changes, tail=4000)
 
 
+@pytest.mark.xfail(strict=True, reason="known: the braking decision's margin saw-tooths with the"
+                   " quantum phase in a REC stage; first_nonneg finds a later crossing (1 clock)")
+def test_braking_decision_in_a_rec_stage_with_a_saw_tooth_margin() -> None:
+    """Found with 30x the hypothesis examples: after VMAX rises mid-approach the ramp takes
+    back its deceleration (REC, quantum 2); the margin 'braking distance - rest' of the next
+    ticks is -, -, -, -, +, -, +, ... (the twin's quantum phase), the reference brakes at the
+    first +, the engine's bracketing search at the second: it arrives one clock late."""
+    regs = Registers(rampmode=6, vmax=256, amax=4, dmax=4, bow1=3, bow2=3, bow3=3, bow4=3,
+                     clk_freq=500, xtarget=2)
+    _compare(regs, 2, [(453, "dmax", 124), (826, "vmax", 771)], tail=900)
+
+
 @settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(target=st.integers(100, 400), bows=st.tuples(*[st.integers(2000, 6000)] * 4),
        dmax=st.integers(500, 2000))
