@@ -100,8 +100,10 @@ def setup_4210(chip: TMC4210, axis: int) -> None:
     ramp_div, a_max = choose_ramp_div(pps2, pulse_div, CLOCK_HZ)
     pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
     chip.spi(datagram4210(Reg4210.IF_CONFIGURATION, EN_SD))
-    chip.spi(datagram4210(Reg4210.V_MIN, stop_speed(a_max, pmul, pdiv)))
-    chip.spi(datagram4210(Reg4210.V_MAX, velocity_register_4210(pps, pulse_div, CLOCK_HZ)))
+    v_max = velocity_register_4210(pps, pulse_div, CLOCK_HZ)
+    chip.spi(datagram4210(Reg4210.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div,
+                                                    pulse_div)))
+    chip.spi(datagram4210(Reg4210.V_MAX, v_max))
     chip.spi(datagram4210(Reg4210.A_MAX, a_max))
     chip.spi(datagram4210(Reg4210.PMUL_PDIV, pmul << 8 | pdiv))
     chip.spi(datagram4210(Reg4210.DIVIDERS, pulse_div << 12 | ramp_div << 8))

@@ -29,6 +29,7 @@ from axes.tmc4361a.ramp import (
     Params,
     Ramp,
     RampRegisters,
+    Stage,
 )
 from axes.tmc4361a.registers import (
     FLAG_EVENTS,
@@ -247,7 +248,7 @@ class TMC4361A:
         else:
             self._update_flags()
             self._check_stops()
-        if moving and ramp.w == 0 and not arrived:
+        if moving and ramp.w == 0 and ramp.stage == Stage.IDLE and not arrived:
             stopped = True
         if arrived:
             return Stop.ARRIVED

@@ -451,7 +451,8 @@ class Ramp:
             return True, False
         if self.w == 0 and self.stage == Stage.IDLE:
             self.braking = False
-        return False, moving and self.w == 0
+        # a stop ends at rest: a BOW2 = BOW4 U-turn that hits v = 0 exactly passes through
+        return False, moving and self.w == 0 and self.stage == Stage.IDLE
 
     def _no_ramp_tick(self, ctx: Context) -> None:
         P = self.P
@@ -1017,10 +1018,20 @@ class Ramp:
             best = self._steps_limit(wanted, seg, best - 1)
         P = self.P
         if P.positioning and self.x == ctx.target and (self.w or self.stage != Stage.IDLE):
-            # inside the target microstep: the move ends at the first tick with |v| <= VSTOP
+            # inside the target microstep: the move ends at the first tick that starts moving
+            # (|v| > 0 before it) and ends with |v| <= VSTOP.  Within a segment |v| is monotone:
+            # falling, that tick is a threshold crossing; rising (a move that starts inside its
+            # target step, e.g. one step behind), it is the first moving tick or none at all.
             if P.profile == 0:
                 return 1
-            best = first_nonneg(lambda i: P.VSTOP - self._state_after(seg, i)[0], best - 1)
+            state_after = self._state_after
+            if self.w == 0:  # not moving yet: no arrival before the tick after |v| > 0
+                best = min(best, first_nonneg(lambda i: state_after(seg, i)[0] - 1,
+                                              best - 1) + 1)
+            elif state_after(seg, 1)[0] <= P.VSTOP:
+                return 1
+            else:
+                best = first_nonneg(lambda i: P.VSTOP - state_after(seg, i)[0], best - 1)
         if kind == A_POSITION:
             best = self._braking_limit(seg, action[1], best - 1)
             best = min(best, self._rem_sign_limit(action[1], seg, best - 1))

@@ -171,7 +171,7 @@ class ReferenceRamp:
                 at_target and moving and self.w <= self.VSTOP):
             self._rest()
             self.arrivals.append(self.t)
-        elif moving and self.w == 0:
+        elif moving and self.w == 0 and self.stage == IDLE:  # not a BOW2 = BOW4 pass at 0
             self.stops.append(self.t)
         if self.w == 0 and self.stage == IDLE:
             self.braking = False

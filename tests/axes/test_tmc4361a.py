@@ -256,7 +256,7 @@ def ramp_registers(draw: st.DrawFn, profiles: tuple[int, ...]) -> Registers:
 
     regs = Registers(rampmode=(4 if positioning else 0) | profile, clk_freq=F_TEST,
                      vmax=(sign * v) & MASK32, amax=acc(), dmax=acc(),
-                     xtarget=draw(st.integers(-250, 250)) & MASK32,
+                     xtarget=draw(st.one_of(st.integers(-250, 250), st.integers(-3, 3))) & MASK32,
                      tzerowait=draw(st.sampled_from([0, 0, 37, 400])))
     if draw(st.booleans()):
         regs.vstart = draw(st.integers(0, v // 2))
@@ -291,6 +291,8 @@ change = st.one_of(
 @example(regs=Registers(rampmode=5, vmax=49251, vstart=1865, vstop=12969, amax=3181, dmax=2966,
                         clk_freq=1000, xtarget=MASK32), quantum=2,  # arrival inside the step
          changes=[(2110, "vmax", 1518), (2835, "xtarget", 13), (1615, "vmax", 35200)])
+@example(regs=Registers(rampmode=5, vmax=7680, vstop=31, amax=120, dmax=120, clk_freq=500,
+                        xtarget=MASK32), quantum=64, changes=[])  # VSTOP above v: arrive at clock 2
 @given(regs=ramp_registers((0, 1, 1)), quantum=st.just(64),
        changes=st.lists(change, max_size=3))
 def test_trapezoid_and_sixpoint_ramps_match_the_reference(regs: Registers, quantum: int,
@@ -299,11 +301,29 @@ def test_trapezoid_and_sixpoint_ramps_match_the_reference(regs: Registers, quant
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(regs=Registers(rampmode=6, vmax=7680, vstop=31, amax=120, dmax=120, bow1=200, bow2=200,
+                        bow3=200, bow4=150, clk_freq=500, xtarget=100), quantum=8,
+         changes=[(1, "xtarget", 0)])  # target = here while v is still 0: arrive once moving
+@example(regs=Registers(rampmode=2, vmax=-7680 & MASK32, amax=120, dmax=120, astart=120, bow1=76,
+                        bow2=76, bow3=76, bow4=76, clk_freq=500), quantum=4,
+         changes=[(1, "bow3", 125), (1, "rampmode", 6)])  # BOW2 = BOW4 U-turn hits v = 0 exactly
 @given(regs=ramp_registers((2,)), quantum=st.sampled_from([1, 2, 4, 8]),
        changes=st.lists(change, max_size=3))
 def test_s_ramps_match_the_reference(regs: Registers, quantum: int, changes: list) -> None:
     """Short bow quanta (a test-only setting) put many bow phases into few clocks."""
     _compare(regs, quantum, changes, tail=4000)
+
+
+@pytest.mark.xfail(strict=True, reason="known: the braking decision's margin saw-tooths with the"
+                   " quantum phase in a REC stage; first_nonneg finds a later crossing (1 clock)")
+def test_braking_decision_in_a_rec_stage_with_a_saw_tooth_margin() -> None:
+    """Found with 30x the hypothesis examples: after VMAX rises mid-approach the ramp takes
+    back its deceleration (REC, quantum 2); the margin 'braking distance - rest' of the next
+    ticks is -, -, -, -, +, -, +, ... (the twin's quantum phase), the reference brakes at the
+    first +, the engine's bracketing search at the second: it arrives one clock late."""
+    regs = Registers(rampmode=6, vmax=256, amax=4, dmax=4, bow1=3, bow2=3, bow3=3, bow4=3,
+                     clk_freq=500, xtarget=2)
+    _compare(regs, 2, [(453, "dmax", 124), (826, "vmax", 771)], tail=900)
 
 
 @settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -795,6 +815,87 @@ def test_positions_are_32_bit_and_targets_go_the_short_way() -> None:
     chip.write(Reg.XTARGET, 0x8000_0100)  # 512 steps ahead through the wrap
     assert run_until_stop(chip) is Stop.ARRIVED
     assert chip.read(Reg.XACTUAL) == 0x8000_0100 and chip.motor_position == 512
+
+
+SHORT_MOVES = {  # raw registers at CLK_FREQ = F_TEST (500 Hz): VMAX 30 pps, 30 pps²
+    "trapezoid, VSTOP 31": dict(rampmode=5, vmax=7680, vstop=31, amax=120, dmax=120),
+    "trapezoid, no VSTOP": dict(rampmode=5, vmax=7680, amax=120, dmax=120),
+    "trapezoid, VSTART < VSTOP": dict(rampmode=5, vmax=7680, vstart=20, vstop=31, amax=120,
+                                      dmax=120),
+    "SixPoint": dict(rampmode=5, vmax=7680, vstart=10, vstop=31, vbreak=2000, astart=200,
+                     dfinal=200, amax=120, dmax=120),
+    "S-ramp, VSTOP 31": dict(rampmode=6, vmax=7680, vstop=31, amax=120, dmax=120, bow1=200,
+                             bow2=200, bow3=200, bow4=150),
+}
+
+
+@pytest.mark.parametrize("quantum", [2, 64])
+@pytest.mark.parametrize("target", [-1, 1, -2])
+@pytest.mark.parametrize("name", list(SHORT_MOVES))
+def test_a_move_of_a_step_or_two_ends_on_the_target_in_bounded_time(name: str, target: int,
+                                                                   quantum: int) -> None:
+    """The pinned hypothesis case (one step behind, VSTOP above the speed of the first
+    clocks): the motor enters step -1 on its first clock, and the datasheet's rule (VSTOP in
+    positioning: |VACTUAL| <= VSTOP and XACTUAL = XTARGET: VACTUAL := 0) ends the move on the
+    next one.  The fast engine used to jump past that clock (its arrival search assumed a
+    falling speed) and ran on to the aim point.  Checked through the registers, against the
+    chip run one clock at a time, and against the reference."""
+    if name.startswith("S-ramp") and quantum == 64 and target != -1:
+        pytest.skip("one 64-clock bow quantum at 500 Hz cannot brake within a step: no start")
+    regs = SHORT_MOVES[name]
+    chip = chip_with(clock=F_TEST, quantum=quantum, **regs, xtarget=target)
+    limit = 2 * F_TEST  # two seconds of clock: far more than any of these moves needs
+    assert chip.run(limit) is Stop.ARRIVED
+    arrived = chip.t
+    assert arrived < limit
+    assert signed(chip.read(Reg.XACTUAL)) == signed(chip.read(Reg.XTARGET)) == target
+    assert chip.read(Reg.VACTUAL) == 0 and chip.ramp.w == 0
+    assert chip.read(Reg.STATUS) & Status.TARGET_REACHED_F
+    assert chip.read(Reg.EVENTS) & Event.TARGET_REACHED
+    assert chip.run(limit) is None and signed(chip.read(Reg.XACTUAL)) == target  # stays there
+    literal = chip_with(clock=F_TEST, quantum=quantum, **regs, xtarget=target)
+    while literal.run(literal.t + 1) is None:  # the law, one clock per call
+        assert literal.t < limit
+    assert (literal.t, literal.ramp.p) == (arrived, chip.ramp.p)
+    reference = dict(regs, xtarget=target & MASK32)
+    _compare(Registers(clk_freq=F_TEST, **reference), quantum, [], tail=limit)
+
+
+def test_the_pinned_case_arrives_on_its_second_clock() -> None:
+    chip = chip_with(clock=F_TEST, **SHORT_MOVES["trapezoid, VSTOP 31"], xtarget=-1)
+    assert chip.run(4000) is Stop.ARRIVED and chip.t == 2
+    assert chip.ramp.w < chip.ramp.P.S  # it moved a fraction of a step: step -1 is entered
+    assert -chip.ramp.P.S <= chip.ramp.p < 0  # at once (XACTUAL = floor of the fine position)
+
+
+@pytest.mark.parametrize("rampmode", [4, 5, 6])
+@pytest.mark.parametrize(("start", "target", "steps"), [
+    (0x7FFF_FFF0, 0x8000_0010, 32),  # up through +2^31 - 1 -> -2^31
+    (0x8000_0010, 0x7FFF_FFF0, -32),  # down through the same wrap
+    (0x7FFF_FFFF, 0x8000_0000, 1),  # one step ahead across the wrap
+    (0x8000_0000, 0x7FFF_FFFF, -1),  # one step behind across the wrap
+    (0, 0x8000_0000, -(1 << 31)),  # a tie: the signed difference -2^31 goes down
+])
+def test_targets_across_the_32_bit_wrap_go_the_short_way(rampmode: int, start: int, target: int,
+                                                        steps: int) -> None:
+    """XACTUAL and XTARGET are 32-bit (datasheet: without circular motion
+    -2^31 <= XACTUAL <= 2^31 - 1); the model reads the distance as the signed 32-bit
+    difference XTARGET - XACTUAL, so a target across the wrap is reached the short way
+    (docs/tmc4361a.md, "Positions wrap")."""
+    chip = chip_with(rampmode=rampmode, vmax=velocity_register(200_000),
+                     amax=acceleration_register(1_000_000), dmax=acceleration_register(
+                         1_000_000), bow1=4_000_000, bow2=4_000_000, bow3=4_000_000,
+                     bow4=4_000_000)
+    chip.write(Reg.XACTUAL, start)
+    chip.write(Reg.XTARGET, target)
+    if abs(steps) > 1000:  # the tie: only the direction is checked, not the 2^31-step trip
+        chip.run(chip.t + MHZ16 // 100)
+        assert chip.ramp.s < 0 and chip.ramp.w > 0
+        assert signed(chip.read(Reg.XACTUAL)) < 0
+        return
+    assert run_until_stop(chip, 1) is Stop.ARRIVED
+    assert chip.read(Reg.XACTUAL) == target and chip.motor_position == steps
+    assert chip.read(Reg.VACTUAL) == 0 and chip.read(Reg.STATUS) & Status.TARGET_REACHED_F
 
 
 def test_vmax_zero_stops_a_positioning_move_and_any_vmax_resumes_it() -> None:
