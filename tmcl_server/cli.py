@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import errno
 import logging
 import math
@@ -347,10 +348,11 @@ def dump_stacks_on_sigusr1() -> None:
     """``kill -USR1 PID`` prints every thread's Python stack to standard error: where a busy
     server spends its time, without stopping it (docs/robustness.md)."""
     import faulthandler
-    import signal
 
     if hasattr(signal, "SIGUSR1"):
-        faulthandler.register(signal.SIGUSR1, all_threads=True)
+        # standard error may be no file (an embedding program, a test capturing it)
+        with contextlib.suppress(OSError, ValueError, RuntimeError):
+            faulthandler.register(signal.SIGUSR1, all_threads=True)
 
 
 def main(argv: list[str] | None = None) -> int:
