@@ -213,6 +213,7 @@ class MotorEngine:
         self.ustep_count = 0
         self.acc = 0
         self.ramp_next = self.t + 1
+        self._work = 1  # loop iterations the last _fast took (run's work budget)
         self.ref_l = self.ref_r = self.gp_in = False  # electrical pin levels
         self._refresh_pins()
 
@@ -598,7 +599,8 @@ class MotorEngine:
     def run(self, until: int, budget: int | None = None) -> Stop | None:
         """Advance to clk32 tick ``until``; return early (self.t < until) at a notable instant.
 
-        ``budget`` bounds the work: after that many ramp ticks taken one by one, it returns
+        ``budget`` bounds the work: after that many loop iterations (a ramp tick taken the
+        plain way, or a batch of them in closed form: each counts 1), it returns
         None short of ``until`` (the caller looks again from there).
         """
         while self.t < until:
@@ -642,23 +644,20 @@ class MotorEngine:
                 if moving and self.v == 0:
                     return Stop.STOPPED
                 continue
-            if budget is not None:
-                if budget <= 0:
-                    return None  # out of budget, short of until
-                period = 1 << self.ramp_div
-                last = min(until, nr + budget * period - 1)
-            else:
-                last = until
+            if budget is not None and budget <= 0:
+                return None  # out of budget, short of until
+            last = until
             if self.t < nr - 1:
                 stop = self._pulses(nr - 1)
                 if stop is not None:
                     return stop
+            self._work = 1
             if self._can_fast() and nr + (1 << self.ramp_div) - 1 <= last:
-                stop = self._fast(last)
+                stop = self._fast(last, budget)
             else:
                 stop = self._slow_tick(nr)
             if budget is not None:
-                budget -= max(1, (self.ramp_next - nr) >> self.ramp_div)
+                budget -= self._work  # loop iterations, however many ticks they covered
             if stop is not None:
                 return stop
         return None
@@ -715,7 +714,7 @@ class MotorEngine:
             return 0
         return (self.dx_ref_tolerance - x) if direction > 0 else (x + self.dx_ref_tolerance)
 
-    def _fast(self, until: int) -> Stop | None:
+    def _fast(self, until: int, work: int | None = None) -> Stop | None:
         """Ramp ticks one per iteration with their pulses counted in bulk (no switches active).
 
         Entered with ``self.t == ramp_next - 1``.  Leaves as soon as a tick would bring the
@@ -789,7 +788,11 @@ class MotorEngine:
             a_step = a_max if positioning or vt_fixed * direction << 8 > w else -a_max
             if positioning:
                 vt_reg = vt_reg_mag * direction
+        iterations = 0
         while nr <= last:
+            iterations += 1
+            if work is not None and iterations > work:
+                break  # out of budget: what was applied stands, the caller looks again
             if positioning:
                 dd = d if d < DISTANCE_LIMIT else DISTANCE_LIMIT
                 mag = isqrt((k_mul * dd) >> pdiv) if is_ramp else (pmul * dd) >> soft_shift
@@ -852,6 +855,7 @@ class MotorEngine:
                 vt_reg = mag * direction
             if w == 0:
                 break
+        self._work = max(1, iterations)
         if applied:
             self.v = w * direction
             self.acc = acc
