@@ -141,6 +141,11 @@ FOUND = {
                                                   "SAP 17 0 0", "SAP 202 0 0", "SAP 20 0 0",
                                                   "WRITE_MC 51 0 5261139", "MVP 0 0 -1000",
                                                   "advance 10.0"]),
+    # PULSE_DIV 15, RAMP_DIV 0 (raw DIVIDERS write) and a short move: the look-ahead budget
+    # counted the ramp ticks of its batches, so 30 s took 7,500 look-aheads (2.1 s)
+    "slow pulses, short move": ("tmcm-1110", None, ["WRITE_MC 10 0 768", "WRITE_MC 12 0 61440",
+                                                    "MVP 0 0 -25", "advance 10.0", "MVP 0 0 1",
+                                                    "advance 0.1", "advance 30.0"]),
 }
 
 
