@@ -213,6 +213,7 @@ class MotorEngine:
         self.ustep_count = 0
         self.acc = 0
         self.ramp_next = self.t + 1
+        self._work = 1  # loop iterations the last _fast took (run's work budget)
         self.ref_l = self.ref_r = self.gp_in = False  # electrical pin levels
         self._refresh_pins()
 
@@ -598,7 +599,8 @@ class MotorEngine:
     def run(self, until: int, budget: int | None = None) -> Stop | None:
         """Advance to clk32 tick ``until``; return early (self.t < until) at a notable instant.
 
-        ``budget`` bounds the work: after that many ramp ticks taken one by one, it returns
+        ``budget`` bounds the work: after that many loop iterations (a ramp tick taken the
+        plain way, or a batch of them in closed form: each counts 1), it returns
         None short of ``until`` (the caller looks again from there).
         """
         while self.t < until:
@@ -642,23 +644,20 @@ class MotorEngine:
                 if moving and self.v == 0:
                     return Stop.STOPPED
                 continue
-            if budget is not None:
-                if budget <= 0:
-                    return None  # out of budget, short of until
-                period = 1 << self.ramp_div
-                last = min(until, nr + budget * period - 1)
-            else:
-                last = until
+            if budget is not None and budget <= 0:
+                return None  # out of budget, short of until
+            last = until
             if self.t < nr - 1:
                 stop = self._pulses(nr - 1)
                 if stop is not None:
                     return stop
+            self._work = 1
             if self._can_fast() and nr + (1 << self.ramp_div) - 1 <= last:
-                stop = self._fast(last)
+                stop = self._fast(last, budget)
             else:
                 stop = self._slow_tick(nr)
             if budget is not None:
-                budget -= max(1, (self.ramp_next - nr) >> self.ramp_div)
+                budget -= self._work  # loop iterations, however many ticks they covered
             if stop is not None:
                 return stop
         return None
@@ -715,7 +714,7 @@ class MotorEngine:
             return 0
         return (self.dx_ref_tolerance - x) if direction > 0 else (x + self.dx_ref_tolerance)
 
-    def _fast(self, until: int) -> Stop | None:
+    def _fast(self, until: int, work: int | None = None) -> Stop | None:
         """Ramp ticks one per iteration with their pulses counted in bulk (no switches active).
 
         Entered with ``self.t == ramp_next - 1``.  Leaves as soon as a tick would bring the
@@ -745,11 +744,12 @@ class MotorEngine:
         if positioning:
             dx = sdiff24(x_target, x)
             if dx == 0:
-                return self._slow_tick(nr)
+                # at the target still moving (too fast to stop there): braking towards 0
+                return self._fast_brake(until, 0) if v else self._slow_tick(nr)
             direction = 1 if dx > 0 else -1
             d = abs(dx)
             if v * direction < 0:
-                return self._fast_away(until, d)
+                return self._fast_brake(until, d)
         else:
             vt_fixed = max(-v_max, min(v_max, self.v_target))
             direction = (v > 0) - (v < 0) or (vt_fixed > 0) - (vt_fixed < 0)
@@ -764,6 +764,9 @@ class MotorEngine:
         window = self._window_steps(direction)
         if window is not None:  # a switch ahead: go no further than its tolerance window
             if window == 0:
+                if v * direction > 0 and self.ref_conf & SOFT_STOP:
+                    # a soft stop at the switch: every tick slows the motor by A_MAX
+                    return self._fast_brake(until, None)
                 return self._slow_tick(nr)
             room = min(room, window)
         w = v * direction  # speed along the direction of travel, 1/256 units, >= 0
@@ -785,7 +788,11 @@ class MotorEngine:
             a_step = a_max if positioning or vt_fixed * direction << 8 > w else -a_max
             if positioning:
                 vt_reg = vt_reg_mag * direction
+        iterations = 0
         while nr <= last:
+            iterations += 1
+            if work is not None and iterations > work:
+                break  # out of budget: what was applied stands, the caller looks again
             if positioning:
                 dd = d if d < DISTANCE_LIMIT else DISTANCE_LIMIT
                 mag = isqrt((k_mul * dd) >> pdiv) if is_ramp else (pmul * dd) >> soft_shift
@@ -796,6 +803,24 @@ class MotorEngine:
                 target = mag << 8
                 if w == target and (mag in (v_max, v_min) or d >= DISTANCE_LIMIT):
                     break  # steady: the closed-form path takes over
+                # While the clamped curve stays flat the target does: those ticks go in one
+                # batch (slow ramps, slow pulses or a long way at the distance limit).
+                same = self._same_target_ticks(w, mag, d, room, acc, nr,
+                                               (last - nr) // period + 1)
+                if same is not None:
+                    k, w_next, acc, steps = same
+                    if w_next != w:
+                        a_step = a_max if w_next > w else -a_max
+                    w = w_next
+                    room -= steps
+                    d -= steps
+                    walked += steps
+                    applied += k
+                    nr += k * period
+                    vt_reg = mag * direction
+                    if w == 0 or nr > last:
+                        break
+                    continue
             else:
                 target = vt_fixed * direction << 8
                 if target < 0:
@@ -830,6 +855,7 @@ class MotorEngine:
                 vt_reg = mag * direction
             if w == 0:
                 break
+        self._work = max(1, iterations)
         if applied:
             self.v = w * direction
             self.acc = acc
@@ -846,37 +872,126 @@ class MotorEngine:
             return None
         return self._slow_tick(nr)
 
-    def _fast_away(self, until: int, d: int) -> Stop | None:
-        """Positioning while moving away from the target (a move reversed in flight): every
-        ramp tick slows the motor by A_MAX until it is nearly stopped, since the ramp target
-        points the other way; those ticks go in one batch.  Entered with ``t == ramp_next - 1``;
-        ``d`` is the distance to the target."""
+    def _same_target_ticks(self, w: int, mag: int, d: int, room: int, acc: int, nr: int,
+                           max_ticks: int) -> tuple[int, int, int, int] | None:
+        """Positioning: ramp ticks from ``nr`` on whose ramp target stays ``mag`` (the clamped
+        curve is flat over the distances the motor covers meanwhile) and that stop short of
+        ``room``: in one batch, the speed slews by A_MAX towards the target and then holds
+        it.  Returns (ticks, speed, accumulator, steps) after them, or None if fewer than 2
+        ticks qualify.  ``w`` is the speed along the travel (1/256), ``d`` the distance."""
+        a_max = self.a_max
+        target = mag << 8
+        # the lowest distance with the same target (the clamp at V_MIN holds it to the end)
+        low = (1 if self.v_min >= self.v_max or mag == self.v_min
+               else self._distance_for(mag) or d)
+        allowed = d - low  # steps that keep the curve at mag
+        plan = self._pulse_plan(nr)
+        per_ramp, every, phase = plan
+        if w == target:
+            vi = w >> 8
+            limit = max_ticks
+
+            def after(k: int) -> tuple[int, int]:
+                pulses = 0 if k <= phase else (k - 1 - phase) // every + 1
+                total = acc + pulses * per_ramp * vi
+                return total >> 11, total & 2047
+        else:
+            rising = w < target
+            limit = min(max_ticks, (target - w) // a_max if rising else (w - target) // a_max)
+
+            def after(k: int) -> tuple[int, int]:
+                return self._slew_steps(k, w, acc, rising, plan)
+
+        def fits(k: int) -> bool:
+            return after(k - 1)[0] <= allowed and after(k)[0] < room
+
+        if limit < 2 or not fits(2):
+            return None
+        if fits(limit):
+            k = limit
+        else:
+            low_k, high_k = 2, 4  # fits(low_k); gallop to a high_k that does not fit
+            while high_k < limit and fits(high_k):
+                low_k, high_k = high_k, high_k * 2
+            high_k = min(high_k, limit)
+            while high_k - low_k > 1:
+                mid = (low_k + high_k) // 2
+                if fits(mid):
+                    low_k = mid
+                else:
+                    high_k = mid
+            k = low_k
+        steps, new_acc = after(k)
+        speed = w if w == target else w + k * a_max if w < target else w - k * a_max
+        return k, speed, new_acc, steps
+
+    def _window_entry(self, travel: int) -> int | None:
+        """Steps (moving in ``travel``) until the motor enters the switch tolerance window from
+        outside it (None: a window of 0 is never entered)."""
+        tol = self.dx_ref_tolerance
+        if not tol:
+            return None
+        x = signed(self.x_actual, 24)
+        edge = 1 - tol if travel > 0 else tol - 1
+        return ((edge - x) * travel) & MASK24
+
+    def _fast_brake(self, until: int, d: int | None) -> Stop | None:
+        """Ramp ticks that each slow the motor by A_MAX until it is nearly stopped, in one batch:
+        positioning while moving away from the target (a move reversed in flight, or one too
+        fast to stop at it; ``d`` is the distance to the target), or a soft stop at an active
+        stop switch ahead, outside its tolerance window (``d`` None): the ramp target is then
+        0 or points the other way.  Entered with ``t == ramp_next - 1``."""
         nr = self.ramp_next
         period = 1 << self.ramp_div
         travel = 1 if self.v > 0 else -1
         room, _ = self._stop_distance(travel)
         if room is None:
             room = 1 << 62
+        soft = self.ref_conf & SOFT_STOP
         window = self._window_steps(travel)
-        if window is not None:
-            room = min(room, window)
-        room = min(room, HALF24 - 1 - d)  # past that the 24-bit distance changes sign
+        if window == 0:  # the switch ahead blocks: only a soft stop keeps braking
+            if not soft:
+                return self._slow_tick(nr)
+            entry = self._window_entry(travel)  # inside the window the switch lets go
+            if entry is not None:
+                room = min(room, entry)
+        elif window is not None and not soft:
+            room = min(room, window)  # past the window a hard stop ends the motion
+        if d is not None:
+            # the ramp ticks must see the target behind: a distance of at most 2**23 - 1
+            # (or the 2**23 it is at; the first step then turns the target round)
+            room = min(room, max(1, HALF24 - d))
         last = until - period + 1
         batch = None
-        if room > 0 and nr <= last:
-            batch = self._linear_batch(abs(self.v), self.acc, 0, room, (last - nr) // period + 1,
-                                       self._pulse_plan(nr), False, 0)
+        plan = self._pulse_plan(nr)
+        max_ticks = (last - nr) // period + 1
+        if d == 0:
+            # at the target a pulse at V_MIN or below ends the move: stay above it
+            max_ticks = min(max_ticks, (abs(self.v) - (self.v_min + 1 << 8)) // self.a_max
+                            if self.a_max else 0)
+        if room > 0 and nr <= last and max_ticks > 0:
+            batch = self._linear_batch(abs(self.v), self.acc, 0, room, max_ticks, plan, False, 0)
         if batch is None:
             return self._slow_tick(nr)
         ticks, w, acc, steps, _ = batch
-        before, _ = self._slew_steps(ticks - 1, abs(self.v), self.acc, False, self._pulse_plan(nr))
-        mag = min(max(self._curve(d + before), self.v_min), self.v_max)
+        if self.mode in (RampMode.RAMP, RampMode.SOFT):
+            if d is None:
+                self.v_target = 0  # the switch clamps the curve towards the target to 0
+            else:
+                before, _ = self._slew_steps(ticks - 1, abs(self.v), self.acc, False, plan)
+                if d + before:
+                    mag = min(max(self._curve(d + before), self.v_min), self.v_max)
+                    self.v_target = -mag * travel
+                else:
+                    self.v_target = 0  # still at the target at the last tick
         self.v = w * travel
         self.acc = acc
         self.a_actual = max(-2048, min(2047, -self.a_max * travel))
-        self.v_target = -mag * travel
         self._apply_steps(steps, travel)
         self.ramp_next = nr + ticks * period
+        if w == 0 and self._ramp_target()[0] == 0:
+            self.t = self.ramp_next - period
+            return Stop.STOPPED
         self.t = self.ramp_next - 1
         return None
 

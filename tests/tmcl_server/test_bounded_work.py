@@ -14,8 +14,9 @@ from pathlib import Path
 
 import pytest
 
+from axes.tmc42x import RampMode
 from tests.conftest import RawClient
-from tests.helpers.work_fuzz import CORES, Cost, trial, trial_rng
+from tests.helpers.work_fuzz import CORES, TICKS_PER_S, Cost, engine_for, run_engine, trial, trial_rng
 from tmcl_server.clock import VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.embed import SimulatorThread
@@ -140,6 +141,11 @@ FOUND = {
                                                   "SAP 17 0 0", "SAP 202 0 0", "SAP 20 0 0",
                                                   "WRITE_MC 51 0 5261139", "MVP 0 0 -1000",
                                                   "advance 10.0"]),
+    # PULSE_DIV 15, RAMP_DIV 0 (raw DIVIDERS write) and a short move: the look-ahead budget
+    # counted the ramp ticks of its batches, so 30 s took 7,500 look-aheads (2.1 s)
+    "slow pulses, short move": ("tmcm-1110", None, ["WRITE_MC 10 0 768", "WRITE_MC 12 0 61440",
+                                                    "MVP 0 0 -25", "advance 10.0", "MVP 0 0 1",
+                                                    "advance 0.1", "advance 30.0"]),
 }
 
 
@@ -157,6 +163,66 @@ def test_stalls_the_fuzzer_found(tmp_path: Path, name: str) -> None:
         else:
             bench.send(Opcode[words[0]], *map(int, words[1:]))
     bench.assert_bounded()
+
+
+# -- TMC42x engine states that took one ramp tick per loop --------------------------------------
+
+#: Register-level states of a TMC42x motor (``work_fuzz.engine_state``) whose 10 s cost 0.4 to
+#: 1.6 s of CPU before the engine batched them (docs/robustness.md), seen as replies up to
+#: 1.2 s late in the 1,000,000-frame run of scripts/fuzz.py.
+BASE = {"pmul": 200, "pdiv": 4, "v_min": 0, "mode": RampMode.RAMP, "ref_conf": 0, "x_target": 0,
+        "x_actual": 0, "v_target": 0, "dx_ref_tolerance": 0, "int_mask": 0, "right_wired": True,
+        "ref_l": False, "ref_r": False}
+ENGINE_STATES = {
+    # soft stop at an active switch ahead, outside the window: braking at A_MAX = 2 per tick
+    "soft stop": {"mode": RampMode.VELOCITY, "v": 510464, "v_target": 1020, "v_max": 2047,
+                  "a_max": 2, "pulse_div": 3, "ramp_div": 0, "ref_conf": 0x400, "ref_l": True,
+                  "ref_r": True, "dx_ref_tolerance": 3, "x_actual": 1000, "x_target": 1000},
+    # soft stop entering the window from outside: brakes, then accelerates inside it
+    "soft stop into the window": {"mode": RampMode.VELOCITY, "v": 496896, "v_target": 867,
+                                  "v_max": 2, "a_max": 2, "pulse_div": 6, "ramp_div": 0,
+                                  "ref_conf": 0xC00, "ref_r": True, "dx_ref_tolerance": 3,
+                                  "x_actual": -1000 & 0xFFFFFF},
+    # PULSE_DIV 12: a step every ~22,000 ramp ticks while the curve holds the speed
+    "slow pulses on the curve": {"mode": RampMode.SOFT, "v": 0, "v_min": 1, "v_max": 1624,
+                                 "a_max": 3, "pmul": 190, "pdiv": 8, "pulse_div": 12,
+                                 "ramp_div": 2, "x_actual": -1000 & 0xFFFFFF},
+    # faster than the curve with A_MAX = 3: slowing down to it, one tick at a time
+    "overspeed on the curve": {"v": 298752, "v_min": 2, "v_max": 1181, "a_max": 3, "pmul": 134,
+                               "pdiv": 11, "pulse_div": 9, "ramp_div": 2,
+                               "x_actual": -1000 & 0xFFFFFF},
+    # at the distance limit (2**19) the curve is flat: slowing to it from far above
+    "distance limit": {"x_target": 1 << 23, "x_actual": 1, "v_max": 1771, "v": -481280,
+                       "a_max": 3, "pmul": 246, "pdiv": 15, "pulse_div": 4, "ramp_div": 5},
+    # at the target, too fast to stop there: braking at A_MAX = 3 with a pulse every 2**15
+    "too fast at the target": {"x_target": -1000 & 0xFFFFFF, "x_actual": -1000 & 0xFFFFFF,
+                               "v_min": 2, "v_max": 2, "v": 274497, "a_max": 3, "pmul": 248,
+                               "pdiv": 2, "pulse_div": 15, "ramp_div": 0},
+    # moving away from a target 2**23 - 1 steps off: no step may be batched, ticks may
+    "half the range away": {"x_target": 1 << 23, "x_actual": 1, "v_min": 2, "v_max": 1282,
+                            "v": -401664, "a_max": 3, "pmul": 236, "pdiv": 4, "pulse_div": 14,
+                            "ramp_div": 0},
+}
+#: CPU seconds 10 s of such a motor may cost (0.01 to 0.04 s measured; it was 0.4 to 1.6 s).
+ENGINE_BOUND_S = 0.15
+
+
+@pytest.mark.parametrize("name", ENGINE_STATES)
+def test_tmc42x_engine_states_cost_bounded_work(name: str) -> None:
+    """10 s of each state, the way an axis runs it (look-aheads with a budget) and in one go
+    (the catch-up before a command): both in a fraction of the bound, and to the same state."""
+    state = BASE | ENGINE_STATES[name]
+    ticks = 10 * TICKS_PER_S
+    budgeted, whole = engine_for(state), engine_for(state)
+    start = time.process_time()
+    run_engine(budgeted, ticks)
+    middle = time.process_time()
+    while whole.t < ticks:
+        whole.run(ticks)
+    end = time.process_time()
+    assert (budgeted.x_actual, budgeted.v) == (whole.x_actual, whole.v)
+    assert middle - start < ENGINE_BOUND_S, f"{middle - start:.3f} s with the budget"
+    assert end - middle < ENGINE_BOUND_S, f"{end - middle:.3f} s in one go"
 
 
 # -- random parameter combinations on every core ------------------------------------------------
