@@ -823,6 +823,8 @@ class Fuzzer:
                 written += os.write(link.fd, view[written:])
                 last = time.monotonic()
             except BlockingIOError:
+                if time.monotonic() - last > self.args.hang_s:  # the server stopped reading
+                    raise Hang(f"the server read nothing for {self.args.hang_s:g} s") from None
                 self.sel_wait(link, writable=True)
                 self.read_available(link, queue, None, None, None)
                 continue
