@@ -25,6 +25,7 @@ which the outside world changes so that the engine can stop there.
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from enum import IntEnum
 from math import isqrt
 from typing import Self
@@ -38,6 +39,18 @@ DISTANCE_LIMIT = 1 << 19
 DEFAULT_CLOCK_HZ = 16_000_000
 #: clk32 ticks per simulated second are clock_hz / 32; this is 32 s in ns.
 _NS_PER_32_TICKS = 32_000_000_000
+
+
+def largest_fitting(fits: Callable[[int], bool], low: int, high: int) -> int:
+    """The largest k in [low, high) with fits(k), given fits(low) and not fits(high): the
+    closed forms' batch lengths, found by bisection (fits is monotone)."""
+    while high - low > 1:
+        mid = (low + high) // 2
+        if fits(mid):
+            low = mid
+        else:
+            high = mid
+    return low
 
 
 class RampMode(IntEnum):
@@ -913,14 +926,7 @@ class MotorEngine:
             low_k, high_k = 2, 4  # fits(low_k); gallop to a high_k that does not fit
             while high_k < limit and fits(high_k):
                 low_k, high_k = high_k, high_k * 2
-            high_k = min(high_k, limit)
-            while high_k - low_k > 1:
-                mid = (low_k + high_k) // 2
-                if fits(mid):
-                    low_k = mid
-                else:
-                    high_k = mid
-            k = low_k
+            k = largest_fitting(fits, low_k, min(high_k, limit))
         steps, new_acc = after(k)
         speed = w if w == target else w + k * a_max if w < target else w - k * a_max
         return k, speed, new_acc, steps
@@ -1036,15 +1042,8 @@ class MotorEngine:
                 return mag << 8 >= w + k * a_max
             return True
 
-        if not fits(ticks):
-            low, high = 0, ticks  # fits(low) holds (vacuously for 0), fits(high) does not
-            while high - low > 1:
-                mid = (low + high) // 2
-                if fits(mid):
-                    low = mid
-                else:
-                    high = mid
-            ticks = low
+        if not fits(ticks):  # fits(0) holds vacuously
+            ticks = largest_fitting(fits, 0, ticks)
         if ticks < 16:
             return None
         steps, new_acc = after(ticks)
