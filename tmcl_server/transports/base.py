@@ -229,6 +229,11 @@ class StreamSession:
         if delay_s > 0:
             self._loop.call_later(delay_s, self._send, data)
             return
+        self._write_now(data)
+
+    def _write_now(self, data: bytes) -> None:
+        if self.closed:
+            return
         try:
             self._write(data)
         except OSError as exc:  # the peer vanished; nothing else is affected

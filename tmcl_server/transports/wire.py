@@ -246,13 +246,12 @@ class PacedStreamSession(StreamSession):
     """A byte stream at the line's pace: requests count as arrived when their last byte would
     have, replies leave byte by byte at the baud rate (docs/faults.md, "Wire timing")."""
 
-    __slots__ = ("_baud", "_line_free_ns", "_processing_ns", "_rx_free_ns", "_scheduler", "_write_out")
+    __slots__ = ("_baud", "_line_free_ns", "_processing_ns", "_rx_free_ns", "_scheduler")
 
     def __init__(self, simulation: Simulation, write: Callable[[bytes], None],
                  loop: asyncio.AbstractEventLoop, mode: LinkMode, endpoint: str, *,
                  baud: LineRate, timing: WireTiming) -> None:
         super().__init__(simulation, write, loop, mode, endpoint)
-        self._write_out = write
         self._baud = baud
         self._processing_ns = round(timing.processing_s * NS_PER_S)
         self._scheduler = WireScheduler(loop, endpoint.replace(" ", "-"))
@@ -297,18 +296,9 @@ class PacedStreamSession(StreamSession):
         at = max(not_before_ns, self._line_free_ns, time.monotonic_ns())
         for value in data:
             at += byte_ns
-            self._scheduler.at(at, self._write_byte, bytes((value,)), direct=True)
+            self._scheduler.at(at, self._write_now, bytes((value,)), direct=True)
         self._line_free_ns = at
         return at
-
-    def _write_byte(self, data: bytes) -> None:
-        if self.closed:
-            return
-        try:
-            self._write_out(data)
-        except OSError as exc:  # the peer vanished; nothing else is affected
-            log.debug("write failed: %s", exc)
-            self.closed = True
 
     def _send(self, data: bytes, delay_s: float = 0.0) -> None:
         """Unsolicited replies (138 events) queue on the line like every other byte."""
