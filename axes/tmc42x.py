@@ -25,12 +25,12 @@ which the outside world changes so that the engine can stop there.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
 from enum import IntEnum
 from math import isqrt
 from typing import Self
 
 from axes.core import Board, Stop
+from axes.search import first_true
 
 MASK24 = 0xFFFFFF
 HALF24 = 1 << 23
@@ -39,18 +39,6 @@ DISTANCE_LIMIT = 1 << 19
 DEFAULT_CLOCK_HZ = 16_000_000
 #: clk32 ticks per simulated second are clock_hz / 32; this is 32 s in ns.
 _NS_PER_32_TICKS = 32_000_000_000
-
-
-def largest_fitting(fits: Callable[[int], bool], low: int, high: int) -> int:
-    """The largest k in [low, high) with fits(k), given fits(low) and not fits(high): the
-    closed forms' batch lengths, found by bisection (fits is monotone)."""
-    while high - low > 1:
-        mid = (low + high) // 2
-        if fits(mid):
-            low = mid
-        else:
-            high = mid
-    return low
 
 
 class RampMode(IntEnum):
@@ -802,6 +790,7 @@ class MotorEngine:
             if positioning:
                 vt_reg = vt_reg_mag * direction
         iterations = 0
+        prev_mag = -1  # the ramp target's magnitude at the previous tick
         while nr <= last:
             iterations += 1
             if work is not None and iterations > work:
@@ -817,9 +806,14 @@ class MotorEngine:
                 if w == target and (mag in (v_max, v_min) or d >= DISTANCE_LIMIT):
                     break  # steady: the closed-form path takes over
                 # While the clamped curve stays flat the target does: those ticks go in one
-                # batch (slow ramps, slow pulses or a long way at the distance limit).
-                same = self._same_target_ticks(w, mag, d, room, acc, nr,
-                                               (last - nr) // period + 1)
+                # batch (slow ramps, slow pulses or a long way at the distance limit).  Tried
+                # on entry and when the target did not change over the last tick; a curve that
+                # changes every tick (an ordinary ramp) skips the search.
+                same = None
+                if mag == prev_mag or iterations == 1:
+                    same = self._same_target_ticks(w, mag, d, room, acc, nr,
+                                                   (last - nr) // period + 1)
+                prev_mag = mag
                 if same is not None:
                     k, w_next, acc, steps = same
                     if w_next != w:
@@ -920,13 +914,7 @@ class MotorEngine:
 
         if limit < 2 or not fits(2):
             return None
-        if fits(limit):
-            k = limit
-        else:
-            low_k, high_k = 2, 4  # fits(low_k); gallop to a high_k that does not fit
-            while high_k < limit and fits(high_k):
-                low_k, high_k = high_k, high_k * 2
-            k = largest_fitting(fits, low_k, min(high_k, limit))
+        k = first_true(lambda k: not fits(k), limit) - 1  # fits(1) and fits(2) hold
         steps, new_acc = after(k)
         speed = w if w == target else w + k * a_max if w < target else w - k * a_max
         return k, speed, new_acc, steps
@@ -1042,8 +1030,7 @@ class MotorEngine:
                 return mag << 8 >= w + k * a_max
             return True
 
-        if not fits(ticks):  # fits(0) holds vacuously
-            ticks = largest_fitting(fits, 0, ticks)
+        ticks = first_true(lambda k: not fits(k), ticks) - 1
         if ticks < 16:
             return None
         steps, new_acc = after(ticks)

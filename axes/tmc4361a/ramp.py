@@ -219,31 +219,6 @@ def quanta_sums(q0: int, i: int, quantum: int) -> tuple[int, int, int]:
     return c_i, s1, s2
 
 
-def first_true(pred, limit: int) -> int:
-    """Smallest i in 1..limit with pred(i), for a predicate monotone in i; limit + 1 if none.
-
-    Exponential probing from 1, then bisection: O(log answer) evaluations.
-    """
-    if limit < 1 or not pred(limit):
-        return limit + 1
-    low, high = 0, limit  # pred(low) false (0 is never asked), pred(high) true
-    step = 1
-    while low + step < high:
-        probe = low + step
-        if pred(probe):
-            high = probe
-            break
-        low = probe
-        step *= 2
-    while high - low > 1:
-        mid = (low + high) // 2
-        if pred(mid):
-            high = mid
-        else:
-            low = mid
-    return high
-
-
 def first_nonneg(margin, limit: int) -> int:
     """Smallest i in 1..limit with margin(i) >= 0, for a margin non-decreasing in i.
 
