@@ -791,6 +791,7 @@ class MotorEngine:
                 vt_reg = vt_reg_mag * direction
         iterations = 0
         prev_mag = -1  # the ramp target's magnitude at the previous tick
+        flat = 0  # for how many ticks in a row it has not changed
         while nr <= last:
             iterations += 1
             if work is not None and iterations > work:
@@ -807,10 +808,11 @@ class MotorEngine:
                     break  # steady: the closed-form path takes over
                 # While the clamped curve stays flat the target does: those ticks go in one
                 # batch (slow ramps, slow pulses or a long way at the distance limit).  Tried
-                # on entry and when the target did not change over the last tick; a curve that
-                # changes every tick (an ordinary ramp) skips the search.
+                # on entry and once the target has not changed for two ticks; a curve that
+                # changes every tick or two (an ordinary ramp) skips the search.
                 same = None
-                if mag == prev_mag or iterations == 1:
+                flat = flat + 1 if mag == prev_mag else 0
+                if flat >= 2 or iterations == 1:
                     same = self._same_target_ticks(w, mag, d, room, acc, nr,
                                                    (last - nr) // period + 1)
                 prev_mag = mag
