@@ -42,9 +42,14 @@ _SIGN = 0x8000_0000
 # Opcodes as plain ints for the dispatch loop.
 _CALC, _COMP, _JC, _JA = Opcode.CALC.value, Opcode.COMP.value, Opcode.JC.value, Opcode.JA.value
 _CALCX, _CSUB, _RSUB = Opcode.CALCX.value, Opcode.CSUB.value, Opcode.RSUB.value
+_STOP, _WAIT = Opcode.STOP.value, Opcode.WAIT.value
+_AAP, _AGP, _ACO = Opcode.AAP.value, Opcode.AGP.value, Opcode.ACO.value
+_SAP, _SGP, _SCO = Opcode.SAP.value, Opcode.SGP.value, Opcode.SCO.value
+_GCO, _RFS = Opcode.GCO.value, Opcode.RFS.value
+_RFS_STATUS = RfsType.STATUS.value
 
 #: Commands that, in a program, load the value they read into the accumulator.
-_LOADS_ACCUMULATOR = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO, Opcode.GCO})
+_LOADS_ACCUMULATOR = frozenset({Opcode.GAP.value, Opcode.GGP.value, Opcode.GIO.value, _GCO})
 
 _ERROR_BITS: dict[int, int] = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
                ErrorFlag.ESD: 16}
@@ -478,6 +483,7 @@ class Interpreter:
         cost = self.instruction_ns
         end = self.memory_size
         count = (limit_ns - self.time_ns + cost - 1) // cost
+        not_module = _NOT_MODULE
         n = 0
         outcome = _CONTINUE
         while n < count:
@@ -521,7 +527,10 @@ class Interpreter:
             else:
                 self.pc, self.accumulator = pc, acc
                 self.zero_source, self.compare_source = zero, cmp_
-                outcome = self._execute_other(code[pc], self.time_ns + n * cost)
+                if op in not_module:
+                    outcome = self._execute_other(code[pc], self.time_ns + n * cost)
+                else:
+                    outcome = self._module_command(op, ty, _motor, va, self.time_ns + n * cost)
                 pc, acc = self.pc, self.accumulator
                 zero, cmp_ = self.zero_source, self.compare_source
                 if outcome != _CONTINUE:
@@ -556,15 +565,15 @@ class Interpreter:
     def _execute_other(self, ins: Instruction, t: int) -> int:
         """Everything the dispatch loop does not inline; ``t`` is the instruction's time."""
         op, ty, motor, va = ins
-        if op == 0 or op == Opcode.STOP:  # empty memory ends a program too
-            self.status = ApplicationStatus.STOP
-            self.port.program_event(t, "program_stopped", pc=self.pc)
-            return _STOPPED
-        if op == Opcode.WAIT:
-            return self._start_wait(ty, motor, va, t)
         handler = _INTERNAL.get(op)
         if handler is not None:
             return handler(self, ty, motor, va)
+        if op == 0 or op == _STOP:  # empty memory ends a program too
+            self.status = ApplicationStatus.STOP
+            self.port.program_event(t, "program_stopped", pc=self.pc)
+            return _STOPPED
+        if op == _WAIT:
+            return self._start_wait(ty, motor, va, t)
         return self._module_command(op, ty, motor, va, t)
 
     # -- commands the interpreter handles itself ---------------------------------------------
@@ -674,19 +683,19 @@ class Interpreter:
     # -- commands that go to the module --------------------------------------------------------
 
     def _module_command(self, op: int, ty: int, motor: int, va: int, t: int) -> int:
-        port = self.port
-        if op == Opcode.AAP:
-            _, _, replan = port.execute(t, Opcode.SAP, ty, motor, self.accumulator)
-        elif op == Opcode.AGP:
-            _, _, replan = port.execute(t, Opcode.SGP, ty, motor, self.accumulator)
-        elif op == Opcode.ACO:
+        if op == _AGP:
+            _, _, replan = self.port.execute(t, _SGP, ty, motor, self.accumulator)
+        elif op == _AAP:
+            _, _, replan = self.port.execute(t, _SAP, ty, motor, self.accumulator)
+        elif op == _ACO:
             replan = False
             if motor != MOTOR_ALL:
-                _, _, replan = port.execute(t, Opcode.SCO, ty, motor, self.accumulator)
+                _, _, replan = self.port.execute(t, _SCO, ty, motor, self.accumulator)
         else:
-            status, value, replan = port.execute(t, op, ty, motor, va)
-            loads = op in _LOADS_ACCUMULATOR and not (op == Opcode.GCO and motor == MOTOR_ALL)
-            if status == STATUS_OK and (loads or (op == Opcode.RFS and ty == RfsType.STATUS)):
+            status, value, replan = self.port.execute(t, op, ty, motor, va)
+            if status == STATUS_OK and (
+                    (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
+                    or (op == _RFS and ty == _RFS_STATUS)):
                 self.accumulator = self.zero_source = wrap32(value)
         self.pc += 1
         return _YIELD if replan or self._hold_ns else _CONTINUE
@@ -709,3 +718,5 @@ _INTERNAL = {
     Opcode.RETI: Interpreter._reti,
     Opcode.CLE: Interpreter._cle,
 }
+#: Opcodes the interpreter handles itself (the rest go to the module through the port).
+_NOT_MODULE = frozenset({0, _STOP, _WAIT, *(int(op) for op in _INTERNAL)})

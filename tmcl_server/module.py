@@ -681,6 +681,9 @@ class TMCLModule:
         return self.globals[bank][number]
 
     def write_global(self, number: int, bank: int, value: int) -> None:
+        if bank == 2:  # user variables: plain RAM that nothing else watches (the common case)
+            self.globals[2][number] = value
+            return
         if bank == 0:
             if number == GP.TICK_TIMER:
                 self._tick_origin_ms = self.now_ns // NS_PER_MS - value

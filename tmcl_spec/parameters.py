@@ -7,7 +7,7 @@ of writing the numbers.  Plain ints, not IntEnums: they index dictionaries on ev
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN, UINT32_MAX
 
@@ -31,21 +31,16 @@ class ParamSpec:
     allowed: frozenset[int] | None = None
     unsigned: bool = False
 
-    @property
-    def readable(self) -> bool:
-        return "R" in self.access
+    #: The access letters as flags, worked out once (they are asked on every request).
+    readable: bool = field(init=False, repr=False, compare=False)
+    writable: bool = field(init=False, repr=False, compare=False)
+    storable: bool = field(init=False, repr=False, compare=False)
+    auto_stored: bool = field(init=False, repr=False, compare=False)
 
-    @property
-    def writable(self) -> bool:
-        return "W" in self.access
-
-    @property
-    def storable(self) -> bool:
-        return "E" in self.access
-
-    @property
-    def auto_stored(self) -> bool:
-        return "A" in self.access
+    def __post_init__(self) -> None:
+        for flag, letter in (("readable", "R"), ("writable", "W"), ("storable", "E"),
+                             ("auto_stored", "A")):
+            object.__setattr__(self, flag, letter in self.access)
 
     def accepts(self, value: int) -> bool:
         """True if a (signed 32-bit wire) value is valid for this parameter."""
