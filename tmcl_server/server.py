@@ -12,6 +12,7 @@ import json
 import logging
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -38,6 +39,11 @@ log = logging.getLogger(__name__)
 
 #: Wall time the server's timer spends on simulation work before the loop gets a turn.
 SLICE_WALL_S = 0.0002
+#: While hosts are sending (a request came since the last slice) a busy program runs in
+#: slices this short, of chunks this long, so a request waits less for the slice in progress;
+#: with nobody asking, the longer ones above cost less bookkeeping (docs/scheduling.md).
+SLICE_WALL_TRAFFIC_S = 0.00005
+PROGRAM_CHUNK_TRAFFIC_NS = 100_000
 
 
 @dataclass
@@ -141,6 +147,10 @@ class Server:
         self._timer: asyncio.Handle | None = None
         self._timer_when = 0.0
         self._running_due = False
+        #: Requests the simulation had served when the timer last ran (traffic or quiet).
+        self._requests_seen = 0
+        #: The wall clock the timer measures its slices with (tests hold it still).
+        self.wall_s: Callable[[], float] = time.perf_counter
         self._stopped = asyncio.Event()
         #: The trace and the recorder, when the configuration asks for them.
         self.observers = Observers(self.simulation, self.config)
@@ -259,10 +269,14 @@ class Server:
         work the loop gets its turn (requests, replies) before the rest."""
         self._timer = None
         self._running_due = True  # run_due's change notices must not arm a second timer
+        requests = self.simulation.requests
+        traffic = requests != self._requests_seen
+        self._requests_seen = requests
+        chunk_ns = PROGRAM_CHUNK_TRAFFIC_NS if traffic else PROGRAM_CHUNK_NS
         try:
-            deadline = time.perf_counter() + SLICE_WALL_S
-            while self.simulation.run_due(PROGRAM_CHUNK_NS):
-                if time.perf_counter() >= deadline:
+            deadline = self.wall_s() + (SLICE_WALL_TRAFFIC_S if traffic else SLICE_WALL_S)
+            while self.simulation.run_due(chunk_ns):
+                if self.wall_s() >= deadline:
                     self._timer_when = self._loop.time()
                     self._timer = self._loop.call_soon(self._on_timer)
                     return

@@ -67,6 +67,8 @@ class Simulation:
         self.recorder: Recorder | None = None
         #: Faults injected on purpose (tmcl_server/faults.py), set while one watches requests.
         self.faults: FaultInjector | None = None
+        #: Requests served so far (the server's timer tells traffic from quiet by it).
+        self.requests = 0
         #: A lockstep clock's time per request (0 for the others): see _execute.
         self._request_ns = clock.request_ns
         for module in self.modules:
@@ -306,6 +308,7 @@ class Simulation:
 
     def _execute(self, targets: list[TMCLModule], request: Request, interface: Interface,
                  sink: ReplySink | None) -> list[Routed]:
+        self.requests += 1
         if self._request_ns:  # a lockstep clock: the telegram's time on the wire passes first
             self.advance_to_ns(self.clock.now_ns() + self._request_ns)
         faults = self.faults

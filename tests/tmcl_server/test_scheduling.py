@@ -1,0 +1,87 @@
+"""The server's timer on a real clock: how a busy program shares the loop with requests
+(docs/scheduling.md).  The clock and the wall clock are held still by the test, so what
+one timer slice does is exact."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+
+import pytest
+
+from interpreter.assembler import assemble
+from tmcl_server.clock import Clock
+from tmcl_server.module import TMCM6212
+from tmcl_server.protocol import Request
+from tmcl_server.server import PROGRAM_CHUNK_TRAFFIC_NS, Server
+from tmcl_server.simulation import PROGRAM_CHUNK_NS, Simulation
+from tmcl_spec.commands import Opcode
+
+BUSY = """
+Loop:
+    CALC ADD, 1
+    JA Loop
+"""
+
+
+class HeldClock(Clock):
+    """A real (not virtual) clock that moves only when the test moves it."""
+
+    def __init__(self) -> None:
+        self.t = 0
+
+    def now_ns(self) -> int:
+        return self.t
+
+    def wall_seconds(self, sim_ns: int) -> float:
+        return sim_ns / 1e9
+
+
+@pytest.fixture
+def busy_server():
+    clock = HeldClock()
+    module = TMCM6212()
+    simulation = Simulation([module], clock)
+    module.program.interpreter.load(assemble(BUSY).instructions)
+    module.program.interpreter.start(0)
+    simulation.replan()  # as a RUN APPLICATION command would
+    server = Server(simulation=simulation)
+    loop = asyncio.new_event_loop()
+    server._loop = loop
+    ticks = itertools.count()
+    server.wall_s = lambda: float(next(ticks))  # every chunk outlasts its slice
+    yield server, module, clock
+    loop.close()
+
+
+def test_a_quiet_server_runs_a_busy_program_in_long_chunks(busy_server):
+    server, module, clock = busy_server
+    clock.t = 20_000_000  # the program is 20 ms behind the clock
+    server._on_timer()
+    assert module.now_ns == PROGRAM_CHUNK_NS
+    server._on_timer()
+    assert module.now_ns == 2 * PROGRAM_CHUNK_NS
+
+
+def test_while_hosts_send_the_program_runs_in_short_chunks(busy_server):
+    server, module, clock = busy_server
+    clock.t = 20_000_000
+    gap = Request(1, Opcode.GAP, 1, 0, 0).encode()
+    server.simulation.handle_serial_frame(gap)
+    server._on_timer()  # a request came since the last slice: a short one
+    assert module.now_ns == PROGRAM_CHUNK_TRAFFIC_NS < PROGRAM_CHUNK_NS
+    server.simulation.handle_serial_frame(gap)
+    server._on_timer()
+    assert module.now_ns == 2 * PROGRAM_CHUNK_TRAFFIC_NS
+    server._on_timer()  # nobody asked since: long chunks again
+    assert module.now_ns == 2 * PROGRAM_CHUNK_TRAFFIC_NS + PROGRAM_CHUNK_NS
+
+
+def test_a_slice_that_has_wall_time_left_catches_the_program_up(busy_server):
+    server, module, clock = busy_server
+    server.wall_s = lambda: 0.0  # a machine fast enough that no slice runs out
+    clock.t = 20_000_000
+    server._on_timer()
+    assert module.now_ns == 20_000_000
+    # 10 us each, from 0 up to and including the one that starts at 20 ms
+    assert module.program.interpreter.executed == 20_000_000 // 10_000 + 1
