@@ -7,7 +7,10 @@ this process:
 * lockstep with python-can (``socketcand`` and ``slcan`` interfaces): one request, wait for
   its reply, repeat - what pytrinamic and most host code do;
 * pipelined by hand (raw socketcand elements, raw Lawicel lines) with a window of requests
-  in flight - what the gateways and the modules can carry, without python-can's own cost.
+  in flight - what the gateways and the modules can carry, without python-can's own cost;
+* python-can's slcan client against a stand-in adapter that does no work (a Python loop that
+  answers each line at once): the ceiling of that client on this machine, since it reads the
+  port one byte at a time.  The simulator's slcan rate is printed as a share of it.
 
 Goal: a 1 Mbit/s CAN bus carries about 4,500 TMCL round trips per second (two 8-byte frames
 of ~111 bits each); the simulator should keep up with that.  Loopback only; bounded counts.
@@ -148,6 +151,36 @@ class RawSlcan:
         os.close(self.fd)
 
 
+#: A stand-in SLCAN adapter that does no work: it answers every frame line at once with one
+#: fixed reply line, as fast as a Python loop on a pty can.  python-can's lockstep rate
+#: against it is the ceiling of that client on this machine (it reads the port a byte at a
+#: time), measured beside the simulator's in the same run.
+INSTANT_ADAPTER = r"""
+import os, pty, sys, tty
+master, slave = pty.openpty()
+tty.setraw(slave)
+print(os.ttyname(slave), flush=True)
+reply = b"t%03X7" % int(sys.argv[1]) + b"02640600000000\r"
+buffer = b""
+while True:
+    data = os.read(master, 4096)
+    if not data:
+        break
+    buffer += data
+    *lines, buffer = buffer.split(b"\r")
+    out = b"".join(reply if line[:1] == b"t" else b"\r" for line in lines)
+    if out:
+        os.write(master, out)
+"""
+
+
+def instant_adapter() -> tuple[subprocess.Popen[str], str]:
+    process = subprocess.Popen([sys.executable, "-c", INSTANT_ADAPTER, str(REPLY_ID)],
+                               stdout=subprocess.PIPE, text=True)
+    assert process.stdout is not None
+    return process, process.stdout.readline().strip()
+
+
 def start_server(workdir: Path) -> tuple[subprocess.Popen[bytes], dict[str, list[str]]]:
     ready = workdir / "ready.json"
     process = subprocess.Popen(
@@ -180,6 +213,15 @@ def main() -> int:
             with can.Bus(interface="slcan", channel=pty, bitrate=1_000_000,
                          sleep_after_open=0) as bus:
                 results.append(lockstep("slcan pty, python-can, lockstep", bus, args.count))
+            adapter, adapter_pty = instant_adapter()
+            try:
+                with can.Bus(interface="slcan", channel=adapter_pty, bitrate=1_000_000,
+                             sleep_after_open=0) as bus:
+                    results.append(lockstep("slcan pty, python-can, instant adapter", bus,
+                                            args.count))
+            finally:
+                adapter.kill()
+                adapter.wait()
             raw = RawSocketcand(address)
             results.append(pipelined(f"socketcand, raw, window {args.window}", raw.send,
                                      raw.read_replies, args.count, args.window))
@@ -203,6 +245,10 @@ def main() -> int:
         for r in results:
             print(f"{r['scenario']:40} {r['round_trips']:>11} {r['per_s']:>8} {r['p50_us']:>8} "
                   f"{r['p99_us']:>8} {r['max_us']:>8}  {'ok' if r['meets_goal'] else 'BELOW'}")
+        by_name = {r["scenario"]: r["per_s"] for r in results}
+        ceiling = by_name["slcan pty, python-can, instant adapter"]
+        print(f"slcan with python-can, lockstep: {by_name['slcan pty, python-can, lockstep'] / ceiling:.0%} "
+              "of the same client against an adapter that does no work (its ceiling here)")
     return 0
 
 
