@@ -38,6 +38,7 @@ from tmcl_spec.commands import (
     COORD_MOTOR_MASK_FLAG,
     FACTORY_RESET_KEY,
     MOTOR_ALL,
+    READ_ONLY_OPCODES,
     USER_FUNCTIONS,
     IOBank,
     MoveType,
@@ -50,9 +51,6 @@ from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, EvalGP, ParamSpec
 
 log = logging.getLogger(__name__)
 
-#: Commands that only read: they cannot create or move an internal event.
-READ_ONLY_OPCODES = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO),
-                               int(Opcode.GET_FIRMWARE_VERSION)})
 #: Commands that cannot move an event either: coordinates, and global parameters of bank 2
 #: (user variables, plain RAM) for the parameter commands below.
 _SCHEDULE_NEUTRAL = READ_ONLY_OPCODES | {int(Opcode.GCO), int(Opcode.SCO)}
@@ -293,7 +291,7 @@ class TMCLModule:
         except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
             return Status.EEPROM_LOCKED, request.value
         finally:
-            if self.may_reschedule(opcode, request.motor):
+            if opcode not in _SCHEDULE_NEUTRAL and self.may_reschedule(opcode, request.motor):
                 self._stale_axes |= touched  # the command may start, stop or move an event
                 self._due_stale = True
         return _OK, request.value if result is None else result

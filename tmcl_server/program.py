@@ -25,6 +25,7 @@ from tmcl_server.eeprom import WRITE_TIME_NS, Eeprom
 from tmcl_server.protocol import RawReply, Request, checksum
 from tmcl_spec.commands import (
     CALC_MAX_OPERATION,
+    READ_ONLY_OPCODES,
     CalcOp,
     CodeProtection,
     ErrorFlag,
@@ -118,6 +119,10 @@ class ProgramSupport:
                 value: int) -> tuple[int, int, bool]:
         module = self.module
         module.catch_up(time_ns)
+        if opcode in READ_ONLY_OPCODES:  # the usual case: a read stores nothing, moves no event
+            status, result = module.perform(tuple.__new__(
+                Request, (module.address, opcode, type_, motor, value)))
+            return status, result, False
         eeprom = module.eeprom
         stores = eeprom.stores
         eeprom.deferring = True  # a program's stores may share a file write (coalesced)

@@ -166,6 +166,9 @@ COORD_MOTOR_MASK_FLAG = 0x80
 USER_FUNCTIONS = frozenset(range(Opcode.UF0, Opcode.UF7 + 1))
 #: Commands whose replies GP 255 never suppresses (§5.1).
 ALWAYS_REPLIED = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO})
+#: Commands that only read: they store nothing and cannot create or move an internal event.
+READ_ONLY_OPCODES = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO),
+                               int(Opcode.GET_FIRMWARE_VERSION)})
 
 
 #: Reply status of a successful command, as a plain int for hot paths.
