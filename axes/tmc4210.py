@@ -129,9 +129,10 @@ class TMC4210(MotorEngine):
         """INT, CDGW, RS3 (REF_R unless mot1r), 1, RS1 (GP_IN), 1, RS2 (left), xEQt."""
         inv_ref = self.inv_ref  # in line: the firmware sends a datagram per position read
         ref_r = self.ref_r != inv_ref and not self.smgp & MOT1R
+        left = self.left_wired and self.ref_l != inv_ref  # left_active
         interrupt = bool(self.int_flags) or (self.pos_comp_flag and self.pos_comp_mask)
         return (interrupt << 7 | self.cdgw << 6 | ref_r << 5 | 0x14 | (self.gp_in != inv_ref) << 3
-                | self.left_active << 1 | (self.x_actual == self.x_target))
+                | left << 1 | (self.x_actual == self.x_target))
 
     def _wire(self) -> None:
         """Tell the motor engine what the global registers mean for it."""
