@@ -657,6 +657,9 @@ class AxisFirmware:
         self._awaiting_arrival = False
 
     def get_parameter(self, number: int) -> int:
+        if number == AP.ACTUAL_POSITION:  # first: what a program polls most
+            self._sync()
+            return self.driver.position
         if number not in _LIVE_PARAMETERS:
             if number in self._chip_live:
                 self._sync()
@@ -665,8 +668,6 @@ class AxisFirmware:
         self._sync()
         if number == AP.TARGET_POSITION:
             return self._target
-        if number == AP.ACTUAL_POSITION:
-            return self._position
         if number == AP.ACTUAL_SPEED:
             return self._actual_speed()
         if number == AP.POSITION_REACHED:

@@ -152,20 +152,19 @@ class TMC4210(MotorEngine):
         self.powered_down = False
         status = self.status_byte()
         self.cdgw = False
-        read = bool(frame >> 24 & 1)
-        data = frame & MASK24
         address = frame >> 25 & 0x7F
         answer = 0
-        if address & 0x40:
-            pair = address & 0x3F
-            if read:
-                answer = self.ram[pair]
+        if frame >> 24 & 1:  # a read; the firmware's position reads (axis registers) first
+            if address < 0x10:
+                answer = self.read_motor(address)
+            elif address & 0x40:
+                answer = self.ram[address & 0x3F]
             else:
-                self.ram[pair] = data & 0x3F3F
-        elif read:
-            answer = self._read(address)
+                answer = self._read(address)
+        elif address & 0x40:
+            self.ram[address & 0x3F] = frame & 0x3F3F
         else:
-            self._write(address, data)
+            self._write(address, frame & MASK24)
         if self.if_config & SDO_INT:
             # SDO carries nINT permanently: all ones while no interrupt, all zeros otherwise.
             return 0 if self.interrupt else 0xFFFF_FFFF

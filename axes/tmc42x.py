@@ -426,6 +426,7 @@ class MotorEngine:
         return vt, False
 
     def _ramp_tick(self) -> None:
+        """One ramp tick: the velocity steps towards the ramp target by up to A_MAX."""
         vt, hard = self._ramp_target()
         mode = self.mode
         if mode < _VELOCITY:
@@ -573,19 +574,16 @@ class MotorEngine:
         if first > t_end:
             self.t = t_end
             return None
-        period = 1 << pulse_div
         ticks = (t_end - first >> pulse_div) + 1
         used = 0
         positioning = self.mode < _VELOCITY
-        while True:
-            if used >= ticks:
-                self.t = t_end
-                return None
-            vi = abs(self.v) >> 8
+        while True:  # (used < ticks here; this runs at every position read of a moving axis)
+            v = self.v
+            vi = (v if v > 0 else -v) >> 8
             if positioning and vi <= self.v_min and self.x_actual == self.x_target:
-                if self.v:
+                if v:
                     self.v = 0
-                    self.t = first + used * period
+                    self.t = first + (used << pulse_div)
                     self._raise(Irq.POS_END)
                     return Stop.ARRIVED
                 self.t = t_end
@@ -593,24 +591,23 @@ class MotorEngine:
             if vi == 0:
                 self.t = t_end
                 return None
-            direction = 1 if self.v > 0 else -1
+            direction = 1 if v > 0 else -1
             remaining = ticks - used
-            total = (self.acc + vi * remaining) >> 11
+            acc = self.acc
+            total = (acc + vi * remaining) >> 11
             limit, mark_distance = self._stop_distance(direction)
             if max_steps is not None and (limit is None or max_steps < limit):
                 limit = max_steps
             if limit is None or limit > total:
                 self._apply_steps(total, direction)
-                self.acc += vi * remaining - (total << 11)
+                self.acc = acc + vi * remaining - (total << 11)
                 self.t = t_end
-                if max_steps is not None:
-                    max_steps -= total
                 return None
-            k = ((limit << 11) - self.acc + vi - 1) // vi  # pulse ticks until step number `limit`
+            k = ((limit << 11) - acc + vi - 1) // vi  # pulse ticks until step number `limit`
             self._apply_steps(limit, direction)
-            self.acc += vi * k - (limit << 11)
+            self.acc = acc + vi * k - (limit << 11)
             used += k
-            self.t = first + (used - 1) * period
+            self.t = first + (used - 1 << pulse_div)
             self._arrived_here()
             if limit == mark_distance and self.board is not None:
                 self.set_pins(*self.board.pins(self.motor_position))
@@ -619,6 +616,9 @@ class MotorEngine:
                 max_steps -= limit
                 if max_steps == 0:
                     return None
+            if used >= ticks:
+                self.t = t_end
+                return None
 
     # == the engine ============================================================================
 
@@ -1076,7 +1076,7 @@ class MotorEngine:
         moving = self.v != 0
         self._ramp_tick()
         self.ramp_next = nr + (1 << self.ramp_div)
-        if moving and self.v == 0 and self._ramp_target()[0] == 0:
+        if moving and not self.v and self._ramp_target()[0] == 0:
             self.t = nr
             return Stop.STOPPED
         return None
