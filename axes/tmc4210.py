@@ -170,6 +170,19 @@ class TMC4210(MotorEngine):
             return 0 if self.interrupt else 0xFFFF_FFFF
         return status << 24 | answer
 
+    def spi_data(self, frame: int) -> int:
+        """The 24 data bits of ``spi(frame)``'s answer: the same frame with the same effects.
+
+        The firmware's reads ignore the status byte, so a read of an axis register (the
+        position, at every GAP 1 of a program) skips sampling it; any other frame is spi's.
+        """
+        address = frame >> 25
+        if frame >> 24 & 1 and address < 0x10 and not self.if_config & SDO_INT:
+            self.powered_down = False
+            self.cdgw = False
+            return self.read_motor(address)
+        return self.spi(frame) & MASK24
+
     def read(self, reg: int) -> int:
         """Convenience: the 24 data bits of a register read."""
         return self.spi(datagram(reg, read=True)) & MASK24

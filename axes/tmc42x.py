@@ -274,6 +274,8 @@ class MotorEngine:
 
     def read_motor(self, idx: int) -> int:
         """The 24 data bits a read of axis register ``idx`` returns (zero-extended)."""
+        if idx == 1:  # X_ACTUAL: the firmware reads it at every look at the position
+            return self.x_actual
         plain = MOTOR_PLAIN_REGISTERS.get(idx)
         if plain is not None:
             return getattr(self, plain[0])
@@ -533,16 +535,18 @@ class MotorEngine:
         Returns (nearest of all, distance to the next board mark).
         """
         best: int | None = None
+        x = self.x_actual
         if self.mode < _VELOCITY:
-            d = sdiff24(self.x_target, self.x_actual) * direction
+            # sdiff24(x_target, x) in line: this runs at every position read of a moving axis
+            d = (((self.x_target - x + HALF24) & MASK24) - HALF24) * direction
             if d > 0:
                 best = d
         if self.int_mask >> _REF_MISS & 1:
-            d = sdiff24(0, self.x_actual) * direction
+            d = sdiff24(0, x) * direction
             if d > 0 and (best is None or d < best):
                 best = d
         if self.pos_comp_on:
-            d = sdiff24(self.pos_comp, self.x_actual) * direction
+            d = sdiff24(self.pos_comp, x) * direction
             if d > 0 and (best is None or d < best):
                 best = d
         mark_distance = None
