@@ -378,14 +378,14 @@ class MotorEngine:
                 self._raise(Irq.REF_WRONG)
         # A hard switch stop acts on the pulse generator at once.
         direction = (self.v > 0) - (self.v < 0)
-        if direction and self._switch_blocks(direction) and not self.ref_conf & SOFT_STOP:
+        if (direction and self._switch_in_play(direction) and self._outside_window()
+                and not self.ref_conf & SOFT_STOP):
             self.v = 0
             self._raise(Irq.STOP)
 
-    def _switch_blocks(self, direction: int) -> bool:
-        """True if the stop switch in ``direction`` is active, enabled and outside the window."""
-        return (self._switch_in_play(direction)
-                and abs(signed(self.x_actual, 24)) >= self.dx_ref_tolerance)
+    def _outside_window(self) -> bool:
+        """Outside the switch tolerance window: a stop switch in play stops the motor here."""
+        return abs(signed(self.x_actual, 24)) >= self.dx_ref_tolerance
 
     # == ramp generator ========================================================================
 
@@ -410,7 +410,7 @@ class MotorEngine:
             elif vt < -v_max:
                 vt = -v_max
         else:
-            dx = sdiff24(self.x_target, self.x_actual)
+            dx = ((self.x_target - self.x_actual + HALF24) & MASK24) - HALF24  # sdiff24
             if dx == 0:
                 vt = 0
             else:
@@ -422,7 +422,7 @@ class MotorEngine:
                 vt = mag if dx > 0 else -mag
         v = self.v
         direction = (v > 0) - (v < 0) or (vt > 0) - (vt < 0)
-        if direction and self._switch_blocks(direction):
+        if direction and self._switch_in_play(direction) and self._outside_window():
             vt = max(vt, 0) if direction < 0 else min(vt, 0)
             return vt, mode == _HOLD or not self.ref_conf & SOFT_STOP
         return vt, False
