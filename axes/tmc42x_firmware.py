@@ -52,7 +52,7 @@ from axes.units import (
     stop_speed,
     velocity_register,
 )
-from tmcl_spec.numbers import to_int32
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN, to_int32
 from tmcl_spec.parameters import AP
 
 log = logging.getLogger(__name__)
@@ -151,10 +151,14 @@ class TMC42xDriver:
 
     def read_position(self) -> int:
         x = self.chip.spi_data(self._read_x_actual)
-        # sdiff24(x, self._x_last) in line: a program's GAP 1 comes here every time
-        self.position = to_int32(self.position + ((x - self._x_last + HALF24) & MASK24) - HALF24)
+        # sdiff24(x, self._x_last) in line, and to_int32 only on a wrap: a program's GAP 1
+        # comes here every time
+        position = self.position + ((x - self._x_last + HALF24) & MASK24) - HALF24
+        if not INT32_MIN <= position <= INT32_MAX:
+            position = to_int32(position)
+        self.position = position
         self._x_last = x
-        return self.position
+        return position
 
     def _v_actual(self) -> int:
         return signed(self._read(MotorReg.V_ACTUAL), 12)
