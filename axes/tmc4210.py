@@ -180,7 +180,7 @@ class TMC4210(MotorEngine):
         if frame >> 24 & 1 and address < 0x10 and not self.if_config & SDO_INT:
             self.powered_down = False
             self.cdgw = False
-            return self.read_motor(address)
+            return self.x_actual if address == 1 else self.read_motor(address)  # 1: X_ACTUAL
         return self.spi(frame) & MASK24
 
     def read(self, reg: int) -> int:

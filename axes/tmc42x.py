@@ -274,8 +274,6 @@ class MotorEngine:
 
     def read_motor(self, idx: int) -> int:
         """The 24 data bits a read of axis register ``idx`` returns (zero-extended)."""
-        if idx == 1:  # X_ACTUAL: the firmware reads it at every look at the position
-            return self.x_actual
         plain = MOTOR_PLAIN_REGISTERS.get(idx)
         if plain is not None:
             return getattr(self, plain[0])
