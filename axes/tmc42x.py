@@ -920,6 +920,13 @@ class MotorEngine:
         ticks qualify.  ``w`` is the speed along the travel (1/256), ``d`` the distance."""
         a_max = self.a_max
         target = mag << 8
+        rising = w < target
+        if w == target:
+            limit = max_ticks
+        else:
+            limit = min(max_ticks, (target - w) // a_max if rising else (w - target) // a_max)
+        if limit < 2:
+            return None  # (most calls: a speed that tracks the curve is within 2 A_MAX of it)
         # the lowest distance with the same target (the clamp at V_MIN holds it to the end)
         low = (1 if self.v_min >= self.v_max or mag == self.v_min
                else self._distance_for(mag) or d)
@@ -928,23 +935,19 @@ class MotorEngine:
         per_ramp, every, phase = plan
         if w == target:
             vi = w >> 8
-            limit = max_ticks
 
             def after(k: int) -> tuple[int, int]:
                 pulses = 0 if k <= phase else (k - 1 - phase) // every + 1
                 total = acc + pulses * per_ramp * vi
                 return total >> 11, total & 2047
         else:
-            rising = w < target
-            limit = min(max_ticks, (target - w) // a_max if rising else (w - target) // a_max)
-
             def after(k: int) -> tuple[int, int]:
                 return self._slew_steps(k, w, acc, rising, plan)
 
         def fits(k: int) -> bool:
             return after(k - 1)[0] <= allowed and after(k)[0] < room
 
-        if limit < 2 or not fits(2):
+        if not fits(2):
             return None
         k = first_true(lambda k: not fits(k), limit) - 1  # fits(1) and fits(2) hold
         steps, new_acc = after(k)
