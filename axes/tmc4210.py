@@ -154,7 +154,7 @@ class TMC4210(MotorEngine):
         self.cdgw = False
         address = frame >> 25 & 0x7F
         answer = 0
-        if frame >> 24 & 1:  # a read; the firmware's position reads (axis registers) first
+        if frame >> 24 & 1:  # a read (the axis registers, read most, first)
             if address < 0x10:
                 answer = self.read_motor(address)
             elif address & 0x40:
