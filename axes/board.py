@@ -89,9 +89,11 @@ class AxisBoard:
         return left != self.invert_left, right != self.invert_right, self.world.level("home", mech)
 
     def next_mark(self, motor_position: int, direction: int) -> int | None:
+        edges = () if self.stuck else self._edges  # stuck mechanics never reach an edge
+        if not edges and not self.firmware_marks:
+            return None  # the usual case, asked at every position read of a moving axis
         mech = self.mechanical(motor_position)
         best: int | None = None
-        edges = () if self.stuck else self._edges  # stuck mechanics never reach an edge
         if direction > 0:
             for edge in edges:  # levels at p and p - 1 differ: first step with mech >= edge
                 if edge > mech:

@@ -185,16 +185,18 @@ class AxisFirmware:
         return due
 
     def next_event_ns(self) -> int | None:
+        now = self._now_ns
         if self._pending:
-            return self._now_ns
-        times = []
+            return now
         ahead = self._lookahead()
-        if ahead is not None:
-            times.append(max(ahead.time_ns, self._now_ns))
+        due = None if ahead is None else ahead.time_ns if ahead.time_ns > now else now
         timer = self._timer_due()
         if timer is not None:
-            times.append(max(timer, self._now_ns))
-        return min(times) if times else None
+            if timer < now:
+                timer = now
+            if due is None or timer < due:
+                due = timer
+        return due
 
     def advance_to(self, t_ns: int) -> list[AxisEvent]:
         while True:
@@ -657,6 +659,9 @@ class AxisFirmware:
         self._awaiting_arrival = False
 
     def get_parameter(self, number: int) -> int:
+        if number == AP.ACTUAL_POSITION:  # first: what a program polls most
+            self._sync()
+            return self.driver.position
         if number not in _LIVE_PARAMETERS:
             if number in self._chip_live:
                 self._sync()
@@ -665,8 +670,6 @@ class AxisFirmware:
         self._sync()
         if number == AP.TARGET_POSITION:
             return self._target
-        if number == AP.ACTUAL_POSITION:
-            return self._position
         if number == AP.ACTUAL_SPEED:
             return self._actual_speed()
         if number == AP.POSITION_REACHED:

@@ -129,9 +129,10 @@ class TMC4210(MotorEngine):
         """INT, CDGW, RS3 (REF_R unless mot1r), 1, RS1 (GP_IN), 1, RS2 (left), xEQt."""
         inv_ref = self.inv_ref  # in line: the firmware sends a datagram per position read
         ref_r = self.ref_r != inv_ref and not self.smgp & MOT1R
+        left = self.left_wired and self.ref_l != inv_ref  # left_active
         interrupt = bool(self.int_flags) or (self.pos_comp_flag and self.pos_comp_mask)
         return (interrupt << 7 | self.cdgw << 6 | ref_r << 5 | 0x14 | (self.gp_in != inv_ref) << 3
-                | self.left_active << 1 | (self.x_actual == self.x_target))
+                | left << 1 | (self.x_actual == self.x_target))
 
     def _wire(self) -> None:
         """Tell the motor engine what the global registers mean for it."""
@@ -151,24 +152,36 @@ class TMC4210(MotorEngine):
         self.powered_down = False
         status = self.status_byte()
         self.cdgw = False
-        read = bool(frame >> 24 & 1)
-        data = frame & MASK24
         address = frame >> 25 & 0x7F
         answer = 0
-        if address & 0x40:
-            pair = address & 0x3F
-            if read:
-                answer = self.ram[pair]
+        if frame >> 24 & 1:  # a read (the axis registers, read most, first)
+            if address < 0x10:
+                answer = self.read_motor(address)
+            elif address & 0x40:
+                answer = self.ram[address & 0x3F]
             else:
-                self.ram[pair] = data & 0x3F3F
-        elif read:
-            answer = self._read(address)
+                answer = self._read(address)
+        elif address & 0x40:
+            self.ram[address & 0x3F] = frame & 0x3F3F
         else:
-            self._write(address, data)
+            self._write(address, frame & MASK24)
         if self.if_config & SDO_INT:
             # SDO carries nINT permanently: all ones while no interrupt, all zeros otherwise.
             return 0 if self.interrupt else 0xFFFF_FFFF
         return status << 24 | answer
+
+    def spi_data(self, frame: int) -> int:
+        """The 24 data bits of ``spi(frame)``'s answer: the same frame with the same effects.
+
+        The firmware's reads ignore the status byte, so a read of an axis register (the
+        position, at every GAP 1 of a program) skips sampling it; any other frame is spi's.
+        """
+        address = frame >> 25
+        if frame >> 24 & 1 and address < 0x10 and not self.if_config & SDO_INT:
+            self.powered_down = False
+            self.cdgw = False
+            return self.x_actual if address == 1 else self.read_motor(address)  # 1: X_ACTUAL
+        return self.spi(frame) & MASK24
 
     def read(self, reg: int) -> int:
         """Convenience: the 24 data bits of a register read."""

@@ -165,6 +165,10 @@ class TMC429Motor(MotorEngine):
         """A datagram to the chip (any register: the SPI interface is shared)."""
         return self.chip.spi(frame)
 
+    def spi_data(self, frame: int) -> int:
+        """The 24 data bits of the chip's answer to a datagram (the driver's reads)."""
+        return self.chip.spi(frame) & MASK24
+
     def read(self, reg: MotorReg | int) -> int:
         """Convenience: the 24 data bits of one of this motor's axis registers."""
         return self.chip.read(motor_address(self.index, reg))

@@ -24,12 +24,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from typing import Protocol
 
 from axes.board import AxisBoard
 from axes.core import ChipModel
 from axes.tmc42x import (
     DISABLE_STOP_L,
     DISABLE_STOP_R,
+    HALF24,
     MASK24,
     SOFT_STOP,
     Irq,
@@ -50,7 +52,7 @@ from axes.units import (
     stop_speed,
     velocity_register,
 )
-from tmcl_spec.numbers import to_int32
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN, to_int32
 from tmcl_spec.parameters import AP
 
 log = logging.getLogger(__name__)
@@ -66,6 +68,15 @@ STOP_FLAG = 1 << Irq.STOP
 STOP_MASK = STOP_FLAG << 8
 
 
+class TMC42xChip(ChipModel, Protocol):
+    """A TMC42x chip (or one motor of it) as the firmware's routines drive it."""
+
+    def spi_data(self, frame: int) -> int:
+        """``spi(frame) & MASK24``, the data bits of the answer: the driver's reads ignore
+        the status byte, so a chip may skip sampling it (the frame acts the same)."""
+        ...
+
+
 class TMC42xDriver:
     """The firmware's routines for one TMC42x motor (the common half of a ChipDriver).
 
@@ -79,7 +90,7 @@ class TMC42xDriver:
     #: :meth:`read_parameter` for them): actual acceleration, ramp mode.
     live_parameters = frozenset({AP.ACTUAL_ACCELERATION, AP.RAMP_MODE})
 
-    def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard, chip: ChipModel,
+    def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard, chip: TMC42xChip,
                  motor: int = 0) -> None:
         self.index = index
         #: The axis parameters (the firmware's dict, read here, never written).
@@ -106,13 +117,13 @@ class TMC42xDriver:
         self.chip.spi(datagram(self._base | idx, data))
 
     def _read(self, idx: int) -> int:
-        return self.chip.spi(datagram(self._base | idx, read=True)) & MASK24
+        return self.chip.spi_data(datagram(self._base | idx, read=True))
 
     def _write_global(self, address: int, data: int) -> None:
         self.chip.spi(datagram(address, data))
 
     def _read_global(self, address: int) -> int:
-        return self.chip.spi(datagram(address, read=True)) & MASK24
+        return self.chip.spi_data(datagram(address, read=True))
 
     def setup_chip(self) -> None:
         """The chip's global registers as the firmware sets them at power-up."""
@@ -139,10 +150,15 @@ class TMC42xDriver:
     # == readings ==============================================================================
 
     def read_position(self) -> int:
-        x = self.chip.spi(self._read_x_actual) & MASK24
-        self.position = to_int32(self.position + sdiff24(x, self._x_last))
+        x = self.chip.spi_data(self._read_x_actual)
+        # sdiff24(x, self._x_last) in line, and to_int32 only on a wrap: a program's GAP 1
+        # comes here every time
+        position = self.position + ((x - self._x_last + HALF24) & MASK24) - HALF24
+        if not INT32_MIN <= position <= INT32_MAX:
+            position = to_int32(position)
+        self.position = position
         self._x_last = x
-        return self.position
+        return position
 
     def _v_actual(self) -> int:
         return signed(self._read(MotorReg.V_ACTUAL), 12)

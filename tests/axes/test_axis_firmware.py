@@ -200,6 +200,19 @@ def test_moves_beyond_the_24_bit_range_roll_the_target() -> None:
     assert h.gap(1) < 20_000_000 - 1_900_000  # still counting the right way after wraps
 
 
+def test_the_32_bit_position_wraps_like_the_firmware_int() -> None:
+    """AP 1 counts on across the 32-bit limit (wrapping like the firmware's int), both ways."""
+    h = Harness()
+    h.sap(1, 2**31 - 1000)
+    h.axis.rotate(100_000)
+    h.advance(0.5)
+    ahead = h.gap(1)
+    assert -(2**31) < ahead < -(2**31) + 50_000  # wrapped past INT32_MAX
+    h.axis.rotate(-100_000)
+    h.advance(2)
+    assert 2**31 - 200_000 < h.gap(1) < 2**31  # and back below it
+
+
 def test_relative_speed_readback_is_quantised_to_the_register() -> None:
     h = Harness()
     h.axis.rotate(51200)

@@ -157,6 +157,36 @@ def test_power_down_freezes_motion_until_the_next_frame() -> None:
     assert chip.x_actual > frozen
 
 
+_frames = st.one_of(
+    st.integers(0, 0xFFFF_FFFF),  # anything: writes, RAM, global registers, power-down, sdo_int
+    st.builds(lambda idx, data: datagram(idx, data, read=True), st.integers(0, 0x0F),
+              st.integers(0, MASK24)),  # axis register reads, the driver's fast path
+    st.sampled_from([datagram(Reg.DATAGRAM_LOW, 1), datagram(Reg.POWER_DOWN, 0),
+                     datagram(Reg.IF_CONFIGURATION, 2), datagram(Reg.IF_CONFIGURATION, EN_SD)]),
+)
+
+
+@settings(max_examples=80, deadline=None)
+@given(frames=st.lists(st.tuples(_frames, st.integers(0, 300)), min_size=1, max_size=12),
+       pins=st.tuples(st.booleans(), st.booleans(), st.booleans()))
+def test_spi_data_answers_the_data_bits_of_spi_and_acts_the_same(
+        frames: list[tuple[int, int]], pins: tuple[bool, bool, bool]) -> None:
+    """The driver's reads (spi_data) skip the status byte: the same answer's data bits, and the
+    same chip afterwards, for any frame (cdgw, power-down and sdo_int included)."""
+    chip = _configured(v_max=900, a_max=30, pulse_div=0, ramp_div=2)
+    chip.write(Reg.X_TARGET, 4000)
+    chip.write(Reg.INTERRUPT, 0xFF00)
+    chip.set_pins(*pins)
+    twin = chip.clone()
+    t = 0
+    for frame, ticks in frames:
+        t += ticks
+        chip.run(t)
+        twin.run(t)
+        assert twin.spi_data(frame) == chip.spi(frame) & MASK24
+        assert vars(twin) == vars(chip)
+
+
 # == motion against the tick-by-tick reference =================================================
 
 
