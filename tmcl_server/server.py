@@ -44,6 +44,11 @@ SLICE_WALL_S = 0.0002
 #: with nobody asking, the longer ones above cost less bookkeeping (docs/scheduling.md).
 SLICE_WALL_TRAFFIC_S = 0.00005
 PROGRAM_CHUNK_TRAFFIC_NS = 100_000
+#: A program this far behind the clock gets the long slices even while hosts send: it must
+#: keep real time (beyond MAX_LAG_NS it would lose time), the requests get what is left.  A
+#: busy program is woken at least every 10 ms (interpreter.SLICE_NS), so lags below that are
+#: its normal rhythm, not a sign that it falls behind.
+PROGRAM_PRIORITY_LAG_NS = 20_000_000
 
 
 @dataclass
@@ -270,7 +275,8 @@ class Server:
         self._timer = None
         self._running_due = True  # run_due's change notices must not arm a second timer
         requests = self.simulation.requests
-        traffic = requests != self._requests_seen
+        traffic = (requests != self._requests_seen
+                   and self.simulation.lag_ns < PROGRAM_PRIORITY_LAG_NS)
         self._requests_seen = requests
         chunk_ns = PROGRAM_CHUNK_TRAFFIC_NS if traffic else PROGRAM_CHUNK_NS
         try:

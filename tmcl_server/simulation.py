@@ -69,6 +69,9 @@ class Simulation:
         self.faults: FaultInjector | None = None
         #: Requests served so far (the server's timer tells traffic from quiet by it).
         self.requests = 0
+        #: How far the modules the last :meth:`run_due` ran are still behind its time (a busy
+        #: program on a real clock catching up).
+        self.lag_ns = 0
         #: A lockstep clock's time per request (0 for the others): see _execute.
         self._request_ns = clock.request_ns
         for module in self.modules:
@@ -128,15 +131,17 @@ class Simulation:
             if due[index] == when:
                 due[index] = None
                 ran.append(index)
-        behind = False
+        lag = 0
         for index in ran:
             module = self.modules[index]
             self._bring(module, index, t, chunk_ns)
             self.replan(module)
-            behind |= module.now_ns < t
+            if t - module.now_ns > lag:
+                lag = t - module.now_ns
+        self.lag_ns = lag
         if ran:
             self._changed()
-        return behind or (recording and t < self.clock.now_ns())
+        return lag > 0 or (recording and t < self.clock.now_ns())
 
     def sync_module(self, module: TMCLModule) -> None:
         """Bring one module to the clock (before a request to it, or a look at it).

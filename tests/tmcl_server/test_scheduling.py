@@ -13,7 +13,7 @@ from interpreter.assembler import assemble
 from tmcl_server.clock import Clock
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
-from tmcl_server.server import PROGRAM_CHUNK_TRAFFIC_NS, Server
+from tmcl_server.server import PROGRAM_CHUNK_TRAFFIC_NS, PROGRAM_PRIORITY_LAG_NS, Server
 from tmcl_server.simulation import PROGRAM_CHUNK_NS, Simulation
 from tmcl_spec.commands import Opcode
 
@@ -85,3 +85,16 @@ def test_a_slice_that_has_wall_time_left_catches_the_program_up(busy_server):
     assert module.now_ns == 20_000_000
     # 10 us each, from 0 up to and including the one that starts at 20 ms
     assert module.program.interpreter.executed == 20_000_000 // 10_000 + 1
+
+
+def test_a_program_falling_behind_gets_the_long_chunks_back_despite_hosts(busy_server):
+    server, module, clock = busy_server
+    clock.t = 40_000_000  # far behind: past PROGRAM_PRIORITY_LAG_NS, short of MAX_LAG_NS
+    gap = Request(1, Opcode.GAP, 1, 0, 0).encode()
+    server.simulation.handle_serial_frame(gap)
+    server._on_timer()  # a short slice: the lag was not known yet
+    assert module.now_ns == PROGRAM_CHUNK_TRAFFIC_NS
+    assert server.simulation.lag_ns > PROGRAM_PRIORITY_LAG_NS
+    server.simulation.handle_serial_frame(gap)
+    server._on_timer()  # hosts still send, but the program must catch up first
+    assert module.now_ns == PROGRAM_CHUNK_TRAFFIC_NS + PROGRAM_CHUNK_NS
