@@ -151,8 +151,9 @@ class RawSlcan:
         os.close(self.fd)
 
 
-#: A stand-in SLCAN adapter that does no work: it answers every frame line at once with one
-#: fixed reply line, as fast as a Python loop on a pty can.  python-can's lockstep rate
+#: A stand-in SLCAN adapter that does no work: it answers every frame line at once with the
+#: transmit acknowledgement and one fixed reply line (the bytes the simulator sends), as fast
+#: as a Python loop on a pty can.  python-can's lockstep rate
 #: against it is the ceiling of that client on this machine (it reads the port a byte at a
 #: time), measured beside the simulator's in the same run.
 INSTANT_ADAPTER = r"""
@@ -160,7 +161,7 @@ import os, pty, sys, tty
 master, slave = pty.openpty()
 tty.setraw(slave)
 print(os.ttyname(slave), flush=True)
-reply = b"t%03X7" % int(sys.argv[1]) + b"02640600000000\r"
+reply = b"z\rt%03X7" % int(sys.argv[1]) + b"02640600000000\r"
 buffer = b""
 while True:
     data = os.read(master, 4096)
