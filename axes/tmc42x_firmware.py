@@ -246,10 +246,14 @@ class TMC42xDriver:
         pps = self._pps_units
         if pps:
             pulse_div = choose_pulse_div(top_speed, clock_hz)
-            if pulse_div > self._pulse_div and self._v_actual():
+            if pulse_div != self._pulse_div and self._v_actual() and (
+                    pulse_div > self._pulse_div or self._mode() in (RampMode.RAMP, RampMode.SOFT)):
                 # A finer scale mid-move would round the running speed (its fraction bits
                 # are lost in the rescale) and can cost a step of overshoot: a lower limit
-                # runs on the present, coarser scale until the motor is at rest.
+                # runs on the present, coarser scale until the motor is at rest.  A move to
+                # a target keeps its scale either way: on a coarser one the running speed can
+                # land above the new braking curve (its PMUL/PDIV rounds differently) and
+                # overshoot by a few steps; a higher limit takes effect from the next move.
                 pulse_div = self._pulse_div
             if abs(top_speed) > max_step_rate(0, clock_hz):
                 log.warning("axis %d: %d pps is beyond the %s at %d Hz; running at %d pps",

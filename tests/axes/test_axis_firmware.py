@@ -8,7 +8,7 @@ TMC4361A core's own tests are in tests/axes/test_tmc4361a_firmware.py.
 from __future__ import annotations
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from axes.firmware import AxisFirmware
@@ -143,6 +143,10 @@ def _apply(h: Harness, what: str, value: int) -> None:
 # In flight, V_MAX may change either way, the acceleration only up and the target only further
 # along: lowering the deceleration or pulling the target back near the end makes an overshoot
 # physically unavoidable, on the real chip too.
+# The example: V_MAX raised sixfold while braking once moved the move to a coarser PULSE_DIV,
+# where the running speed was just above the new braking curve: 3 steps over (docs/motion.md).
+@example(commands=[(("mst", 0), 0), (("mvp", 0), 55)], v_max=20000, a_max=511529, target=6162,
+         in_flight=[("sap4", 41121, 23), ("sap4", 250398, 140)])
 def test_any_command_sequence_ends_on_target_without_overshoot(
         commands: list[tuple[tuple[str, int], int]], v_max: int, a_max: int, target: int,
         in_flight: list[tuple[str, int, int]]) -> None:
