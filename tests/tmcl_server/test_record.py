@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import RawClient
+from tests.helpers.clocks import ManualClock
 from tests.tmcl_server.test_cli import ServerProcess
-from tmcl_server.clock import Clock
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
@@ -174,19 +174,6 @@ def test_switch_levels_are_recorded(tmcl_sim: SimulatorThread, raw_client_factor
     first = next(r for r in rows if r.left)
     assert first.position <= -3000
     assert [m.event for m in recording.events("left_switch")] == ["left_switch"]
-
-
-class ManualClock(Clock):
-    """A real clock as far as the simulation can tell (not virtual), moved by the test."""
-
-    def __init__(self) -> None:
-        self.t = 0
-
-    def now_ns(self) -> int:
-        return self.t
-
-    def wall_seconds(self, sim_ns: int) -> float:
-        return sim_ns / 1e9
 
 
 def test_a_recorder_behind_a_real_clock_never_holds_up_a_request() -> None:

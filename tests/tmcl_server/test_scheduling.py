@@ -10,7 +10,7 @@ import itertools
 import pytest
 
 from interpreter.assembler import assemble
-from tmcl_server.clock import Clock
+from tests.helpers.clocks import ManualClock
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
 from tmcl_server.server import PROGRAM_CHUNK_TRAFFIC_NS, PROGRAM_PRIORITY_LAG_NS, Server
@@ -24,22 +24,9 @@ Loop:
 """
 
 
-class HeldClock(Clock):
-    """A real (not virtual) clock that moves only when the test moves it."""
-
-    def __init__(self) -> None:
-        self.t = 0
-
-    def now_ns(self) -> int:
-        return self.t
-
-    def wall_seconds(self, sim_ns: int) -> float:
-        return sim_ns / 1e9
-
-
 @pytest.fixture
 def busy_server():
-    clock = HeldClock()
+    clock = ManualClock()
     module = TMCM6212()
     simulation = Simulation([module], clock)
     module.program.interpreter.load(assemble(BUSY).instructions)
