@@ -120,6 +120,12 @@ class SlcanSession:
                 self._write_out(b"".join(out))
 
     def _feed(self, data: bytes) -> None:
+        if (not self._line and not self._junk and len(data) <= MAX_LINE
+                and data.find(b"\r") == len(data) - 1 and b"\n" not in data):
+            # one whole command, the usual case of a lockstep host: no splitting
+            if answer := self._command(data[:-1]):
+                self._write(answer)
+            return
         for chunk in re.split(rb"(\r)", data.replace(b"\n", b"")):
             if chunk == b"\r":
                 line, self._line = bytes(self._line), bytearray()
