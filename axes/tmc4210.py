@@ -71,6 +71,9 @@ PLAIN_REGISTERS: dict[int, tuple[str, int]] = {
     Reg.POS_COMP: ("pos_comp", MASK24),
 }
 
+#: X_ACTUAL's address as a plain int (spi_data compares it on every position read).
+_X_ACTUAL = int(MotorReg.X_ACTUAL)
+
 # Bits of IF_CONFIGURATION and SMGP.
 INV_REF = 1 << 0
 SDO_INT = 1 << 1
@@ -180,7 +183,7 @@ class TMC4210(MotorEngine):
         if frame >> 24 & 1 and address < 0x10 and not self.if_config & SDO_INT:
             self.powered_down = False
             self.cdgw = False
-            return self.x_actual if address == 1 else self.read_motor(address)  # 1: X_ACTUAL
+            return self.x_actual if address == _X_ACTUAL else self.read_motor(address)
         return self.spi(frame) & MASK24
 
     def read(self, reg: int) -> int:

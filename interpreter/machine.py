@@ -487,7 +487,7 @@ class Interpreter:
         n = 0
         outcome = _CONTINUE
         while n < count:
-            op, ty, _motor, va = code[pc]
+            op, ty, motor, va = code[pc]
             if op == _CALC:
                 if ty == 0:
                     acc = ((acc + va + _SIGN) & _MASK) - _SIGN
@@ -530,7 +530,7 @@ class Interpreter:
                 if op in not_module:
                     outcome = self._execute_other(code[pc], self.time_ns + n * cost)
                 else:
-                    outcome = self._module_command(op, ty, _motor, va, self.time_ns + n * cost)
+                    outcome = self._module_command(op, ty, motor, va, self.time_ns + n * cost)
                 pc, acc = self.pc, self.accumulator
                 zero, cmp_ = self.zero_source, self.compare_source
                 if outcome != _CONTINUE:
@@ -563,18 +563,17 @@ class Interpreter:
         return _CONTINUE
 
     def _execute_other(self, ins: Instruction, t: int) -> int:
-        """Everything the dispatch loop does not inline; ``t`` is the instruction's time."""
+        """The interpreter's own instructions the dispatch loop does not inline (the opcodes
+        of ``_NOT_MODULE``; the module's go to :meth:`_module_command`); ``t`` is the
+        instruction's time."""
         op, ty, motor, va = ins
-        handler = _INTERNAL.get(op)
-        if handler is not None:
-            return handler(self, ty, motor, va)
         if op == 0 or op == _STOP:  # empty memory ends a program too
             self.status = ApplicationStatus.STOP
             self.port.program_event(t, "program_stopped", pc=self.pc)
             return _STOPPED
         if op == _WAIT:
             return self._start_wait(ty, motor, va, t)
-        return self._module_command(op, ty, motor, va, t)
+        return _INTERNAL[op](self, ty, motor, va)
 
     # -- commands the interpreter handles itself ---------------------------------------------
 

@@ -291,7 +291,7 @@ class TMCLModule:
         except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
             return Status.EEPROM_LOCKED, request.value
         finally:
-            if opcode not in _SCHEDULE_NEUTRAL and self.may_reschedule(opcode, request.motor):
+            if self.may_reschedule(opcode, request.motor):
                 self._stale_axes |= touched  # the command may start, stop or move an event
                 self._due_stale = True
         return _OK, request.value if result is None else result

@@ -119,16 +119,15 @@ class ProgramSupport:
                 value: int) -> tuple[int, int, bool]:
         module = self.module
         module.catch_up(time_ns)
+        request = tuple.__new__(Request, (module.address, opcode, type_, motor, value))  # no __new__
         if opcode in READ_ONLY_OPCODES:  # the usual case: a read stores nothing, moves no event
-            status, result = module.perform(tuple.__new__(
-                Request, (module.address, opcode, type_, motor, value)))
+            status, result = module.perform(request)
             return status, result, False
         eeprom = module.eeprom
         stores = eeprom.stores
         eeprom.deferring = True  # a program's stores may share a file write (coalesced)
         try:
-            status, result = module.perform(tuple.__new__(
-                Request, (module.address, opcode, type_, motor, value)))  # hot path: no __new__
+            status, result = module.perform(request)
         finally:
             eeprom.deferring = False
         if eeprom.stores != stores:  # the program waits for the part's write cycles
