@@ -33,12 +33,14 @@ def _is_type_checking(node: ast.If) -> bool:
         isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
 
 
-def _imports(tree: ast.AST, package: str) -> set[str]:
-    """Every module a file imports when it runs (imports only for type checkers excluded)."""
+def _imports(tree: ast.AST, package: str, type_only: bool = True) -> set[str]:
+    """Every module a file imports, those only for type checkers included unless
+    ``type_only`` is False (a hook's interface belongs to the layer that calls it, so a type
+    needs no import against the layers' direction either)."""
     found: set[str] = set()
 
     def visit(node: ast.AST) -> None:
-        if isinstance(node, ast.If) and _is_type_checking(node):
+        if not type_only and isinstance(node, ast.If) and _is_type_checking(node):
             for child in node.orelse:
                 visit(child)
             return

@@ -6,11 +6,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import sys
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Protocol, TextIO
 
 if TYPE_CHECKING:
     from tmcl_server.record import Recorder
-    from tmcl_server.server import ServerConfig
     from tmcl_server.simulation import Simulation
     from tmcl_server.trace import Tracer
 
@@ -21,10 +20,22 @@ RECORD_WAKE_S = 0.1
 STDERR = "-"
 
 
+class ObserverSettings(Protocol):
+    """What the observers take from a server's configuration (``ServerConfig`` has it)."""
+
+    #: Telegram trace: a file, "-" for stderr, None for none; "text" or "jsonl".
+    trace: str | None
+    trace_format: str
+    #: Record the axes to a .csv or .jsonl file every record_resolution simulated seconds.
+    record: str | None
+    record_resolution: float
+    record_axes: list[int] | None
+
+
 class Observers:
     """The trace and the recorder of one server (each optional)."""
 
-    def __init__(self, simulation: Simulation, config: ServerConfig) -> None:
+    def __init__(self, simulation: Simulation, config: ObserverSettings) -> None:
         self.simulation = simulation
         self.config = config
         self.tracer: Tracer | None = None

@@ -18,7 +18,7 @@ from __future__ import annotations
 import heapq
 import logging
 from collections.abc import Callable, Iterable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from tmcl_server.clock import Clock, VirtualClock, seconds_to_ns
 from tmcl_server.dispatch import Interface, ReplySink
@@ -26,14 +26,62 @@ from tmcl_server.module import READ_ONLY_OPCODES, TMCLModule
 from tmcl_server.protocol import AnyReply, ChecksumError, Request, decode_request
 from tmcl_spec.numbers import NS_PER_MS
 
-if TYPE_CHECKING:
-    from tmcl_server.faults import FaultInjector
-    from tmcl_server.record import Recorder
-    from tmcl_server.trace import Tracer
-
 log = logging.getLogger(__name__)
 
-Routed = tuple["TMCLModule", AnyReply]
+Routed = tuple[TMCLModule, AnyReply]
+
+
+# -- the hooks the simulation calls (their implementations live in the layers above) ----------
+
+
+class RequestTracer(Protocol):
+    """Told of every frame and exchange (tmcl_server/trace.py's :class:`Tracer`)."""
+
+    def requested(self, request: Request, interface: Interface, targets: list[TMCLModule],
+                  sink: ReplySink | None) -> ReplySink | None:
+        """A request is about to run on ``targets``; returns the sink the modules should keep."""
+        ...
+
+    def replied(self, request: Request, interface: Interface, targets: list[TMCLModule],
+                routed: list[Routed], sink: ReplySink | None) -> None:
+        """The request ran; ``routed`` holds the replies."""
+        ...
+
+    def foreign(self, frame: bytes, sink: ReplySink | None) -> None:
+        """A serial frame no module answers to."""
+        ...
+
+    def bad_checksum(self, frame: bytes, sink: ReplySink | None, routed: list[Routed]) -> None:
+        """A frame with a wrong checksum and the replies it got."""
+        ...
+
+
+class SampleRecorder(Protocol):
+    """Samples the axes at fixed instants whenever time moves (tmcl_server/record.py)."""
+
+    #: The next instant it samples.
+    next_ns: int
+
+    def catch_up(self, t_ns: int, max_samples: int | None = None) -> int:
+        """Take the samples due up to ``t_ns`` (at most ``max_samples``); the time reached."""
+        ...
+
+    def skip_to(self, t_ns: int) -> None:
+        """Leave out the instants before ``t_ns`` (a real clock ran away)."""
+        ...
+
+
+class RequestFaults(Protocol):
+    """Faults injected on purpose around each request (tmcl_server/faults.py)."""
+
+    def before(self, request: Request, interface: Interface, targets: list[TMCLModule],
+               sink: ReplySink | None) -> list[TMCLModule]:
+        """The modules that still get the request."""
+        ...
+
+    def after(self, request: Request, interface: Interface, routed: list[Routed]) -> list[Routed]:
+        """The replies as they leave (some lost or altered)."""
+        ...
 
 #: On a real clock a busy program runs this much simulated time (about 50 instructions) before
 #: the server looks at the wall clock again: smaller chunks cost more in bookkeeping.
@@ -62,11 +110,11 @@ class Simulation:
         #: Program time skipped on a real clock because a module could not keep up (per index).
         self.skipped_ns = [0] * len(self.modules)
         #: The telegram trace (tmcl_server/trace.py); None: tracing off, and it costs nothing.
-        self.tracer: Tracer | None = None
+        self.tracer: RequestTracer | None = None
         #: Samples the axes at its instants whenever time moves (tmcl_server/record.py); or None.
-        self.recorder: Recorder | None = None
+        self.recorder: SampleRecorder | None = None
         #: Faults injected on purpose (tmcl_server/faults.py), set while one watches requests.
-        self.faults: FaultInjector | None = None
+        self.faults: RequestFaults | None = None
         #: Requests served so far (the server's timer tells traffic from quiet by it).
         self.requests = 0
         #: How far the modules the last :meth:`run_due` ran are still behind its time (a busy

@@ -13,13 +13,10 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
+from tmcl_spec.eval_boards import EvalBoards
 from tmcl_spec.parameters import ParamSpec
 from tmcl_spec.registry import resolve
-
-if TYPE_CHECKING:
-    from tmcl_spec.landungsbruecke import EvalBoards
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections import Counter, deque
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import can
 
@@ -28,9 +28,6 @@ from tmcl_server.simulation import Simulation
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, check_bus_name
 from tmcl_spec.parameters import GP
 from tmcl_spec.tmcm6212 import BANK0_PARAMETERS
-
-if TYPE_CHECKING:
-    from tmcl_server.transports.wire import CanTiming
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +48,16 @@ class CanParty(Protocol):
         """A frame another party sent.  Must not raise; the bus logs it if it does."""
 
 
+class FrameTiming(Protocol):
+    """Frames at a bit rate (``--wire-timing``: transports/wire.py's ``CanTiming``): what the
+    bus calls instead of delivering a frame at once."""
+
+    def transmit(self, bus: SimulatedCanBus, frame: can.Message, sender: CanParty | None,
+                 after_s: float = 0.0) -> None:
+        """Deliver ``frame`` (``bus.deliver_now``) when its last bit would have gone."""
+        ...
+
+
 class SimulatedCanBus:
     """One wire.  Not thread-safe: every party lives on the server's event loop."""
 
@@ -62,7 +69,7 @@ class SimulatedCanBus:
         self._pending: deque[tuple[can.Message, CanParty | None]] = deque()
         self._delivering = False
         #: ``--wire-timing``: frames take their time on the wire (transports/wire.py); None: instant.
-        self.timing: CanTiming | None = None
+        self.timing: FrameTiming | None = None
         #: Frames carried (``frames``) and party failures (``party_errors``).
         self.stats: Counter[str] = Counter()
 
