@@ -10,7 +10,7 @@ has to (docs/interpreter.md has the timing model and every choice the manual lea
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -707,7 +707,7 @@ _STOPPED = 2  # STOP or end of program
 _WAITING = 3  # a WAIT is in progress
 _INTERRUPTS = 4  # interrupt state changed: check for a dispatch before the next instruction
 
-_INTERNAL = {
+_INTERNAL: dict[int, Callable[[Interpreter, int, int, int], int]] = {
     Opcode.CALCX: Interpreter._calcx,
     Opcode.CSUB: Interpreter._csub,
     Opcode.RSUB: Interpreter._rsub,

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from tmcl_server.module import TMCM6212
-from tmcl_server.program import ProgramSupport
+from tmcl_server.module.program import ProgramSupport
 from tmcl_spec.commands import Opcode
 
 ROOT = Path(__file__).resolve().parents[1]

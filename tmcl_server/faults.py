@@ -567,8 +567,8 @@ class FaultInjector:
         modules = self._modules(spec)
         if not modules:
             raise FaultSpecError(f"{spec.text}: no module has slot {sorted(spec.key('module'))}")
-        for module in modules if axis is not None else ():
-            if axis >= len(module.axes):
+        for module in modules:
+            if axis is not None and axis >= len(module.axes):
                 raise FaultSpecError(f"{spec.text}: the {module.type.name} has axes "
                                      f"0..{len(module.axes) - 1}")
 

@@ -282,7 +282,7 @@ class Server:
         try:
             deadline = self.wall_s() + (SLICE_WALL_TRAFFIC_S if traffic else SLICE_WALL_S)
             while self.simulation.run_due(chunk_ns):
-                if self.wall_s() >= deadline:
+                if self.wall_s() >= deadline and self._loop is not None:
                     self._timer_when = self._loop.time()
                     self._timer = self._loop.call_soon(self._on_timer)
                     return

@@ -18,12 +18,12 @@ from __future__ import annotations
 import heapq
 import logging
 from collections.abc import Callable, Iterable
-from typing import Protocol
+from typing import Any, Protocol
 
 from tmcl_server.clock import Clock, VirtualClock, seconds_to_ns
 from tmcl_server.dispatch import Interface, ReplySink
 from tmcl_server.module import READ_ONLY_OPCODES, TMCLModule
-from tmcl_server.protocol import AnyReply, ChecksumError, Request, decode_request
+from tmcl_server.protocol import AnyReply, ChecksumError, FrameAssembler, Request, decode_request
 from tmcl_spec.numbers import NS_PER_MS
 
 log = logging.getLogger(__name__)
@@ -53,6 +53,21 @@ class RequestTracer(Protocol):
 
     def bad_checksum(self, frame: bytes, sink: ReplySink | None, routed: list[Routed]) -> None:
         """A frame with a wrong checksum and the replies it got."""
+        ...
+
+    # What the transports and the fault injector report through the simulation's tracer:
+
+    def torn_frame(self, endpoint: str, assembler: FrameAssembler, now_ns: int) -> None:
+        """Bytes of an incomplete frame about to be dropped after the pause."""
+        ...
+
+    def can_ignored(self, bus: str, can_id: int, data: bytes, reason: str) -> None:
+        """A CAN frame the modules did not act on."""
+        ...
+
+    def injected(self, endpoint: str, module: TMCLModule, request: Request | None, what: str,
+                 fields: dict[str, Any]) -> None:
+        """A fault was injected on purpose."""
         ...
 
 

@@ -63,7 +63,8 @@ _json_string = json.encoder.encode_basestring  # type: ignore[attr-defined]
 #: One noted happening: (formatter, wall time, simulated ns, formatter arguments ...).
 _Note = tuple[Any, ...]
 #: What a formatter returns: kind, endpoint, module address, text, JSON fields (or None).
-_Line = tuple[str, str, int, str, dict[str, Any] | None]
+#: (kind, endpoint, address, text, JSON fields: a dict, members already in JSON, or None)
+_Line = tuple[str, str, int, str, dict[str, Any] | str | None]
 #: A noted happening as listeners get it (opaque: :meth:`Tracer.decode` turns it into lines).
 TraceNote = _Note
 #: A decoded line: wall time, simulated ns, kind, endpoint, module address, text.
@@ -240,8 +241,9 @@ class Tracer:
                     f"wrong checksum {frame[8]:#04x} (should be {checksum(frame[:8]):#04x}): "
                     f"{frame.hex(' ')}", {"reason": "wrong checksum", "bytes": frame.hex()}))
         for module, reply in routed:
-            self._note((self._plain_line, wall, now, "reply", endpoint, module.address,
-                        f"(wrong checksum) {describe_reply(reply)}", self._reply_fields(reply)))
+            if isinstance(reply, Reply):  # status 1, the one reply a bad checksum gets
+                self._note((self._plain_line, wall, now, "reply", endpoint, module.address,
+                            f"(wrong checksum) {describe_reply(reply)}", self._reply_fields(reply)))
 
     def torn_frame(self, endpoint: str, assembler: FrameAssembler, now_ns: int) -> None:
         """Bytes of an incomplete frame about to be dropped after the 5 ms pause."""
@@ -307,7 +309,7 @@ class Tracer:
         (_, _, _, _, request_fields), = self._request_line(endpoint, request, kind, interface)
         (_, endpoint, address, text, reply_fields), = self._reply_line(endpoint, address, kind, request,
                                                                         reply, extra)
-        if request_fields is not None and reply_fields is not None:
+        if isinstance(request_fields, dict) and isinstance(reply_fields, dict):
             reply_fields.pop("opcode", None)  # the request's
             request_fields.update(reply_fields)
         return [("cmd", endpoint, address, text, request_fields)]
@@ -397,7 +399,7 @@ class Tracer:
             for kind, endpoint, address, text, fields in lines:
                 body = (f'{head}"endpoint":{_json_string(endpoint)},"module":{address},"kind":"{kind}",'
                         f'"text":{_json_string(text)}')
-                if type(fields) is str:  # members already in JSON (the usual exchange)
+                if isinstance(fields, str):  # members already in JSON (the usual exchange)
                     body += fields
                 elif fields:
                     body += "".join([f',"{key}":{_json_value(value)}' for key, value in fields.items()])

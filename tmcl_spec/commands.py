@@ -258,7 +258,7 @@ OPERANDS: dict[Opcode, tuple[Field, ...]] = {
 }
 
 #: The symbolic names of the type field, per command that has them (MVP: ABS/REL/COORD, ...).
-TYPE_SYMBOLS: dict[Opcode, type[IntEnum]] = {
+TYPE_SYMBOLS: dict[int, type[IntEnum]] = {
     opcode: f.symbols for opcode, fields in OPERANDS.items()
     for f in fields if f.slot == "type" and f.symbols is not None
 }

@@ -20,7 +20,7 @@ from tmcl_spec.eval_boards import BoardId, EvalBoards, id_eeprom
 from tmcl_spec.modules import ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
 from tmcl_spec.parameters import GP, EvalGP, ParamSpec
-from tmcl_spec.tmcm6212 import BANK0_PARAMETERS
+from tmcl_spec.tmcm6212 import BANK0_PARAMETERS, BAUD_RATES
 
 
 class EvalOpcode(IntEnum):
@@ -136,6 +136,7 @@ LANDUNGSBRUECKE_TMC4361A = ModuleType(
     program_memory=0,
     chip_core="tmc4361a-eval",
     commands=COMMANDS,
+    baud_rates=BAUD_RATES,  # GP 65 as on the TMCL modules (inferred); no CAN
     handlers={
         Opcode.MVP: "mvp_eval",
         EvalOpcode.DRIVERS_ENABLE: "drivers_enable",

@@ -64,6 +64,10 @@ class ModuleType:
     unknown_parameter_status: int = 3
     #: Whether the module has a CAN interface (it ignores the CAN bus if not).
     has_can: bool = True
+    #: GP 65 (serial baud rate): value -> bits per second.
+    baud_rates: Mapping[int, int] = dataclasses.field(default_factory=dict)
+    #: GP 69 (CAN bit rate): value -> bits per second.
+    can_bit_rates: Mapping[int, int] = dataclasses.field(default_factory=dict)
     #: Evaluation system only: the boards on the base board (tmcl_spec/landungsbruecke.py).
     eval_boards: EvalBoards | None = None
 

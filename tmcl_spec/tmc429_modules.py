@@ -25,6 +25,8 @@ from tmcl_spec.numbers import INT32_MAX, INT32_MIN
 from tmcl_spec.parameters import AP, GP, ParamSpec
 from tmcl_spec.tmcm6212 import BANK0_PARAMETERS as TMCM6212_BANK0
 from tmcl_spec.tmcm6212 import BANK2_PARAMETERS, REFERENCE_SEARCH_MODES, STORABLE_USER_VARIABLES
+from tmcl_spec.tmcm6212 import BAUD_RATES as TMCM6212_BAUD_RATES
+from tmcl_spec.tmcm6212 import CAN_BIT_RATES as TMCM6212_CAN_BIT_RATES
 
 #: The TMC429's velocity and acceleration registers (11 bits): the firmware's units.
 V_MAX = 2047
@@ -187,6 +189,8 @@ _FAMILY: dict[str, Any] = dict(
     analog_full_scale=ANALOG_FULL_SCALE,
     digital_threshold=DIGITAL_THRESHOLD,
     nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
+    baud_rates=TMCM6212_BAUD_RATES,  # the TMCL family's GP 65 and GP 69 (inferred)
+    can_bit_rates=TMCM6212_CAN_BIT_RATES,
 )
 
 TMCM_1110 = ModuleType(

@@ -195,9 +195,9 @@ NUMBER_OF_OUTPUTS = 4
 #: this module family read channel 8 (docs/module.md).
 SUPPLY_VOLTAGE_CHANNEL = 8
 NOMINAL_SUPPLY_VOLTAGE = 24.0  # the manual's "+24V nominal"
-#: GP 65 index -> bits per second.
-BAUD_RATES = (9600, 14400, 19200, 28800, 38400, 57600, 76800, 115200, 230400, 250000,
-              500000, 1000000)
+#: GP 65 value -> bits per second (Table 16).
+BAUD_RATES = dict(enumerate((9600, 14400, 19200, 28800, 38400, 57600, 76800, 115200, 230400,
+                             250000, 500000, 1000000)))
 #: GP 69 (CAN bit rate): index -> bits per second (Table 16).
 CAN_BIT_RATES = {2: 20_000, 3: 50_000, 4: 100_000, 5: 125_000, 6: 250_000, 7: 500_000, 8: 1_000_000}
 
@@ -223,4 +223,6 @@ TMCM_6212 = ModuleType(
     program_memory=6144,  # TMCL commands it can store (manual §1, "Software")
     chip_core="tmc4210",
     commands=frozenset(Opcode),
+    baud_rates=BAUD_RATES,
+    can_bit_rates=CAN_BIT_RATES,
 )

@@ -143,11 +143,12 @@ class Dashboard:
         self._watchers += 1
         if self._watchers > 1:
             return
+        from tmcl_server.trace import Tracer
+
         tracer = self.simulation.tracer
         if tracer is None:  # no --trace: a tracer without a stream, only for listeners
-            from tmcl_server.trace import Tracer
-
             tracer = Tracer(None).attach(self.simulation, loop)
+        assert isinstance(tracer, Tracer)  # the one tracer there is (a hook may be another)
         tracer.listeners.append(self._on_trace)
         self._tracer = tracer
 

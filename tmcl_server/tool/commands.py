@@ -38,7 +38,6 @@ from tmcl_spec.commands import TYPE_SYMBOLS, ApplicationStatus, Opcode, Status
 from tmcl_spec.modules import ModuleType, module_type
 from tmcl_spec.numbers import to_int32
 from tmcl_spec.parameters import AP, BANK_USER_VARIABLES, GP
-from tmcl_spec.tmcm6212 import BAUD_RATES
 
 _AXIS_COMMANDS = frozenset({Opcode.SAP, Opcode.GAP, Opcode.STAP, Opcode.RSAP, Opcode.AAP})
 _GLOBAL_COMMANDS = frozenset({Opcode.SGP, Opcode.GGP, Opcode.STGP, Opcode.RSGP, Opcode.AGP})
@@ -216,7 +215,7 @@ def cmd_info(args: argparse.Namespace) -> int:
             GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.HOST_ADDRESS, GP.BAUD_RATE,
             GP.CAN_ID, GP.CAN_REPLY_ID, GP.CAN_SECONDARY_ID, GP.CAN_BIT_RATE)}
         status = conn.ok(Opcode.GET_APPLICATION_STATUS, 1) & 0xFFFF_FFFF
-    baud = BAUD_RATES[bank0[GP.BAUD_RATE]] if 0 <= bank0[GP.BAUD_RATE] < len(BAUD_RATES) else None
+    baud = (kind or module_type()).baud_rates.get(bank0[GP.BAUD_RATE])
     mode = status >> 24
     info = {
         "version": version,

@@ -65,7 +65,8 @@ class LinkMode(Enum):
 
 def split_endpoint_options(argument: str, known: Iterable[str] = ("mode",)) -> tuple[str, dict[str, str]]:
     """``PATH[,key=value]...`` -> (PATH, options); an unknown key is a ValueError."""
-    base, options, names = argument, {}, tuple(known)
+    base, names = argument, tuple(known)
+    options: dict[str, str] = {}
     while True:
         head, sep, tail = base.rpartition(",")
         if not sep or "=" not in tail:
@@ -216,7 +217,7 @@ class StreamSession:
 
     def _deliver(self, reply: AnyReply | Delivery, delay_s: float) -> None:
         """A reply after the GP 75 pause, or one the faults altered (late, torn, ...)."""
-        if type(reply) is not Delivery:
+        if not isinstance(reply, Delivery):
             self._send(reply.encode(), delay_s)
             return
         for pause, data in reply.stream_pieces():

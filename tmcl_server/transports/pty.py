@@ -202,7 +202,7 @@ class PtyTransport(Transport):
         """Output dropped because nobody reads the port."""
         log.warning("pty %s: nobody reads the port, %d bytes of replies dropped", self.link, size)
 
-    def _set_pending(self, data: bytes) -> None:
+    def _set_pending(self, data: bytes | bytearray) -> None:
         loop = asyncio.get_running_loop()
         if data and not self._pending and self._master is not None:
             loop.add_writer(self._master, self._flush_pending)

@@ -21,7 +21,7 @@ from tmcl_server.transports.base import (
     link_mode,
     split_endpoint_options,
 )
-from tmcl_spec.tmcm6212 import BAUD_RATES
+from tmcl_spec.parameters import GP
 
 if TYPE_CHECKING:
     from tmcl_server.transports.wire import WireTiming
@@ -55,7 +55,8 @@ class SerialPortTransport(Transport):
         self.wire = wire
         self.device, baud = parse_serial_spec(spec)
         if baud is None:  # the module's own GP 65 setting decides, as on the real part
-            baud = BAUD_RATES[simulation.modules[0].globals[0][65]] if simulation.modules else 9600
+            module = simulation.modules[0] if simulation.modules else None
+            baud = module.type.baud_rates.get(module.globals[0][GP.BAUD_RATE], 9600) if module else 9600
         self.baudrate = baud
         self._port: serial.SerialBase | None = None
         self._session: StreamSession | None = None

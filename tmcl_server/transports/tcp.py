@@ -133,7 +133,7 @@ class _TcpProtocol(asyncio.Protocol):
         disable_nagle(transport)
         self.transport.set_write_buffer_limits(high=MAX_WRITE_BUFFER, low=MAX_WRITE_BUFFER // 4)
         sock = transport.get_extra_info("socket")
-        self._session = StreamSession(self._simulation, transport.write, asyncio.get_running_loop(),
+        self._session = StreamSession(self._simulation, self.transport.write, asyncio.get_running_loop(),
                                       self._mode, f"tcp {peer[0]}:{peer[1]}" if peer else "tcp",
                                       partial(bytes_waiting, sock.fileno()) if sock is not None else None)
         self._connections.add(self)

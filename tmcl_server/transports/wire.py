@@ -36,7 +36,6 @@ from tmcl_server.protocol import AnyReply
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import LinkMode, StreamSession, TransportHost
 from tmcl_spec.parameters import GP
-from tmcl_spec.tmcm6212 import BAUD_RATES, CAN_BIT_RATES
 
 if TYPE_CHECKING:
     import can
@@ -48,6 +47,10 @@ log = logging.getLogger(__name__)
 
 #: UART framing 8N1: a start bit, eight data bits, a stop bit.
 BITS_PER_BYTE = 10
+#: Rates without a module to ask (or a module type without the table): the slowest UART
+#: setting and the fastest CAN one, the TMCL family's factory defaults.
+FALLBACK_BAUD = 9600
+FALLBACK_CAN_BIT_RATE = 1_000_000
 #: A standard (11-bit id) CAN data frame without its data: SOF 1, id 11, RTR 1, IDE 1, r0 1,
 #: DLC 4, CRC 15, CRC delimiter 1, ACK slot and delimiter 2, EOF 7, intermission 3.
 CAN_FRAME_OVERHEAD_BITS = 47
@@ -200,29 +203,31 @@ class LineRate:
     the next power-up, a restart by 137 or a power cycle), unless the endpoint fixes one."""
 
     def __init__(self, module: TMCLModule | None, parameter: int, table: Mapping[int, int],
-                 fixed: int | None = None) -> None:
+                 fallback: int, fixed: int | None = None) -> None:
         self._module = module
         self._parameter = parameter
         self._table = table
+        self._fallback = fallback
         self.bits_per_s = fixed or self._read()
         if fixed is None and module is not None:
             module.listeners.append(self._on_event)
 
     @classmethod
     def uart(cls, module: TMCLModule | None, fixed: int | None = None) -> LineRate:
-        return cls(module, GP.BAUD_RATE, dict(enumerate(BAUD_RATES)), fixed)
+        """GP 65 through the module type's baud-rate table."""
+        table = module.type.baud_rates if module is not None else {}
+        return cls(module, GP.BAUD_RATE, table, FALLBACK_BAUD, fixed)
 
     @classmethod
     def can(cls, module: TMCLModule | None, fixed: int | None = None) -> LineRate:
-        return cls(module, GP.CAN_BIT_RATE, CAN_BIT_RATES, fixed)
+        """GP 69 through the module type's CAN bit-rate table."""
+        table = module.type.can_bit_rates if module is not None else {}
+        return cls(module, GP.CAN_BIT_RATE, table, FALLBACK_CAN_BIT_RATE, fixed)
 
     def _read(self) -> int:
         if self._module is None:
-            return self._table[self._parameter_default()]
-        return self._table[self._module.globals[0][self._parameter]]
-
-    def _parameter_default(self) -> int:
-        return min(self._table) if self._parameter == GP.BAUD_RATE else max(self._table)
+            return self._fallback
+        return self._table.get(self._module.globals[0][self._parameter], self._fallback)
 
     def _on_event(self, event: ModuleEvent) -> None:
         if event.kind in ("power_cycle", "factory_reset"):
@@ -285,7 +290,7 @@ class PacedStreamSession(StreamSession):
             self._transmit_reply(reply, arrived_ns + self._processing_ns + pause_ns)
 
     def _transmit_reply(self, reply: AnyReply | Delivery, start_ns: int) -> None:
-        pieces = reply.stream_pieces() if type(reply) is Delivery else ((0.0, reply.encode()),)
+        pieces = reply.stream_pieces() if isinstance(reply, Delivery) else ((0.0, reply.encode()),)
         for pause, data in pieces:
             start_ns = self._transmit(data, start_ns + round(pause * NS_PER_S))
 

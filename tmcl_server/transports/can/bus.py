@@ -27,7 +27,6 @@ from tmcl_server.protocol import CAN_PAYLOAD_LENGTH, AnyReply, Reply, decode_can
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, check_bus_name
 from tmcl_spec.parameters import GP
-from tmcl_spec.tmcm6212 import BANK0_PARAMETERS
 
 log = logging.getLogger(__name__)
 
@@ -37,8 +36,6 @@ REQUEST_LENGTHS = (CAN_PAYLOAD_LENGTH, CAN_PAYLOAD_LENGTH + 1)
 _IGNORED = {"error_frames": "an error frame", "remote": "a remote frame",
             "extended": "an extended (29-bit) id", "foreign": "no module has this CAN id",
             "bad_length": "not 7 or 8 data bytes"}
-#: GP 70 factory default, used when no module claims a 138 event (its CAN id changed since).
-DEFAULT_REPLY_ID = BANK0_PARAMETERS[GP.CAN_REPLY_ID].default
 
 
 class CanParty(Protocol):
@@ -52,9 +49,16 @@ class FrameTiming(Protocol):
     """Frames at a bit rate (``--wire-timing``: transports/wire.py's ``CanTiming``): what the
     bus calls instead of delivering a frame at once."""
 
+    #: How long a module takes to answer (s), before its reply goes on the wire.
+    processing_s: float
+
     def transmit(self, bus: SimulatedCanBus, frame: can.Message, sender: CanParty | None,
                  after_s: float = 0.0) -> None:
         """Deliver ``frame`` (``bus.deliver_now``) when its last bit would have gone."""
+        ...
+
+    def close(self) -> None:
+        """Stop (the server closes)."""
         ...
 
 
@@ -220,8 +224,10 @@ class ModuleNode:
 
     def send_event(self, reply: Reply, length: int) -> None:
         """A 138 event: the module is found by its CAN id, which the reply carries."""
-        reply_id = next((m.can_reply_id for m in self.simulation.modules if m.can_id == reply.module),
-                        DEFAULT_REPLY_ID)
+        modules = self.simulation.modules
+        reply_id = next((m.can_reply_id for m in modules if m.can_id == reply.module), None)
+        if reply_id is None:  # its CAN id changed since: GP 70's factory default
+            reply_id = modules[0].type.global_parameters[0][GP.CAN_REPLY_ID].default
         self._send(reply_id, can_reply_data(reply, length))
 
     def _send(self, can_id: int, data: bytes, after_s: float = 0.0) -> None:

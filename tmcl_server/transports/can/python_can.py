@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import logging
 from collections import Counter
+from typing import Any
 
 import can
 
@@ -51,10 +52,10 @@ class PythonCanTransport(Transport):
         return cls(host.can_bus(), argument)
 
     async def start(self) -> list[str]:
-        options = {} if self.bitrate is None else {"bitrate": self.bitrate}
-        self._can = await asyncio.to_thread(
+        options: dict[str, Any] = {} if self.bitrate is None else {"bitrate": self.bitrate}
+        self._can = bus = await asyncio.to_thread(
             can.Bus, interface=self.interface, channel=self.channel, **options)
-        self._notifier = can.Notifier(self._can, [self._from_outside], timeout=READ_TIMEOUT_S,
+        self._notifier = can.Notifier(bus, [self._from_outside], timeout=READ_TIMEOUT_S,
                                       loop=asyncio.get_running_loop())
         self.bus.attach(self)
         return [self.spec]

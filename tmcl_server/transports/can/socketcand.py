@@ -107,7 +107,7 @@ class SocketcandClient(asyncio.Protocol):
         self.transport.set_write_buffer_limits(high=MAX_WRITE_BUFFER, low=MAX_WRITE_BUFFER // 4)
         self.server.clients.add(self)
         self.stats["connections"] += 1
-        transport.write(HI)
+        self.transport.write(HI)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.bus.detach(self)

@@ -344,10 +344,10 @@ class MqttBridge(Transport):
             try:
                 request = decode_request(payload)
             except ChecksumError:
-                reply = feed.module.checksum_error_reply()
+                refusal = feed.module.checksum_error_reply()
                 if self.simulation.tracer is not None:
-                    self.simulation.tracer.bad_checksum(payload, route, [(feed.module, reply)])
-                route.send(reply)
+                    self.simulation.tracer.bad_checksum(payload, route, [(feed.module, refusal)])
+                route.send(refusal)
                 return
         for _, reply in self.simulation.execute_on([feed.module], request, Interface.SERIAL,
                                                    route):

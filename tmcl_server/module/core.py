@@ -1,12 +1,11 @@
-"""The module model: parameters, I/O, coordinates, EEPROM, and command dispatch.
+"""The module's state and what every command family shares: power-up, addressing, the
+execution of one command, time and events, the world around the axes, global parameters.
 
-A :class:`TMCLModule` is built from a module type (:mod:`tmcl_spec.modules`): the profile
-names its tables, its I/O and the chip core of its axes; :class:`TMCM6212` is the default.
-:attr:`TMCLModule.COMMANDS` maps every opcode to its handler, ``_cmd_<mnemonic>`` (for
-example :meth:`TMCLModule._cmd_mvp`); standalone mode's commands (128-135 and program
-commands sent in direct mode) are in :attr:`tmcl_server.program.ProgramSupport.COMMANDS`.
-Handlers return the reply value or raise :class:`CommandError` (tmcl_server/dispatch.py).
-Motion is delegated to the axes (axes/), programs to the interpreter (interpreter/).
+The command handlers live in files by concern (``motion.py``, ``parameters.py``, ``io.py``,
+``control.py``, ``evaluation.py``), each a mixin over :class:`ModuleCore`;
+``tmcl_server/module/__init__.py`` joins them into :class:`TMCLModule` and holds the opcode
+table.  Standalone mode (program memory, the interpreter, commands 128-135) is
+``tmcl_server/module/program.py``.
 """
 
 from __future__ import annotations
@@ -19,35 +18,16 @@ from typing import Any, ClassVar
 
 from axes.cores import make_axes
 from axes.interface import Axis, AxisEvent, AxisEventKind
-from axes.world import (
-    DEFAULT_SIDES,
-    INFINITY,
-    AxisWorld,
-    LoadZone,
-    Switch,
-    World,
-    check_supply_voltage,
-)
+from axes.world import DEFAULT_SIDES, INFINITY, AxisWorld, LoadZone, Switch, World, check_supply_voltage
 from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
 from tmcl_server.eeprom import Eeprom, EepromWriteError
 from tmcl_server.eeprom_check import first_problem
-from tmcl_server.program import ProgramSupport
+from tmcl_server.module.program import ProgramSupport
 from tmcl_server.protocol import AnyReply, RawReply, Reply, Request
-from tmcl_spec.commands import (
-    ALWAYS_REPLIED,
-    COORD_MOTOR_MASK_FLAG,
-    FACTORY_RESET_KEY,
-    MOTOR_ALL,
-    READ_ONLY_OPCODES,
-    USER_FUNCTIONS,
-    IOBank,
-    MoveType,
-    Opcode,
-    Status,
-)
+from tmcl_spec.commands import ALWAYS_REPLIED, READ_ONLY_OPCODES, IOBank, Opcode, Status
 from tmcl_spec.modules import ModuleType, module_type
 from tmcl_spec.numbers import NS_PER_MS, to_int32
-from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, EvalGP, ParamSpec
+from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, ParamSpec
 
 log = logging.getLogger(__name__)
 
@@ -58,8 +38,6 @@ _GLOBAL_PARAMETER_COMMANDS = frozenset({int(Opcode.SGP), int(Opcode.STGP), int(O
 #: Bank-0 parameters that decide which frames a module answers.
 ADDRESS_PARAMETERS = frozenset({GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.CAN_ID,
                                 GP.CAN_SECONDARY_ID})
-#: MVP REL counts from: AP 127 value -> axis parameter.
-_RELATIVE_ORIGIN = {0: AP.TARGET_POSITION, 1: AP.ACTUAL_POSITION, 2: AP.ENCODER_POSITION}
 _OK = int(Status.OK)
 _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
@@ -86,15 +64,26 @@ class _ReachWatch:
 AxisFactory = Callable[[int], Axis]
 
 
-class TMCLModule:
-    """One simulated module.  Not thread-safe: the server calls it from one event loop."""
+#: A handler: (module, request, sink, interface) -> reply value, None, or a special result.
+HandlerFunction = Callable[..., Any]
+
+
+class ModuleCore:
+    """One simulated module's state (not thread-safe: the server calls it from one loop)."""
+
+    #: Opcode -> handler of every command the module serves itself (the opcode table is in
+    #: tmcl_server/module/__init__.py); a module type answers status 2 for opcodes it lacks.
+    COMMANDS: ClassVar[dict[int, HandlerFunction]] = {}
+    #: Handlers a module type assigns to opcodes itself (ModuleType.handlers), by name.
+    VARIANT_COMMANDS: ClassVar[dict[str, HandlerFunction]] = {}
 
     def __init__(self, slot: int = 1, eeprom: Eeprom | None = None,
                  axis_factory: AxisFactory | None = None, start_ns: int = 0,
                  world: World | None = None, kind: ModuleType | str | None = None,
                  chip_core: str | None = None) -> None:
         #: The module type (profile): tables, I/O, identity, chip core.
-        self.type = module_type(kind) if kind is None or isinstance(kind, str) else kind
+        self.type = (module_type() if kind is None else module_type(kind) if isinstance(kind, str)
+                     else kind)
         #: The motion-controller core of the axes: the profile's unless chosen otherwise
         #: (``chip_core``, e.g. ``--axis-core``, before the world file's ``[chip] core``).
         self.chip_core = chip_core or (world.chip_core if world else None) or self.type.chip_core
@@ -342,13 +331,14 @@ class TMCLModule:
         """
         while True:
             hardware = self._hardware_next_event_ns()
-            due = hardware is not None and hardware <= t_ns
-            target = max(hardware, self.now_ns) if due else t_ns
-            # Instructions timed exactly at a hardware event run after it is handled.
-            if self.program.run(self.now_ns, target if due else t_ns + 1):
-                continue
-            if not due:
+            if hardware is None or hardware > t_ns:
+                # Instructions timed exactly at a hardware event run after it is handled.
+                if self.program.run(self.now_ns, t_ns + 1):
+                    continue
                 break
+            target = max(hardware, self.now_ns)
+            if self.program.run(self.now_ns, target):
+                continue
             self.step_to(target)
         if t_ns > self.now_ns:
             self.now_ns = t_ns  # the axes catch up lazily
@@ -578,93 +568,7 @@ class TMCLModule:
             raise CommandError(Status.WRONG_TYPE)
         return spec
 
-    # == motion commands =======================================================================
-
-    def _cmd_ror(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        self._axis(req.motor).rotate(req.value)
-
-    def _cmd_rol(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        self._axis(req.motor).rotate(to_int32(-req.value))
-
-    def _cmd_mst(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        self._axis(req.motor).stop()
-
-    def _cmd_mvp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        if req.type == MoveType.COORD:
-            self._move_to_coordinate(req.motor, req.value)
-            return
-        axis = self._axis(req.motor)
-        if req.type == MoveType.ABS:
-            target = req.value
-        elif req.type == MoveType.REL:
-            origin = _RELATIVE_ORIGIN[axis.get_parameter(AP.RELATIVE_POSITIONING_OPTION)]
-            target = to_int32(axis.get_parameter(origin) + req.value)
-        else:
-            raise CommandError(Status.WRONG_TYPE)
-        self._arm_reach_watch(axis.index)
-        axis.move_to(target)
-
-    def _move_to_coordinate(self, motor: int, number: int) -> None:
-        """MVP COORD: motor 0..5, or (motor field 0..255, §3.6.4) bit 7 set and a motor mask.
-
-        The motors of a mask start together, each to its own coordinate ``number``
-        (docs/protocol.md).
-        """
-        if motor & COORD_MOTOR_MASK_FLAG:
-            indices = [i for i in range(len(self.axes)) if motor >> i & 1]
-        else:
-            indices = [self._axis_index(motor)]
-        if not indices or not 0 <= number < self.type.coordinates:
-            raise CommandError(Status.INVALID_VALUE)
-        self._arm_reach_watch(*indices)
-        for index in indices:
-            self.axis(index).move_to(self.coordinates[index][number])
-
-    def _cmd_rfs(self, req: Request, sink: ReplySink | None, interface: Interface) -> int | None:
-        axis = self._axis(req.motor)
-        if req.type not in (0, 1, 2):
-            raise CommandError(Status.WRONG_TYPE)
-        result = axis.reference_search(req.type)
-        return result if req.type == 2 else None
-
-    # == axis parameters =======================================================================
-
-    def _cmd_sap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        spec = self._axis_spec(req.type)
-        axis = self._axis(req.motor)
-        if not spec.writable:
-            raise CommandError(Status(self.type.unknown_parameter_status))
-        if not spec.accepts(req.value):
-            raise CommandError(Status.INVALID_VALUE)
-        if req.type == 0:
-            self._arm_reach_watch(axis.index)
-        try:
-            axis.set_parameter(req.type, spec.normalise(req.value))
-        except ValueError as exc:
-            raise CommandError(Status.INVALID_VALUE) from exc
-
-    def _cmd_gap(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
-        if not self._axis_spec(req.type).readable:  # a fixed setting the module does not show
-            raise CommandError(Status.WRONG_TYPE)
-        return self._axis(req.motor).get_parameter(req.type)
-
-    def _cmd_stap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        axis = self._axis(req.motor)
-        if req.type not in self.type.storable_axis_parameters:
-            raise CommandError(Status.WRONG_TYPE)
-        stored = dict(self.eeprom.get("axis_parameters", axis.index) or {})
-        stored[str(req.type)] = axis.get_parameter(req.type)
-        self.eeprom.put("axis_parameters", axis.index, stored)
-
-    def _cmd_rsap(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        axis = self._axis(req.motor)
-        if req.type not in self.type.storable_axis_parameters:
-            raise CommandError(Status.WRONG_TYPE)
-        stored = self.eeprom.get("axis_parameters", axis.index) or {}
-        value = stored.get(str(req.type), self.type.axis_parameters[req.type].default)
-        axis.set_parameter(req.type, value)
-
-    # == global parameters =====================================================================
+    # == global parameters and inputs (the RAM copy; the handlers validate) ====================
 
     def read_global(self, number: int, bank: int) -> int:
         """GGP semantics for callers that already validated the request (also the interpreter)."""
@@ -713,101 +617,6 @@ class TMCLModule:
             axis.set_parameter(AP.LEFT_POLARITY, inverted)
             axis.set_parameter(AP.RIGHT_POLARITY, inverted)
 
-    def _cmd_sgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        spec = self._global_spec(req.type, req.motor)
-        if not spec.writable:
-            raise CommandError(Status.WRONG_TYPE)
-        if not spec.accepts(req.value):
-            raise CommandError(Status.INVALID_VALUE)
-        self.write_global(req.type, req.motor, spec.normalise(req.value))
-
-    def _cmd_ggp(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
-        if not self._global_spec(req.type, req.motor).readable:
-            raise CommandError(Status.WRONG_TYPE)  # a setting the module keeps to itself
-        return self.read_global(req.type, req.motor)
-
-    def _storable_global(self, req: Request) -> ParamSpec:
-        spec = self._global_spec(req.type, req.motor)
-        if not (spec.storable or spec.auto_stored):
-            raise CommandError(Status.WRONG_TYPE)
-        if req.motor == 2 and req.type >= self.type.storable_user_variables:
-            raise CommandError(Status.WRONG_TYPE)
-        return spec
-
-    def _cmd_stgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        self._storable_global(req)
-        section = "user_variables" if req.motor == 2 else "globals"
-        self.eeprom.put(section, req.type, self.globals[req.motor][req.type])
-
-    def _cmd_rsgp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        spec = self._storable_global(req)
-        section = "user_variables" if req.motor == 2 else "globals"
-        default = 0 if req.motor == 2 else spec.default
-        self.globals[req.motor][req.type] = self.eeprom.get(section, req.type, default)
-
-    # == I/O ===================================================================================
-
-    def _cmd_sio(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        if req.motor == IOBank.DIGITAL_INPUTS and self.type.pullup_ports:
-            self._set_pullup(req)
-            return
-        if req.motor != IOBank.OUTPUTS:
-            raise CommandError(Status.INVALID_VALUE)
-        if not 0 <= req.type < self.type.outputs:
-            raise CommandError(Status.WRONG_TYPE)
-        if req.value not in (0, 1):
-            raise CommandError(Status.INVALID_VALUE)
-        if self.outputs[req.type] != req.value:
-            self.outputs[req.type] = req.value
-            self.emit("output_changed", None, port=req.type, level=req.value)
-
-    def _set_pullup(self, req: Request) -> None:
-        """``SIO n, 0, 0|1`` (TMC429 modules): pull-up resistors on or off.  The world gives
-        switch and input levels directly, so they only are remembered (docs/modules.md)."""
-        if not 0 <= req.type < self.type.pullup_ports:
-            raise CommandError(Status.WRONG_TYPE)
-        if req.value not in (0, 1):
-            raise CommandError(Status.INVALID_VALUE)
-        self.pullups[req.type] = req.value
-
-    def read_input(self, port: int, bank: int) -> int:
-        if bank == IOBank.DIGITAL_INPUTS:
-            return self.digital_input(port)
-        if bank == IOBank.ANALOG_INPUTS:
-            return self.analog_inputs[port]
-        return self.outputs[port]
-
-    def _input_count(self, bank: int) -> int:
-        return (self.type.digital_inputs, self.type.analog_inputs, self.type.outputs)[bank]
-
-    def _cmd_gio(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
-        if req.motor not in tuple(IOBank):
-            raise CommandError(Status.INVALID_VALUE)
-        if req.motor == IOBank.ANALOG_INPUTS:
-            if req.type == self.type.supply_voltage_channel:
-                return self.supply_voltage_reading()
-            channels = self.type.analog_channels
-            if channels is not None and req.type not in channels:
-                raise CommandError(Status.WRONG_TYPE)
-        if not 0 <= req.type < self._input_count(req.motor):
-            raise CommandError(Status.WRONG_TYPE)
-        return self.read_input(req.type, req.motor)
-
-    # == coordinates ===========================================================================
-
-    def _coordinate_request(self, req: Request) -> tuple[int, int | None]:
-        """Validate (coordinate, motor); motor None means the motor-255 EEPROM form."""
-        if not 0 <= req.type < self.type.coordinates:
-            raise CommandError(Status.WRONG_TYPE)
-        if req.motor == MOTOR_ALL:
-            return req.type, None
-        return req.type, self._axis_index(req.motor)
-
-    def _set_coordinate(self, number: int, motor: int, value: int) -> None:
-        self.coordinates[motor][number] = value
-        if number and self.globals[0][GP.COORDINATE_STORAGE] == 1:
-            self._copy_coordinates_to_eeprom([number], [motor])
-
     def _copy_coordinates_to_eeprom(self, numbers: Any, motors: Any = None) -> None:
         stored = {k: dict(v) for k, v in self.eeprom.items("coordinates")}
         for motor in range(len(self.axes)) if motors is None else motors:
@@ -822,86 +631,13 @@ class TMCLModule:
             for n in numbers:
                 self.coordinates[motor][n] = row.get(str(n), 0)
 
-    def _eeprom_coordinate_range(self, number: int) -> range:
-        """Motor-255 forms: 0 means all of 1..20, otherwise the one coordinate."""
-        return range(1, self.type.coordinates) if number == 0 else range(number, number + 1)
+    def read_input(self, port: int, bank: int) -> int:
+        if bank == IOBank.DIGITAL_INPUTS:
+            return self.digital_input(port)
+        if bank == IOBank.ANALOG_INPUTS:
+            return self.analog_inputs[port]
+        return self.outputs[port]
 
-    def _cmd_sco(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        number, motor = self._coordinate_request(req)
-        if motor is None:
-            self._copy_coordinates_to_eeprom(self._eeprom_coordinate_range(number))
-        else:
-            self._set_coordinate(number, motor, req.value)
-
-    def _cmd_gco(self, req: Request, sink: ReplySink | None, interface: Interface) -> int | None:
-        number, motor = self._coordinate_request(req)
-        if motor is None:
-            self._copy_coordinates_from_eeprom(self._eeprom_coordinate_range(number))
-            return None
-        return self.coordinates[motor][number]
-
-    def _cmd_cco(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
-        number, motor = self._coordinate_request(req)
-        if motor is None:
-            raise CommandError(Status.INVALID_VALUE)
-        position = self.axis(motor).get_parameter(AP.ACTUAL_POSITION)
-        self._set_coordinate(number, motor, position)
-        return position
-
-    def _cmd_aco(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        number, motor = self._coordinate_request(req)
-        if motor is None:
-            raise CommandError(Status.INVALID_VALUE)
-        self._set_coordinate(number, motor, self.accumulator)
-
-    # == motion-controller registers (146/147, and 148 as pytrinamic's read_mc sends it) ======
-
-    def _register_request(self, req: Request) -> tuple[Axis, int]:
-        if not 0 <= req.type <= 0x7F:  # a 7-bit register address
-            raise CommandError(Status.WRONG_TYPE)
-        return self._axis(req.motor), req.type
-
-    def _cmd_write_mc(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        axis, address = self._register_request(req)
-        axis.register_access(address, req.value)
-
-    def _cmd_read_mc(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
-        axis, address = self._register_request(req)
-        return axis.register_access(address)
-
-    # == control commands ======================================================================
-
-    def _cmd_get_firmware_version(self, req: Request, sink: ReplySink | None,
-                                  interface: Interface) -> RawReply | int:
-        if req.type == 0:
-            version = self.type.version_string
-            return RawReply(bytes((self.host_address,)) + version, version)
-        if req.type == 1:
-            return self.type.version_number
-        raise CommandError(Status.WRONG_TYPE)
-
-    def _cmd_restore_factory_settings(self, req: Request, sink: ReplySink | None,
-                                      interface: Interface) -> object:
-        if req.value != FACTORY_RESET_KEY:
-            raise CommandError(Status.INVALID_VALUE)
-        try:
-            self.factory_reset()
-        except EepromWriteError:  # restarted on factory settings, but the file still holds
-            self.power_up()       # the old ones: say so with status 5
-            self.emit("factory_reset", None)
-            raise
-        self.emit("factory_reset", None)
-        return NO_REPLY
-
-    def _cmd_target_reached_event(self, req: Request, sink: ReplySink | None,
-                                  interface: Interface) -> None:
-        if req.type not in (0, 1):
-            raise CommandError(Status.WRONG_TYPE)
-        mask = req.value & ((1 << len(self.axes)) - 1)
-        if sink is None or mask == 0:
-            self._reach_request = None
-            return
-        self._reach_request = (mask, req.type == 1, sink, interface)
 
     def _arm_reach_watch(self, *axes: int) -> None:
         """One MVP starts moves on ``axes``: watch those a 138 request covers.
@@ -920,131 +656,3 @@ class TMCLModule:
         if covered and not every_move:
             self._reach_request = None
 
-    def _cmd_user_function(self, req: Request, sink: ReplySink | None,
-                           interface: Interface) -> None:
-        """UF0..UF7 (§3.6.34): this firmware has no customer extension; "100 - OK"."""
-
-    # == the evaluation system (tmcl_spec/landungsbruecke.py, docs/tmc4361a.md) =================
-
-    def _cmd_mvp_eval(self, req: Request, sink: ReplySink | None, interface: Interface) -> int | None:
-        """MVP on the evaluation firmware: ABS, or REL from XACTUAL (the reply carries the
-        absolute target); it has no coordinates (type 2: status 2)."""
-        axis = self._axis(req.motor)
-        if req.type == MoveType.ABS:
-            axis.move_to(req.value)
-            return None
-        if req.type == MoveType.REL:
-            target = to_int32(axis.get_parameter(AP.ACTUAL_POSITION) + req.value)
-            axis.move_to(target)
-            return target
-        if req.type == MoveType.COORD:
-            raise CommandError(Status.INVALID_COMMAND)
-        raise CommandError(Status.WRONG_TYPE)
-
-    def _cmd_drivers_enable(self, req: Request, sink: ReplySink | None,
-                            interface: Interface) -> None:
-        """UF0: all drivers on or off (GP 2 reads it back)."""
-        self.globals[0][EvalGP.DRIVERS_ENABLE] = int(req.value != 0)
-
-    def _eeprom_channel(self, req: Request) -> bytearray | None:
-        if req.type not in (1, 2):
-            raise CommandError(Status.WRONG_TYPE)
-        return self.id_eeproms.get(req.type)
-
-    def _cmd_read_id_eeprom(self, req: Request, sink: ReplySink | None,
-                            interface: Interface) -> int:
-        """UF1: four bytes of a board's ID EEPROM from address ``value``, little endian (a
-        channel without an EEPROM reads 0)."""
-        image = self._eeprom_channel(req)
-        if image is None:
-            return 0
-        data = bytes(image[(req.value + i) % len(image)] for i in range(4))
-        return to_int32(int.from_bytes(data, "little"))
-
-    def _cmd_write_id_eeprom(self, req: Request, sink: ReplySink | None,
-                             interface: Interface) -> None:
-        """UF2: the motor field is the byte written to address ``value``."""
-        image = self._eeprom_channel(req)
-        if image is None:
-            raise CommandError(Status.EEPROM_LOCKED)  # no EEPROM answers on that channel
-        image[req.value % len(image)] = req.motor
-
-    def _cmd_board_assignment(self, req: Request, sink: ReplySink | None,
-                              interface: Interface) -> int | None:
-        """Command 143: type 0 detects the boards again (the motion controller is reset and
-        configured anew) and answers what was found; 4 asks which ids are supported; 5
-        re-checks board types (nothing to do for these boards)."""
-        boards = self.type.eval_boards
-        if req.type == 0:
-            for index in range(len(self.axes)):
-                reset = getattr(self.axis(index), "reset_board", None)
-                if reset is not None:
-                    reset()
-            return boards.detected
-        if req.type == 4:
-            return boards.supported
-        if req.type == 5:
-            return None
-        if req.type in (1, 2, 3):  # assigning ids by hand: the boards stay what they are
-            return boards.supported
-        raise CommandError(Status.WRONG_TYPE)
-
-    def _cmd_write_drv(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        """147 on the evaluation firmware: a register of the driver board (none here)."""
-
-    def _cmd_read_drv(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        """149: no driver board answers; the reply carries the request's value back."""
-
-    #: Handlers a module type assigns to opcodes itself (ModuleType.handlers), by name: the
-    #: evaluation firmware's commands, whose numbers mean other things on the TMCL modules.
-    VARIANT_COMMANDS: ClassVar[dict[str, Callable[..., Any]]] = {
-        "mvp_eval": _cmd_mvp_eval,
-        "drivers_enable": _cmd_drivers_enable,
-        "read_id_eeprom": _cmd_read_id_eeprom,
-        "write_id_eeprom": _cmd_write_id_eeprom,
-        "board_assignment": _cmd_board_assignment,
-        "write_drv": _cmd_write_drv,
-        "read_drv": _cmd_read_drv,
-    }
-
-    # == the dispatch table ====================================================================
-
-    #: Opcode -> handler of every command the module serves itself (standalone mode's are in
-    #: ProgramSupport.COMMANDS); a module type answers status 2 for opcodes it does not list.
-    COMMANDS: ClassVar[dict[int, Callable[..., Any]]] = {
-        Opcode.ROR: _cmd_ror,
-        Opcode.ROL: _cmd_rol,
-        Opcode.MST: _cmd_mst,
-        Opcode.MVP: _cmd_mvp,
-        Opcode.SAP: _cmd_sap,
-        Opcode.GAP: _cmd_gap,
-        Opcode.STAP: _cmd_stap,
-        Opcode.RSAP: _cmd_rsap,
-        Opcode.SGP: _cmd_sgp,
-        Opcode.GGP: _cmd_ggp,
-        Opcode.STGP: _cmd_stgp,
-        Opcode.RSGP: _cmd_rsgp,
-        Opcode.RFS: _cmd_rfs,
-        Opcode.SIO: _cmd_sio,
-        Opcode.GIO: _cmd_gio,
-        Opcode.SCO: _cmd_sco,
-        Opcode.GCO: _cmd_gco,
-        Opcode.CCO: _cmd_cco,
-        Opcode.ACO: _cmd_aco,
-        **dict.fromkeys(USER_FUNCTIONS, _cmd_user_function),
-        Opcode.GET_FIRMWARE_VERSION: _cmd_get_firmware_version,
-        Opcode.RESTORE_FACTORY_SETTINGS: _cmd_restore_factory_settings,
-        Opcode.TARGET_REACHED_EVENT: _cmd_target_reached_event,
-        Opcode.WRITE_MC: _cmd_write_mc,
-        Opcode.READ_MC: _cmd_read_mc,
-        Opcode.READ_MC_PYTRINAMIC: _cmd_read_mc,  # what pytrinamic's read_mc sends
-    }
-
-
-class TMCM6212(TMCLModule):
-    """The default module: a TMCM-6212 (firmware V1.05) on TMC4210 cores."""
-
-    def __init__(self, slot: int = 1, eeprom: Eeprom | None = None,
-                 axis_factory: AxisFactory | None = None, start_ns: int = 0,
-                 world: World | None = None) -> None:
-        super().__init__(slot, eeprom, axis_factory, start_ns, world, "tmcm-6212")
