@@ -121,11 +121,27 @@ def _loaded_after(code: str) -> set[str]:
     return {m.split(".")[0] for m in result.stdout.split()}
 
 
-def test_importing_the_package_codec_or_assembler_loads_no_transport_library() -> None:
+#: Libraries of the optional views: plots and the web dashboard.
+VIEW_LIBRARIES = ("matplotlib", "aiohttp")
+
+
+def test_importing_the_package_codec_assembler_or_client_loads_no_transport_library() -> None:
     loaded = _loaded_after("import tmcl_server, tmcl_server.protocol, interpreter, "
-                           "interpreter.assembler, interpreter.disassembler, tmcl_spec")
-    assert not loaded & set(TRANSPORT_LIBRARIES), sorted(loaded & set(TRANSPORT_LIBRARIES))
+                           "interpreter.assembler, interpreter.disassembler, tmcl_spec, "
+                           "tmcl_server.tool, tmcl_server.tool.commands, tmcl_server.upload, "
+                           "tmcl_server.decode")
+    libraries = set(TRANSPORT_LIBRARIES) | set(VIEW_LIBRARIES)
+    assert not loaded & libraries, sorted(loaded & libraries)
     assert "axes" not in loaded and "asyncio" not in loaded
+
+
+def test_the_client_loads_nothing_of_the_server() -> None:
+    """``tmcl`` (tmcl_server.tool) needs the codec, the names and the decoder, not the model."""
+    loaded = _modules_loaded_after("import tmcl_server.tool.commands")
+    server = {"tmcl_server.simulation", "tmcl_server.server", "interpreter.machine"}
+    assert not {m for m in loaded if m in server or m.startswith(("tmcl_server.module",
+                                                                    "tmcl_server.transports"))}
+    assert not {m for m in loaded if m.split(".")[0] == "axes"}
 
 
 def test_a_server_with_tcp_only_imports_neither_python_can_nor_mqtt() -> None:
@@ -167,3 +183,24 @@ def test_every_opcode_of_the_module_type_has_exactly_one_handler() -> None:
     assert set(module.handlers) == set(module.type.commands) == set(Opcode)
     for opcode, handler in module.handlers.items():
         assert handler.__name__.startswith("_"), (opcode, handler)
+
+
+#: Modules only POSIX systems have, and calls only they make: tmcl_server/platform.py holds them.
+POSIX_ONLY_MODULES = {"fcntl", "termios", "tty", "pty", "resource"}
+POSIX_ONLY_CALLS = {"add_signal_handler", "openpty", "ttyname", "flock", "tcflush", "prctl"}
+
+
+def test_posix_only_calls_stay_behind_the_platform_seam() -> None:
+    seam = ROOT / "tmcl_server" / "platform.py"
+    offenders = []
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            if path == seam:
+                continue
+            tree = ast.parse(path.read_text())
+            imported = {m.split(".")[0] for m in _imports(tree, "")}
+            called = {node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)}
+            bad = (imported & POSIX_ONLY_MODULES) | (called & POSIX_ONLY_CALLS)
+            if bad:
+                offenders.append(f"{path.relative_to(ROOT)}: {sorted(bad)}")
+    assert not offenders, offenders

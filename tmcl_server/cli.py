@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import errno
 import logging
 import math
-import signal
 import sys
 from pathlib import Path
 from typing import NoReturn
 
 from axes.cores import CHIP_CORES
 from tmcl_server.loops import LOOPS, new_event_loop
+from tmcl_server.platform import add_stop_handlers, dump_stacks_on_signal
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
@@ -325,8 +324,7 @@ async def run(config: ServerConfig) -> None:
         raise _start_error(exc) from exc
     loop = asyncio.get_running_loop()
     log.info("event loop: %s", type(loop).__module__.split(".")[0])
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, server.request_stop)
+    add_stop_handlers(loop, server.request_stop)
     try:
         await server.start()
     except Exception as exc:  # an endpoint that cannot be opened as given
@@ -344,24 +342,13 @@ async def run(config: ServerConfig) -> None:
         print("tmcl-server: stopped", flush=True)
 
 
-def dump_stacks_on_sigusr1() -> None:
-    """``kill -USR1 PID`` prints every thread's Python stack to standard error: where a busy
-    server spends its time, without stopping it (docs/robustness.md)."""
-    import faulthandler
-
-    if hasattr(signal, "SIGUSR1"):
-        # standard error may be no file (an embedding program, a test capturing it)
-        with contextlib.suppress(OSError, ValueError, RuntimeError):
-            faulthandler.register(signal.SIGUSR1, all_threads=True)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Exit status 0 after a clean stop, 2 for a bad command-line value (one line on standard
     error, as argparse), 1 when the surroundings refuse (a port in use) or serving fails."""
     try:
         args = build_parser().parse_args(argv)
         logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
-        dump_stacks_on_sigusr1()
+        dump_stacks_on_signal()
         config = config_from_args(args)
         with asyncio.Runner(loop_factory=lambda: new_event_loop(args.loop)) as runner:
             runner.run(run(config))

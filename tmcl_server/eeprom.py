@@ -19,6 +19,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from tmcl_server.platform import fsync_directory
+
 log = logging.getLogger(__name__)
 
 FORMAT_NAME = "tmcl-sim-eeprom"
@@ -168,11 +170,7 @@ class Eeprom:
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
-        dir_fd = os.open(directory, os.O_RDONLY)
-        try:
-            os.fsync(dir_fd)
-        finally:
-            os.close(dir_fd)
+        fsync_directory(directory)
 
     # -- write scheduling ---------------------------------------------------------------------
 

@@ -21,9 +21,8 @@ from typing import Any, Protocol
 
 from interpreter.assembler import assemble_file
 from interpreter.isa import Instruction, decode_program
+from tmcl_server.endpoints import parse_host_port, parse_serial_spec
 from tmcl_server.protocol import FRAME_LENGTH, Request, decode_reply
-from tmcl_server.transports.serial_port import parse_serial_spec
-from tmcl_server.transports.tcp import parse_host_port
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.numbers import to_int32
 

@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING, Any
 from aiohttp import WSMsgType, web
 
 from tmcl_server.dashboard.core import ActionError, Dashboard, Viewer
+from tmcl_server.endpoints import parse_host_port
 from tmcl_server.transports.base import Transport, TransportHost
-from tmcl_server.transports.tcp import parse_host_port
 
 if TYPE_CHECKING:
     from tmcl_server.simulation import Simulation

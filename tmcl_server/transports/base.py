@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import sys
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
@@ -114,19 +113,6 @@ class ByteSession(Protocol):
     def feed(self, data: bytes) -> None: ...
 
     def close(self) -> None: ...
-
-
-def bytes_waiting(fd: int) -> int:
-    """Bytes the kernel holds for reading on ``fd`` (a socket, a pty master, a tty): 0 if
-    it cannot tell."""
-    try:
-        import fcntl
-        import termios
-
-        return int.from_bytes(fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"), sys.byteorder,
-                              signed=True)
-    except (ImportError, OSError, ValueError):
-        return 0
 
 
 class StreamSession:

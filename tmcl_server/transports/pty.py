@@ -13,14 +13,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import fcntl
 import logging
 import os
-import tty
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from tmcl_server.platform import bytes_waiting, lock_exclusively, open_raw_pty
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
     ByteSession,
@@ -28,7 +27,6 @@ from tmcl_server.transports.base import (
     StreamSession,
     Transport,
     TransportHost,
-    bytes_waiting,
     link_mode,
     split_endpoint_options,
 )
@@ -77,7 +75,7 @@ class LinkLock:
         while True:
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                lock_exclusively(fd)
             except BlockingIOError:
                 owner = os.read(fd, 32).decode(errors="replace").strip() or "?"
                 os.close(fd)
@@ -136,13 +134,10 @@ class PtyTransport(Transport):
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
         self._lock.acquire(self.link)
-        master, slave = os.openpty()
         # Keep our own slave descriptor open: the master then never sees EIO/hang-up when a
         # client closes the port, so the next client finds the port just as it was.
-        tty.setraw(slave)
-        os.set_blocking(master, False)
+        master, slave, self.device = open_raw_pty()
         self._master, self._slave = master, slave
-        self.device = os.ttyname(slave)
         replace_symlink(self.device, self.link)
         self._session = self._make_session(loop)
         loop.add_reader(master, self._on_readable)

@@ -6,12 +6,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import os
 import threading
 from typing import TYPE_CHECKING
 
 import serial
 
+from tmcl_server.endpoints import parse_serial_spec
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
     LinkMode,
@@ -27,21 +27,6 @@ if TYPE_CHECKING:
     from tmcl_server.transports.wire import WireTiming
 
 log = logging.getLogger(__name__)
-
-
-def parse_serial_spec(text: str) -> tuple[str, int | None]:
-    """``DEVICE[:BAUD]``; a pyserial URL keeps its own ``host:port``."""
-    head, sep, tail = text.rpartition(":")
-    if sep and head and not tail.isdigit() and "://" not in text and not os.path.exists(text) \
-            and os.path.exists(head):  # /dev/ttyUSB0:fast: a baud rate, not part of the path
-        raise ValueError(f"baud rate {tail!r} in {text!r} is not a number")
-    if not sep or not tail.isdigit() or not head:
-        return text, None
-    if "://" in head and ":" not in head.split("://", 1)[1]:
-        return text, None  # socket://host:port has no baud suffix
-    if int(tail) == 0:
-        raise ValueError(f"baud rate 0 in {text!r}")
-    return head, int(tail)
 
 
 class SerialPortTransport(Transport):

@@ -15,13 +15,14 @@ import socket
 from functools import partial
 from typing import Any, cast
 
+from tmcl_server.endpoints import parse_host_port
+from tmcl_server.platform import bytes_waiting, descriptor_limit
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
     LinkMode,
     StreamSession,
     Transport,
     TransportHost,
-    bytes_waiting,
     link_mode,
     split_endpoint_options,
 )
@@ -36,21 +37,6 @@ MAX_WRITE_BUFFER = 1 << 20
 #: Clients one endpoint serves at once (``--max-connections``): far below a usual descriptor
 #: limit (1024), far above what hosts open (docs/robustness.md).
 DEFAULT_MAX_CONNECTIONS = 256
-
-
-def parse_host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
-    """``HOST:PORT``, ``:PORT`` or ``PORT``; IPv6 hosts go in brackets."""
-    host, sep, port = text.rpartition(":")
-    if not sep:
-        host, port = default_host, text
-    host = host.strip("[]") or default_host
-    try:
-        number = int(port)
-    except ValueError:
-        raise ValueError(f"bad port in {text!r}") from None
-    if not 0 <= number <= 65535:
-        raise ValueError(f"port out of range in {text!r}")
-    return host, number
 
 
 def listening_endpoints(server: asyncio.Server) -> list[str]:
@@ -99,16 +85,6 @@ def quiet_accept_errors(loop: asyncio.AbstractEventLoop) -> None:
 
     handler.quiet_accept_errors = True  # type: ignore[attr-defined]
     loop.set_exception_handler(handler)
-
-
-def descriptor_limit() -> int | None:
-    """The process's soft limit on open descriptors, None if unlimited or unknown."""
-    try:
-        import resource
-    except ImportError:
-        return None
-    soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
-    return None if soft == resource.RLIM_INFINITY else soft
 
 
 class _TcpProtocol(asyncio.Protocol):

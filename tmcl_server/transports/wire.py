@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from tmcl_server.delivery import Delivery
+from tmcl_server.platform import tight_timer_slack
 from tmcl_server.protocol import AnyReply
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import LinkMode, StreamSession, TransportHost
@@ -61,8 +62,6 @@ DEFAULT_PROCESSING_S = 0.0002
 #: A scheduler thread with nothing to do for this long ends (the next instant starts a new one).
 IDLE_EXIT_S = 2.0
 NS_PER_S = 1_000_000_000
-#: prctl option: the calling thread's timer slack in ns (linux/prctl.h).
-PR_SET_TIMERSLACK = 29
 
 
 def byte_time_s(baud: int) -> float:
@@ -142,7 +141,7 @@ class WireScheduler:
             thread.join(1.0)
 
     def _run(self) -> None:
-        _tight_timer_slack()
+        tight_timer_slack()
         heap, condition = self._heap, self._condition
         while True:
             with condition:
@@ -176,17 +175,6 @@ class WireScheduler:
                     with condition:
                         self._thread = None
                     return
-
-
-def _tight_timer_slack() -> None:
-    """Linux lets a sleeping thread wake up to 50 µs late to save power (its timer slack); the
-    wire thread asks for 1 µs.  Elsewhere, or if refused, the default stays."""
-    try:
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_TIMERSLACK, 1000, 0, 0, 0)
-    except (OSError, AttributeError):
-        pass
 
 
 def _run_all(actions: list[tuple[Callable[..., Any], tuple[Any, ...]]]) -> None:

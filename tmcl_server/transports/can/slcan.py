@@ -11,16 +11,15 @@ another party puts on the bus arrives as a ``t``/``T``/``r``/``R`` line.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import re
-import termios
 import time
 from collections import Counter
 from collections.abc import Callable
 
 import can
 
+from tmcl_server.platform import discard_input
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import ByteSession, TransportHost
 from tmcl_server.transports.can.bus import SimulatedCanBus
@@ -239,8 +238,7 @@ class SlcanPtyTransport(PtyTransport):
     def _discard_output(self) -> None:
         self._set_pending(b"")
         if self._slave is not None:
-            with contextlib.suppress(termios.error):
-                termios.tcflush(self._slave, termios.TCIFLUSH)
+            discard_input(self._slave)
 
     def _delivered(self) -> None:
         self._warned_full = False

@@ -20,9 +20,10 @@ from typing import cast
 
 import can
 
+from tmcl_server.endpoints import parse_host_port
 from tmcl_server.transports.base import Transport, TransportHost
 from tmcl_server.transports.can.bus import SimulatedCanBus
-from tmcl_server.transports.tcp import disable_nagle, listening_endpoints, parse_host_port
+from tmcl_server.transports.tcp import disable_nagle, listening_endpoints
 
 log = logging.getLogger(__name__)
 
