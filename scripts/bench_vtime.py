@@ -1,0 +1,303 @@
+#!/usr/bin/env python3
+"""Simulated seconds per wall second of TMCL programs on the virtual clock, each shape beside
+the stepping reference (every instruction executed) in the same run.
+
+Issue 23's goals: loops whose reads do not change >= 1,000 x real time; a moving position
+polled against a threshold >= 200 x; a 1 ms timer interrupt >= 100 x; six axes in
+program-driven back-and-forth moves, one simulated hour, <= 0.5 s of wall time on every core.
+
+    .venv/bin/python scripts/bench_vtime.py [--seconds S] [--repeat N] [--only NAME,...]
+
+Each shape runs ``--seconds`` of simulated time (default 600, ten minutes; the six-axis shape
+one hour) with loop skipping on (the default) and, with the same program and world, in the
+stepping reference (``Interpreter.skip_loops = False``), which is capped at a few simulated
+seconds when it would take long (its rate is what matters).  Both runs must end in the same
+state (the program's registers, user variables, axis positions, events): the benchmark says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from interpreter.assembler import assemble
+from tmcl_server.clock import VirtualClock
+from tmcl_server.module import ModuleEvent, TMCLModule
+from tmcl_server.protocol import Request
+from tmcl_server.simulation import Simulation
+from tmcl_spec.commands import Opcode
+
+NS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class Shape:
+    name: str
+    goal: float  # simulated s per wall s the skipping run must reach (0: wall-time goal)
+    source: str
+    #: Called every simulated second with (simulation, module, second): the host's part.
+    host: Callable[[Simulation, TMCLModule, int], None] | None = None
+    kind: str = "tmcm-6212"
+    core: str | None = None
+    seconds: float | None = None  # overrides --seconds (the six-axis hour)
+    wall_goal: float = 0.0  # wall seconds the skipping run may take (six axes)
+
+
+def _toggle_input(sim: Simulation, module: TMCLModule, second: int) -> None:
+    if second % 60 == 59:  # a host presses the input once a minute, the program counts it
+        module.set_digital_input(0, True)
+        sim.replan(module)
+    elif second % 60 == 0:
+        module.set_digital_input(0, False)
+        sim.replan(module)
+
+
+SIX_AXES = """
+    SAP 4, 0, 51200
+    SAP 5, 0, 51200
+    SAP 4, 1, 51200
+    SAP 5, 1, 51200
+    SAP 4, 2, 51200
+    SAP 5, 2, 51200
+    SAP 4, 3, 51200
+    SAP 5, 3, 51200
+    SAP 4, 4, 80000
+    SAP 5, 4, 100000
+    SAP 4, 5, 102400
+    SAP 5, 5, 102400
+Loop:
+    MVP ABS, 0, 512000
+    MVP ABS, 1, 512000
+    MVP ABS, 2, 512000
+    MVP ABS, 3, 512000
+    MVP ABS, 4, 400000
+    MVP ABS, 5, 512000
+Wait1:
+    GAP 8, 0
+    COMP 1
+    JC NE, Wait1
+    WAIT POS, 1, 0
+    WAIT POS, 2, 0
+    WAIT POS, 3, 0
+    WAIT POS, 4, 0
+    WAIT POS, 5, 0
+    MVP ABS, 0, -512000
+    MVP ABS, 1, -512000
+    MVP ABS, 2, -512000
+    MVP ABS, 3, -512000
+    MVP ABS, 4, -400000
+    MVP ABS, 5, -512000
+Wait2:
+    GAP 8, 0
+    COMP 1
+    JC NE, Wait2
+    WAIT POS, 1, 0
+    WAIT POS, 2, 0
+    WAIT POS, 3, 0
+    WAIT POS, 4, 0
+    WAIT POS, 5, 0
+    GGP 0, 2
+    CALC ADD, 1
+    AGP 0, 2
+    JA Loop
+"""
+#: The same on a TMC429 module: speeds and accelerations as register values (AP 154/153 set).
+SIX_AXES_TMC429 = SIX_AXES.replace("SAP 4, 0, 51200", "SAP 4, 0, 839").replace(
+    "SAP 5, 0, 51200", "SAP 5, 0, 200")
+for _axis in range(1, 6):
+    SIX_AXES_TMC429 = (SIX_AXES_TMC429
+                       .replace(f"SAP 4, {_axis}, 51200", f"SAP 4, {_axis}, 839")
+                       .replace(f"SAP 5, {_axis}, 51200", f"SAP 5, {_axis}, 200")
+                       .replace(f"SAP 4, {_axis}, 80000", f"SAP 4, {_axis}, 1311")
+                       .replace(f"SAP 5, {_axis}, 100000", f"SAP 5, {_axis}, 391")
+                       .replace(f"SAP 4, {_axis}, 102400", f"SAP 4, {_axis}, 1678")
+                       .replace(f"SAP 5, {_axis}, 102400", f"SAP 5, {_axis}, 400"))
+
+SHAPES = [
+    Shape("flag", 1000, """
+    // poll "position reached" while the axis travels back and forth
+Loop:
+    MVP ABS, 0, 1000000
+Wait1:
+    GAP 8, 0
+    COMP 1
+    JC NE, Wait1
+    MVP ABS, 0, 0
+Wait2:
+    GAP 8, 0
+    COMP 1
+    JC NE, Wait2
+    JA Loop
+"""),
+    Shape("input", 1000, """
+    // poll a digital input until a host changes it; count the presses
+Loop:
+    GIO 0, 0
+    COMP 1
+    JC NE, Loop
+    GGP 0, 2
+    CALC ADD, 1
+    AGP 0, 2
+Release:
+    GIO 0, 0
+    COMP 0
+    JC NE, Release
+    JA Loop
+""", host=_toggle_input),
+    Shape("refused", 1000, """
+    // poll a parameter the module does not have (status 3 every time)
+Loop:
+    GAP 250, 0
+    JA Loop
+"""),
+    Shape("spin", 1000, """
+Loop:
+    JA Loop
+"""),
+    Shape("joystick", 1000, """
+    // a joystick controller: read an analogue input, write the same speed each pass
+Loop:
+    GIO 1, 1
+    CALC MUL, 10
+    AAP 2, 0
+    SAP 4, 0, 100000
+    JA Loop
+"""),
+    Shape("threshold", 200, """
+    // a moving position against a threshold
+Loop:
+    MVP ABS, 0, 2000000
+Out:
+    GAP 1, 0
+    COMP 1900000
+    JC LT, Out
+    MVP ABS, 0, 0
+Back:
+    GAP 1, 0
+    COMP 100000
+    JC GT, Back
+    JA Loop
+"""),
+    Shape("timer", 100, """
+    // a 1 ms timer interrupt whose handler counts in user variable 0
+    VECT 0, Tick
+    SGP 0, 3, 1
+    EI 0
+    EI 255
+Main:
+    JA Main
+Tick:
+    GGP 0, 2
+    CALC ADD, 1
+    AGP 0, 2
+    RETI
+"""),
+    Shape("six-tmc4210", 0, SIX_AXES, seconds=3600, wall_goal=0.5),
+    Shape("six-tmc4361a", 0, SIX_AXES, core="tmc4361a", seconds=3600, wall_goal=0.5),
+    Shape("six-tmc429", 0, SIX_AXES_TMC429.replace("Loop:\n", "Loop:\n", 1), kind="tmcm-6110",
+          seconds=3600, wall_goal=0.5),
+]
+#: TMC429 modules: the divisors that make the register values above the pps of the others.
+TMC429_SETUP = [(154, axis, 4) for axis in range(6)] + [(153, axis, 10) for axis in range(6)]
+
+
+def build(shape: Shape, reference: bool) -> tuple[Simulation, TMCLModule, list[tuple[int, str]]]:
+    module = TMCLModule(kind=shape.kind, chip_core=shape.core)
+    sim = Simulation([module], VirtualClock())
+    interpreter = module.program.interpreter
+    if hasattr(interpreter, "skip_loops"):
+        interpreter.skip_loops = not reference
+    events: list[tuple[int, str]] = []
+
+    def listen(event: ModuleEvent) -> None:
+        if event.kind not in ("current_changed",):
+            events.append((event.time_ns, event.kind))
+
+    module.listeners.append(listen)
+    if shape.kind == "tmcm-6110":
+        for number, axis, value in TMC429_SETUP:
+            module.execute(Request(1, Opcode.SAP, number, axis, value))
+    module.set_analog_input(1, 1234)
+    program = assemble(shape.source).instructions
+    module.execute(Request(1, Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0))
+    for ins in program:
+        module.execute(Request(1, *ins))
+    module.execute(Request(1, Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0))
+    module.execute(Request(1, Opcode.RUN_APPLICATION, 0, 0, 0))
+    sim.replan(module)
+    return sim, module, events
+
+
+def run(shape: Shape, seconds: float, reference: bool) -> tuple[float, tuple[object, ...]]:
+    """Wall seconds for ``seconds`` simulated, and the state at the end (to compare)."""
+    sim, module, events = build(shape, reference)
+    start = time.perf_counter()
+    whole = int(seconds)
+    for second in range(whole):
+        sim.advance_to_ns((second + 1) * NS)
+        if shape.host is not None:
+            shape.host(sim, module, second)
+    if seconds > whole:
+        sim.advance_to_ns(round(seconds * NS))
+    wall = time.perf_counter() - start
+    interp = module.program.interpreter
+    axes = tuple(module.axis(i).get_parameter(1) for i in range(len(module.axes)))
+    state = (interp.pc, interp.accumulator, interp.executed, module.globals[2][0], axes,
+             len(events), events[-1] if events else None)
+    return wall, state
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=600.0,
+                        help="simulated seconds per shape (default 600; six axes: 3600)")
+    parser.add_argument("--reference-seconds", type=float, default=5.0,
+                        help="simulated seconds of the stepping reference when it is slow "
+                             "(default 5; it runs as long as the skipping run when that "
+                             "takes less)")
+    parser.add_argument("--repeat", type=int, default=3, help="runs of each; the median counts")
+    parser.add_argument("--only", default="", help="comma-separated shape names")
+    args = parser.parse_args()
+    chosen = {n for n in args.only.split(",") if n}
+    failed = False
+    print(f"{'shape':<14} {'skipping':>16} {'stepping':>16} {'ratio':>8}  goal      same state")
+    for shape in SHAPES:
+        if chosen and shape.name not in chosen:
+            continue
+        seconds = shape.seconds or args.seconds
+        fast = [run(shape, seconds, False) for _ in range(args.repeat)]
+        wall = statistics.median(w for w, _ in fast)
+        ref_seconds = min(seconds, args.reference_seconds)
+        slow = [run(shape, ref_seconds, True) for _ in range(args.repeat)]
+        ref_wall = statistics.median(w for w, _ in slow)
+        same = "-"
+        if ref_seconds == seconds:
+            same = "yes" if fast[0][1] == slow[0][1] else f"NO {fast[0][1]} != {slow[0][1]}"
+        else:  # compare the skipping run over the reference's span
+            short = run(shape, ref_seconds, False)
+            same = "yes" if short[1] == slow[0][1] else f"NO {short[1]} != {slow[0][1]}"
+        rate, ref_rate = seconds / wall, ref_seconds / ref_wall
+        if shape.wall_goal:
+            goal = f"<= {shape.wall_goal} s"
+            met = wall <= shape.wall_goal
+            shown = f"{wall:.3f} s/{seconds / 3600:.0f} h"
+            ref_shown = f"{ref_wall * seconds / ref_seconds:.3f} s/{seconds / 3600:.0f} h"
+        else:
+            goal = f">= {shape.goal:,.0f} x"
+            met = rate >= shape.goal
+            shown, ref_shown = f"{rate:,.0f} x", f"{ref_rate:,.1f} x"
+        failed |= not met or same != "yes"
+        print(f"{shape.name:<14} {shown:>16} {ref_shown:>16} {rate / ref_rate:>7.1f}x  "
+              f"{goal:<9} {'met' if met else 'NOT MET'}; {same}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
