@@ -3,7 +3,7 @@
 A *chip model* is the silicon: a register file behind SPI datagrams and the motion it makes.
 It counts time in its own clock ticks and never reads a clock; the firmware layer above it
 asks it to run up to a tick and is told when something notable happens on the way, so that
-the simulator can jump from event to event.  ``axes/tmc4210.py`` is the first chip model;
+the simulator can jump from event to event.  ``axes/chips/tmc42x/tmc4210.py`` is the first chip model;
 every other chip (TMC4361A, TMC429) implements the same contract.
 
 The pins a chip reads (reference switches, home, encoder) are driven by a :class:`Board`:

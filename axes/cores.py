@@ -22,10 +22,10 @@ from tmcl_spec.registry import resolve
 
 #: Core name -> "module:class" of its firmware layer (an :class:`axes.interface.Axis`).
 CHIP_CORES: dict[str, str] = {
-    "tmc4210": "axes.tmc4210_firmware:TMC4210Axis",
-    "tmc429": "axes.tmc429_firmware:TMC429Axis",
-    "tmc4361a": "axes.tmc4361a_firmware:TMC4361AAxis",
-    "tmc4361a-eval": "axes.tmc4361a_eval:TMC4361AEvalAxis",
+    "tmc4210": "axes.chips.tmc42x.tmc4210_firmware:TMC4210Axis",
+    "tmc429": "axes.chips.tmc42x.tmc429_firmware:TMC429Axis",
+    "tmc4361a": "axes.chips.tmc4361a.firmware:TMC4361AAxis",
+    "tmc4361a-eval": "axes.chips.tmc4361a.eval_board:TMC4361AEvalAxis",
 }
 DEFAULT_CORE = "tmc4210"
 

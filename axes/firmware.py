@@ -4,7 +4,7 @@
 reference-search state machine (plans in axes/reference_search.py), stallGuard, the encoder
 and its deviation, the motor current, the events a host or a program sees, and time.  It
 reaches its chip only through a *driver* (:class:`axes.core.ChipDriver`), the chip-specific
-half of the firmware that speaks the chip's SPI datagrams (``axes/tmc4210_firmware.py`` for
+half of the firmware that speaks the chip's SPI datagrams (``axes/chips/tmc42x/tmc4210_firmware.py`` for
 the TMC4210).  The mechanics and the input stage are the :class:`axes.board.AxisBoard`.
 
 Time: the axis keeps the simulated time it was last advanced to.  To find its next event it

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from axes.tmc4210 import (
+from axes.chips.tmc42x.tmc4210 import (
     EN_SD,
     MASK24,
     MOT1R,
@@ -24,7 +24,7 @@ from axes.tmc4210 import (
     datagram,
     signed,
 )
-from axes.units import pmul_pdiv, stop_speed
+from axes.chips.tmc42x.units import pmul_pdiv, stop_speed
 from tests.axes.reference_tmc4210 import ReferenceChip
 
 IDLE_STATUS = 0x15

@@ -1,12 +1,12 @@
 """The firmware's routines for one motor of a TMC42x chip (TMC4210 or TMC429), shared by both.
 
-The TMC4210 is a one-motor cut of the TMC429 (``axes/tmc42x.py``): the sixteen axis registers
+The TMC4210 is a one-motor cut of the TMC429 (``axes/chips/tmc42x/engine.py``): the sixteen axis registers
 of a motor and their law (units, PULSE_DIV/RAMP_DIV, PMUL/PDIV, V_MIN, the 24-bit position)
 are the same, so is what the firmware does with them.  :class:`TMC42xDriver` is that common
 half of an :class:`axes.core.ChipDriver`; a chip's driver adds where its motor's registers
 are (``motor << 4 | IDX`` on the TMC429, IDX on the TMC4210), how the chip is set up at
-power-up and how its switch register is laid out (``axes/tmc4210_firmware.py``,
-``axes/tmc429_firmware.py``).  It talks to the chip through SPI datagrams only.
+power-up and how its switch register is laid out (``axes/chips/tmc42x/tmc4210_firmware.py``,
+``axes/chips/tmc42x/tmc429_firmware.py``).  It talks to the chip through SPI datagrams only.
 
 Two unit systems, chosen by the module's parameter table (docs/motion.md, "Units"):
 
@@ -17,7 +17,8 @@ Two unit systems, chosen by the module's parameter table (docs/motion.md, "Units
   the table has them (else they stay as they are), V_MIN is at least AP 130.
 
 Either way V_MIN is raised to what the chip needs to stop on the target
-(:func:`axes.units.stop_speed`), and PMUL/PDIV follow A_MAX (:func:`axes.units.pmul_pdiv`).
+(:func:`axes.chips.tmc42x.units.stop_speed`), and PMUL/PDIV follow A_MAX
+(:func:`axes.chips.tmc42x.units.pmul_pdiv`).
 """
 
 from __future__ import annotations
@@ -27,8 +28,7 @@ from collections.abc import Mapping
 from typing import Protocol
 
 from axes.board import AxisBoard
-from axes.core import ChipModel
-from axes.tmc42x import (
+from axes.chips.tmc42x.engine import (
     DISABLE_STOP_L,
     DISABLE_STOP_R,
     HALF24,
@@ -41,7 +41,7 @@ from axes.tmc42x import (
     sdiff24,
     signed,
 )
-from axes.units import (
+from axes.chips.tmc42x.units import (
     DIVIDER_MAX,
     V_REGISTER_MAX,
     choose_pulse_div,
@@ -52,6 +52,7 @@ from axes.units import (
     stop_speed,
     velocity_register,
 )
+from axes.core import ChipModel
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN, to_int32
 from tmcl_spec.parameters import AP
 

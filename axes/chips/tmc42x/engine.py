@@ -4,8 +4,9 @@ The TMC4210 is a one-motor cut of the TMC429 (``shared/spec/tmc429.md`` §1): bo
 per motor, the same sixteen axis registers (IDX 0..15) and the same ramp and pulse generator.
 :class:`MotorEngine` is that motor: the axis registers, the switch logic, the latch, the
 interrupt flags, and the motion law of ``shared/spec/tmc4210.md`` §4.8.  A chip
-(:class:`axes.tmc4210.TMC4210`, :class:`axes.tmc429.TMC429`) owns the global registers and
-the SPI interface, and tells each engine how it is wired (see "Wiring" on the class).
+(:class:`axes.chips.tmc42x.tmc4210.TMC4210`, :class:`axes.chips.tmc42x.tmc429.TMC429`) owns
+the global registers and the SPI interface, and tells each engine how it is wired (see
+"Wiring" on the class).
 
 Motion follows the digest's reference model: a clk32 counter drives ramp ticks every
 ``2**RAMP_DIV`` and pulse ticks every ``2**PULSE_DIV`` clk32 periods, the velocity has 8

@@ -14,9 +14,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from axes.board import AxisBoard
+from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
+from axes.chips.tmc4361a.registers import MASK32, signed32
 from axes.firmware import AxisFirmware
-from axes.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
-from axes.tmc4361a.registers import MASK32, signed32
 from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_S, to_int32
 from tmcl_spec.parameters import AP, ParamSpec

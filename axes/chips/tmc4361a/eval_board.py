@@ -15,9 +15,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from axes.board import AxisBoard
+from axes.chips.tmc4361a import TMC4361A, Reg, Status, datagram
+from axes.chips.tmc4361a.registers import MASK32, POWER_ON, RESET_KEY, signed32
 from axes.interface import AxisEvent, AxisStatus
-from axes.tmc4361a import TMC4361A, Reg, Status, datagram
-from axes.tmc4361a.registers import MASK32, POWER_ON, RESET_KEY, signed32
 from axes.world import AxisWorld, LoadZone, Switch
 from tmcl_spec.numbers import to_int32
 from tmcl_spec.parameters import ParamSpec

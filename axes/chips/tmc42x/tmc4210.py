@@ -2,7 +2,7 @@
 
 The register layout, widths and power-on values follow the TMC4210 datasheet.  The
 TMC4210 is one motor of the TMC42x family: the axis registers, switches, interrupts and the
-ramp and pulse generators are :class:`axes.tmc42x.MotorEngine` (shared with the TMC429);
+ramp and pulse generators are :class:`axes.chips.tmc42x.engine.MotorEngine` (shared with the TMC429);
 this class adds the global registers, the status byte and the SPI interface, and is the
 motor at the same time (one chip, one motor, one object).
 
@@ -16,8 +16,7 @@ from __future__ import annotations
 import copy
 from enum import IntEnum
 
-from axes.core import Board, Stop
-from axes.tmc42x import (
+from axes.chips.tmc42x.engine import (
     DEFAULT_CLOCK_HZ,
     DISABLE_STOP_L,
     DISABLE_STOP_R,
@@ -37,6 +36,7 @@ from axes.tmc42x import (
     sdiff24,
     signed,
 )
+from axes.core import Board, Stop
 
 __all__ = [
     "DEFAULT_CLOCK_HZ", "DISABLE_STOP_L", "DISABLE_STOP_R", "DISTANCE_LIMIT", "EN_SD", "HALF24",

@@ -6,14 +6,14 @@ TMC429's driver chain (the stepRocker's open-source firmware does so; docs/modul
 
 * :class:`TMC429Driver` is the chip-specific half of an axis's firmware
   (:class:`axes.core.ChipDriver`): the TMC42x routines it shares with the TMC4210 core
-  (:class:`axes.tmc42x_firmware.TMC42xDriver`) on its motor's registers (``motor << 4 | IDX``),
+  (:class:`axes.chips.tmc42x.firmware.TMC42xDriver`) on its motor's registers (``motor << 4 | IDX``),
   the TMC429's set-up and its switch register.  It talks to the chip only through 32-bit SPI
   datagrams to the chip all its axes share.
 * :class:`TMC262Link` is the firmware's TMC262 routines for one axis
   (:class:`axes.core.MotorDriverLink`): the microstep, current, chopper, stallGuard2 and coolStep
   parameters are written to the TMC262 as 20-bit datagrams, AP 206/180/208 are read back from
   its status word.  stallGuard2 and coolStep are therefore the TMC262 model's
-  (axes/tmc262.py, which regulates with the law of axes/stallguard.py): one implementation.
+  (axes/chips/tmc42x/tmc262.py, which regulates with the law of axes/stallguard.py): one implementation.
 * :class:`TMC429Axis` joins a driver to :class:`axes.firmware.AxisFirmware`;
   :meth:`TMC429Axis.build_axes` builds a module's axes three to a chip.
 """
@@ -23,12 +23,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from axes.board import AxisBoard
+from axes.chips.tmc42x.engine import DEFAULT_CLOCK_HZ
+from axes.chips.tmc42x.firmware import TMC42xDriver
+from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
+from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
 from axes.firmware import AxisFirmware
 from axes.stallguard import CoolStep
-from axes.tmc42x import DEFAULT_CLOCK_HZ
-from axes.tmc42x_firmware import TMC42xDriver
-from axes.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
-from axes.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
 from axes.world import AxisWorld
 from tmcl_spec.parameters import AP, ParamSpec
 from tmcl_spec.tmc429_modules import AXIS_PARAMETERS_6110
