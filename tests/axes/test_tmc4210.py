@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from axes.chips.tmc42x.engine import GlobalReg, MotorReg
 from axes.chips.tmc42x.tmc4210 import (
     EN_SD,
     MASK24,
@@ -35,6 +36,12 @@ def status(chip: TMC4210) -> int:
 
 
 # == register file =============================================================================
+
+
+def test_the_register_names_are_the_families_axis_and_global_registers() -> None:
+    """Reg is spelt out for the type checker: it must stay MotorReg and GlobalReg, in order."""
+    family = [(member.name, member.value) for table in (MotorReg, GlobalReg) for member in table]
+    assert [(member.name, member.value) for member in Reg] == family
 
 
 def test_power_on_values_and_idle_status() -> None:
