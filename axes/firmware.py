@@ -25,12 +25,9 @@ from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld, LoadZone, Switch
-from tmcl_spec.numbers import NS_PER_MS, NS_PER_S, to_int32
+from tmcl_spec.numbers import NS_PER_MS, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
 
-#: How far ahead the firmware looks for the next event; also bounds how many steps pass
-#: between two reads of a 24-bit position register (4 s at 1 Mpps is well below 2**23).
-LOOKAHEAD_NS = 4 * NS_PER_S
 #: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
 #: it the look-ahead stops short and the axis looks again from there when that time comes.
 LOOKAHEAD_BUDGET = 2_000
@@ -111,14 +108,14 @@ class AxisFirmware:
         #: The modelled motor driver IC the chip driver reaches (the TMC262 of the TMC429
         #: modules): stallGuard2, coolStep and the current act on it.  Without one, they come
         #: from axes/stallguard.py (docs/motion.md, "stallGuard2 and coolStep").
-        self.motor_driver: MotorDriverLink | None = getattr(self.driver, "motor_driver", None)
+        self.motor_driver: MotorDriverLink | None = self.driver.motor_driver
         #: Chip-specific parameters the driver reads from its chip (e.g. AP 135, AP 138).
         self._chip_live: frozenset[int] = frozenset(
-            getattr(self.driver, "live_parameters", frozenset()) & parameters.keys())
+            self.driver.live_parameters & parameters.keys())
         #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
         self._encoder_prescaler = AP.FULLSTEPS not in parameters
         #: How far the look-ahead runs the chip; a driver may ask for another horizon.
-        self._lookahead_ns: int = getattr(self.driver, "lookahead_ns", LOOKAHEAD_NS)
+        self._lookahead_ns: int = self.driver.lookahead_ns
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
         #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
@@ -665,7 +662,7 @@ class AxisFirmware:
         if number not in _LIVE_PARAMETERS:
             if number in self._chip_live:
                 self._sync()
-                return self.driver.read_parameter(number)  # type: ignore[attr-defined]
+                return self.driver.read_parameter(number)
             return self._params[number]  # configuration: no need to bring the chip up to date
         self._sync()
         if number == AP.TARGET_POSITION:
@@ -744,9 +741,8 @@ class AxisFirmware:
                 self._positioning = False
                 self._awaiting_arrival = False
             return
-        set_mode = getattr(self.driver, "set_positioning_mode", None)
-        if self._positioning and set_mode is not None:
-            set_mode()
+        if self._positioning:
+            self.driver.set_positioning_mode()
 
     def _pins_changed(self) -> None:
         self.chip.set_pins(*self.board.pins(self.chip.motor_position))

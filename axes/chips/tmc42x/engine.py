@@ -26,11 +26,12 @@ which the outside world changes so that the engine can stop there.
 from __future__ import annotations
 
 import copy
+from abc import abstractmethod
 from enum import IntEnum
 from math import isqrt
 from typing import Self
 
-from axes.core import Board, Stop
+from axes.core import Board, ChipModel, Stop
 from axes.search import first_true
 
 MASK24 = 0xFFFFFF
@@ -164,8 +165,12 @@ def datagram(address: int, data: int = 0, read: bool = False) -> int:
     return (address & 0x7F) << 25 | int(read) << 24 | (data & MASK24)
 
 
-class MotorEngine:
+class MotorEngine(ChipModel):
     """One motor of a TMC42x chip: axis registers, switches, latch, interrupts and motion.
+
+    The :class:`axes.core.ChipModel` of a TMC42x axis: a chip (the TMC4210) or a motor of
+    one (:class:`axes.chips.tmc42x.tmc429.TMC429Motor`) adds SPI (:meth:`spi`,
+    :meth:`spi_data`) and what a look-ahead copy is (:meth:`clone`, :meth:`adopt`).
 
     Wiring: the chip that owns the engine sets these plain attributes whenever its global
     registers change them (they are read on the engine's hot paths):
@@ -182,6 +187,8 @@ class MotorEngine:
 
     #: Bits of the IDX %1000 register that exist (the chip narrows or widens it).
     a_threshold_mask = 0x777FFF
+    #: Steps that reached the motor, unwrapped (a plain attribute: the engine moves it).
+    motor_position: int
 
     def __init__(self, clock_hz: int = DEFAULT_CLOCK_HZ, board: Board | None = None) -> None:
         if clock_hz <= 0:
@@ -229,6 +236,11 @@ class MotorEngine:
         self._work = 1  # loop iterations the last _fast took (run's work budget)
         self.ref_l = self.ref_r = self.gp_in = False  # electrical pin levels
         self._refresh_pins()
+
+    @abstractmethod
+    def spi_data(self, frame: int) -> int:
+        """``spi(frame) & MASK24``, the data bits of the answer: the firmware's reads ignore
+        the status byte, so a chip may skip sampling it (the frame acts the same)."""
 
     def at_rest(self) -> bool:
         """Stopped, and no ramp tick will start the motor again."""

@@ -24,8 +24,8 @@ Either way V_MIN is raised to what the chip needs to stop on the target
 from __future__ import annotations
 
 import logging
+from abc import abstractmethod
 from collections.abc import Mapping
-from typing import Protocol
 
 from axes.board import AxisBoard
 from axes.chips.tmc42x.engine import (
@@ -35,6 +35,7 @@ from axes.chips.tmc42x.engine import (
     MASK24,
     SOFT_STOP,
     Irq,
+    MotorEngine,
     MotorReg,
     RampMode,
     datagram,
@@ -52,7 +53,7 @@ from axes.chips.tmc42x.units import (
     stop_speed,
     velocity_register,
 )
-from axes.core import ChipModel
+from axes.core import ChipDriver
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN, to_int32
 from tmcl_spec.parameters import AP
 
@@ -69,21 +70,15 @@ STOP_FLAG = 1 << Irq.STOP
 STOP_MASK = STOP_FLAG << 8
 
 
-class TMC42xChip(ChipModel, Protocol):
-    """A TMC42x chip (or one motor of it) as the firmware's routines drive it."""
-
-    def spi_data(self, frame: int) -> int:
-        """``spi(frame) & MASK24``, the data bits of the answer: the driver's reads ignore
-        the status byte, so a chip may skip sampling it (the frame acts the same)."""
-        ...
-
-
-class TMC42xDriver:
+class TMC42xDriver(ChipDriver):
     """The firmware's routines for one TMC42x motor (the common half of a ChipDriver).
 
-    Subclasses set :attr:`chip` and :attr:`motor`, and implement :meth:`setup_chip`
-    (global registers at power-up) and :meth:`levels` (the chip's switch register).
+    Subclasses pass the chip (a TMC42x :class:`MotorEngine`) and the motor, and implement
+    :meth:`setup_chip` (global registers at power-up) and :meth:`levels` (the chip's switch
+    register).
     """
+
+    chip: MotorEngine
 
     #: Name of the chip in log messages.
     chip_name = "TMC42x"
@@ -91,7 +86,7 @@ class TMC42xDriver:
     #: :meth:`read_parameter` for them): actual acceleration, ramp mode.
     live_parameters = frozenset({AP.ACTUAL_ACCELERATION, AP.RAMP_MODE})
 
-    def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard, chip: TMC42xChip,
+    def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard, chip: MotorEngine,
                  motor: int = 0) -> None:
         self.index = index
         #: The axis parameters (the firmware's dict, read here, never written).
@@ -126,9 +121,9 @@ class TMC42xDriver:
     def _read_global(self, address: int) -> int:
         return self.chip.spi_data(datagram(address, read=True))
 
+    @abstractmethod
     def setup_chip(self) -> None:
         """The chip's global registers as the firmware sets them at power-up."""
-        raise NotImplementedError
 
     def power_up(self) -> None:
         """Set up the chip, enable the int_stop interrupt (the firmware learns of hard switch

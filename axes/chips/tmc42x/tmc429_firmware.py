@@ -27,6 +27,7 @@ from axes.chips.tmc42x.engine import DEFAULT_CLOCK_HZ
 from axes.chips.tmc42x.firmware import TMC42xDriver
 from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
 from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
+from axes.core import MotorDriverLink
 from axes.firmware import AxisFirmware
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld
@@ -42,7 +43,7 @@ SMGP_FIRMWARE = 0x000002
 READ_SELECT = ReadSelect.SG
 
 
-class TMC262Link:
+class TMC262Link(MotorDriverLink):
     """The firmware's TMC262 routines for one axis: software copies in, datagrams out.
 
     The registers are composed from the axis parameters (the firmware keeps them as its

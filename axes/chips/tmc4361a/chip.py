@@ -49,7 +49,7 @@ from axes.chips.tmc4361a.registers import (
     datagram,
     signed32,
 )
-from axes.core import Board, Stop
+from axes.core import Board, ChipModel, Stop
 
 DEFAULT_CLOCK_HZ = 16_000_000
 #: Hidden STATUS bit (above the 32 real ones) that tracks the MAX_PHASE_TRAP condition.
@@ -85,7 +85,7 @@ class EncoderBoard(Board, Protocol):
         ...
 
 
-class TMC4361A:
+class TMC4361A(ChipModel):
     """The chip.  Host access is :meth:`spi`; the world drives pins through the board."""
 
     frame_bits = 40

@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
 from axes.chips.tmc4361a.registers import MASK32, signed32
+from axes.core import ChipDriver
 from axes.firmware import AxisFirmware
 from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_S, to_int32
@@ -56,7 +57,7 @@ _READ_XACTUAL = datagram(Reg.XACTUAL)
 _READ_STATUS = datagram(Reg.STATUS)
 
 
-class TMC4361ADriver:
+class TMC4361ADriver(ChipDriver):
     """The firmware's TMC4361A routines for one axis (an :class:`axes.core.ChipDriver`)."""
 
     #: XACTUAL is the whole 32-bit AP 1: the look-ahead need not stop every 4 s to read it.
