@@ -248,6 +248,7 @@ class TMC4361AEvalAxis:
     def set_world(self, world: AxisWorld) -> None:
         self._sync()
         self.board.set_world(world)
+        self.board.set_stuck(world.stuck, self.chip.motor_position)
         self._pins_changed()
 
     def set_switch(self, name: str, switch: Switch | None) -> None:
@@ -264,6 +265,40 @@ class TMC4361AEvalAxis:
         if not 0.0 <= slip <= 1.0:
             raise ValueError("slip must be between 0 and 1")
         self.board.world.encoder_slip = slip
+
+    # == faults of the mechanics and the wiring (tmcl_server/faults.py) ==========================
+
+    def set_stuck(self, stuck: bool, load: int | None = None) -> None:
+        """From now on the motor no longer follows its steps (or follows them again): the chip
+        keeps counting (XACTUAL moves on), the mechanics and the switches they actuate stay
+        where they stopped.  ENC_POS is the chip's own count of the steps on this board (no
+        encoder is modelled behind it), so it does not stop; ``load`` is kept in the world,
+        but nothing measures it without a driver board."""
+        self._sync()
+        world = self.board.world
+        world.stuck = stuck
+        world.stuck_load = load if stuck else None
+        self.board.set_stuck(stuck, self.chip.motor_position)
+        self.board.world_changed()
+        self._pins_changed()
+
+    def break_switch(self, name: str, level: bool | None) -> None:
+        """A broken switch: its line stays at the electrical ``level`` wherever the axis is
+        (as the world's levels are, before the board's pull-ups); None repairs it."""
+        self._sync()
+        if level is None:
+            self.board.world.broken_switches.pop(name, None)
+        else:
+            self.board.world.broken_switches[name] = level
+        self.board.world_changed()
+        self._pins_changed()
+
+    def place_mechanics(self, mechanical: int) -> None:
+        """After a restart: the mechanics stand at ``mechanical`` (world units) while the
+        chip's counters start from 0, so the world's switches stay where they are."""
+        self._sync()
+        self.board.place(mechanical, self.chip.motor_position)
+        self._pins_changed()
 
 
 def _velocity_register(pps: int) -> int:
