@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
-from axes.interface import AxisEvent, AxisEventKind, AxisStatus
+from axes.interface import Axis, AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld, LoadZone, Switch
@@ -92,8 +92,11 @@ class _Lookahead:
     time_ns: int
 
 
-class AxisFirmware:
-    """One TMCL axis: axis parameters in, datagrams to its chip (through the driver) out."""
+class AxisFirmware(Axis):
+    """One TMCL axis: axis parameters in, datagrams to its chip (through the driver) out.
+
+    A core's axis class subclasses it with the :class:`axes.interface.Axis` constructor and
+    passes the factory of its driver."""
 
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec], world: AxisWorld | None,
                  make_driver: DriverFactory) -> None:

@@ -58,8 +58,8 @@ class TMC4210Driver(TMC42xDriver):
 class TMC4210Axis(AxisFirmware):
     """One TMCM-6212 axis on a TMC4210: the TMCL firmware layer over the TMC4210 driver."""
 
-    def __init__(self, index: int, clock_hz: int = DEFAULT_CLOCK_HZ,
-                 world: AxisWorld | None = None,
-                 parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS) -> None:
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS,
+                 world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
+        clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         super().__init__(index, parameters, world,
-                         lambda params, board: TMC4210Driver(index, params, board, clock_hz))
+                         lambda params, board: TMC4210Driver(index, params, board, clock))

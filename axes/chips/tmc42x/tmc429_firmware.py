@@ -29,6 +29,7 @@ from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv
 from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
 from axes.core import MotorDriverLink
 from axes.firmware import AxisFirmware
+from axes.interface import Axis
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld
 from tmcl_spec.parameters import AP, ParamSpec
@@ -192,23 +193,23 @@ class TMC429Driver(TMC42xDriver):
 class TMC429Axis(AxisFirmware):
     """One axis of a TMC429 module: the TMCL firmware layer over a TMC429 motor and its TMC262."""
 
-    def __init__(self, index: int, clock_hz: int = DEFAULT_CLOCK_HZ,
-                 world: AxisWorld | None = None,
-                 parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS_6110,
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS_6110,
+                 world: AxisWorld | None = None, clock_hz: int | None = None, *,
                  chip: TMC429 | None = None, motor: int | None = None) -> None:
         if chip is None:  # an axis of its own: motor 0 of a chip with one TMC262
-            chip, motor = TMC429(clock_hz, drivers=[TMC262()]), 0
+            clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
+            chip, motor = TMC429(clock, drivers=[TMC262()]), 0
         slot = index % NUMBER_OF_MOTORS if motor is None else motor
         super().__init__(index, parameters, world,
                          lambda params, board: TMC429Driver(index, params, board, chip, slot))
 
     @classmethod
     def build_axes(cls, count: int, parameters: Mapping[int, ParamSpec],
-                   clock_hz: int | None = None) -> list[TMC429Axis]:
+                   clock_hz: int | None = None) -> list[Axis]:
         """A module's ``count`` axes, three to a TMC429 (two chips for six), each with a TMC262."""
         clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         chips: Sequence[TMC429] = [
             TMC429(clock, drivers=[TMC262() for _ in range(min(NUMBER_OF_MOTORS, count - first))])
             for first in range(0, count, NUMBER_OF_MOTORS)]
-        return [cls(index, clock, parameters=parameters, chip=chips[index // NUMBER_OF_MOTORS],
+        return [cls(index, parameters, chip=chips[index // NUMBER_OF_MOTORS],
                     motor=index % NUMBER_OF_MOTORS) for index in range(count)]

@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Reg, Status, datagram
 from axes.chips.tmc4361a.registers import MASK32, POWER_ON, RESET_KEY, signed32
-from axes.interface import AxisEvent, AxisStatus
+from axes.interface import Axis, AxisEvent, AxisStatus
 from axes.world import AxisWorld, LoadZone, Switch
 from tmcl_spec.numbers import to_int32
 from tmcl_spec.parameters import ParamSpec
@@ -73,11 +73,11 @@ def _c_div(value: int, divisor: int) -> int:
     return -quotient if value < 0 else quotient
 
 
-class TMC4361AEvalAxis:
-    """Motor 0 of a TMC4361A-EVAL, as the evaluation firmware drives it (an Axis)."""
+class TMC4361AEvalAxis(Axis):
+    """Motor 0 of a TMC4361A-EVAL, as the evaluation firmware drives it."""
 
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec] | None = None,
-                 world: AxisWorld | None = None, clock_hz: int = DEFAULT_CLOCK_HZ) -> None:
+                 world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
         self.index = index
         unknown = sorted(set(parameters or ()) - _SERVED)
         if unknown:
@@ -85,7 +85,7 @@ class TMC4361AEvalAxis:
                              f"not serve axis parameters {unknown} (module type "
                              f"landungsbruecke-tmc4361a)")
         self.board = EvalBoardInputs(world)
-        self.chip = TMC4361A(clock_hz, self.board)
+        self.chip = TMC4361A(DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz, self.board)
         self._now_ns = 0
         #: The TMC-API cache: last value written per address (reads of write-only ones).
         self._cache: dict[int, int] = {}
