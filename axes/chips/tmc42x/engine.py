@@ -507,6 +507,7 @@ class MotorEngine(ChipModel):
             return None
         d = abs(dx)
         mag = abs(vt)
+        low: int | None
         if mag == self.v_max and self.v_min >= self.v_max:
             low = 1  # V_MIN >= V_MAX: the clamped curve is V_MAX all the way to the target
         elif mag == self.v_max:
@@ -1040,13 +1041,14 @@ class MotorEngine(ChipModel):
     def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int,
                       plan: tuple[int, int, int],
                       positioning: bool, fixed_target: int
-                      ) -> tuple[int, int, int, int, int | None] | None:
+                      ) -> tuple[int, int, int, int, int] | None:
         """Many ramp ticks of full-A_MAX slew at once (floor sums instead of a loop).
 
         ``w`` is the speed along the direction of travel (1/256 units).  In velocity mode the
         target is fixed; in ramp/soft mode it is the curve, and the batch ends before the tick
         at which the curve would limit the acceleration.  Returns (ticks, speed, accumulator,
-        steps, last target magnitude or None) or None if fewer than 16 ticks qualify.
+        steps, last target magnitude: 0 in velocity mode) or None if fewer than 16 ticks
+        qualify.
         """
         a_max = self.a_max
         if a_max == 0:
@@ -1083,7 +1085,7 @@ class MotorEngine(ChipModel):
             return None
         steps, new_acc = after(ticks)
         speed = w + ticks * a_max if rising else w - ticks * a_max
-        last_mag = None
+        last_mag = 0
         if positioning:
             before, _ = after(ticks - 1)
             last_mag = min(max(self._curve(d - before), self.v_min), self.v_max)

@@ -311,7 +311,7 @@ class TMC42xDriver(ChipDriver):
         return bool(self.params[AP.SOFT_STOP] or self.params.get(AP.SOFT_STOP_FLAG, 0))
 
     def _write_ref_conf(self, mode: RampMode) -> None:
-        conf = mode
+        conf: int = mode
         if self._searching or self.params[AP.LEFT_DISABLE]:
             conf |= DISABLE_STOP_L
         if self._searching or self.params[AP.RIGHT_DISABLE]:

@@ -262,7 +262,7 @@ class TMC4361ADriver(ChipDriver):
         DSTOP = the deceleration in force.  AP 21 is TZEROWAIT (direction reversals).
         """
         p = self.params
-        accelerations = {Reg.AMAX: p[AP.MAX_ACCELERATION]}
+        accelerations: dict[int, int] = {Reg.AMAX: p[AP.MAX_ACCELERATION]}
         if positioning:
             accelerations[Reg.DMAX] = p[AP.MAX_DECELERATION]
             six_point = p[AP.V1] > 0
