@@ -61,7 +61,6 @@ PRESCALER_FUNCTION_BITS = 0x1F
 # == the axis ==================================================================================
 
 
-_UNKNOWN = object()  # lookahead not computed since the last change
 _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
 
 #: Parameters every TMCL module's table has (the others may be missing and count as off,
@@ -121,8 +120,10 @@ class AxisFirmware(Axis):
         self._lookahead_ns: int = self.driver.lookahead_ns
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
-        #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
-        self._lookahead_cache: _Lookahead | object | None = _UNKNOWN
+        #: The chip's next notable instant (None: nothing ahead), once computed since the last
+        #: change (``_lookahead_known``).
+        self._lookahead_cache: _Lookahead | None = None
+        self._lookahead_known = False
         self._target = 0  # AP 0, 32 bit
         self._positioning = False
         self._awaiting_arrival = False
@@ -159,18 +160,19 @@ class AxisFirmware(Axis):
     # == time ==================================================================================
 
     def _invalidate(self) -> None:
-        self._lookahead_cache = _UNKNOWN
+        self._lookahead_known = False
 
     def _lookahead(self) -> _Lookahead | None:
         """Run a copy of the chip to its next notable instant (or the horizon)."""
-        if self._lookahead_cache is not _UNKNOWN:
-            return self._lookahead_cache  # type: ignore[return-value]
+        if self._lookahead_known:
+            return self._lookahead_cache
         twin = self.chip.clone()
         horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + self._lookahead_ns
         stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))
         self._lookahead_cache = result
+        self._lookahead_known = True
         return result
 
     def _timer_due(self) -> int | None:
@@ -202,8 +204,8 @@ class AxisFirmware(Axis):
         while True:
             ahead = self._lookahead()
             timer = self._timer_due()
-            chip_at = ahead.time_ns if ahead is not None else None
-            if chip_at is not None and chip_at <= t_ns and (timer is None or chip_at <= timer):
+            if ahead is not None and (chip_at := ahead.time_ns) <= t_ns and (
+                    timer is None or chip_at <= timer):
                 try:
                     self.driver.chip = self.driver.chip.adopt(ahead.chip)
                 except StaleLookahead:
@@ -265,7 +267,7 @@ class AxisFirmware(Axis):
                 if self._rfs is None:
                     self._emit(AxisEventKind.TARGET_REACHED)
         if self._rfs is not None:
-            self._rfs_step()
+            self._rfs_step(self._rfs)
         self._check_stall()
         self._check_deviation()
         self._update_marks()
@@ -380,7 +382,7 @@ class AxisFirmware(Axis):
             return 0
         plan, inverted = reference_plan(self._params[AP.RFS_MODE])
         self._abort_search()
-        self._rfs = ReferenceSearch(plan, inverted, points={})
+        self._rfs = ReferenceSearch(plan, inverted)
         self._errors = 0
         self.driver.configure_stops(searching=True)
         self._rfs_enter()
@@ -393,10 +395,10 @@ class AxisFirmware(Axis):
             self._rfs_state = 0
             self.driver.configure_stops(searching=False)
 
-    def _search_level(self, switch: str) -> bool:
+    def _search_level(self, search: ReferenceSearch, switch: str) -> bool:
         left, right, home = self._levels
         if switch == "home":
-            return home != self._rfs.inverted_home
+            return home != search.inverted_home
         return left if switch == "left" else right
 
     def _rfs_enter(self) -> None:
@@ -406,59 +408,57 @@ class AxisFirmware(Axis):
             self._rfs_state = search.index + 1
             phase = search.phase
             if phase.kind == "finish":
-                self._rfs_finish_move()
+                self._rfs_finish_move(search)
                 return
             want_active = phase.kind != "leave"
-            if self._search_level(phase.switch) == want_active:
-                self._rfs_phase_done()
+            if self._search_level(search, phase.switch) == want_active:
+                self._rfs_phase_done(search)
                 search = self._rfs
                 continue
             fast = phase.kind == "seek"
             speed = self._params[AP.RFS_SPEED if fast else AP.RFS_SWITCH_SPEED]
             search.direction = phase.direction
-            if phase.reverse_on and self._search_level(phase.reverse_on):
-                self._rfs_reverse()
+            if phase.reverse_on and self._search_level(search, phase.reverse_on):
+                self._rfs_reverse(search)
             self._start_velocity(search.direction * speed)
             return
 
-    def _rfs_phase_done(self) -> None:
-        search = self._rfs
+    def _rfs_phase_done(self, search: ReferenceSearch) -> None:
         phase = search.phase
         if phase.record:
             search.points[phase.record] = self._position
         self._hard_stop()
         search.index += 1
 
-    def _rfs_step(self) -> None:
+    def _rfs_step(self, search: ReferenceSearch) -> None:
         """React to switch levels during a search (called at every notable instant)."""
-        search = self._rfs
         phase = search.phase
         if phase.kind == "finish":
             if not self._awaiting_arrival and self._position == self._target:
                 self._rfs_complete()
             return
-        if phase.reverse_on and not search.reversed_once and self._search_level(phase.reverse_on):
-            self._rfs_reverse()
+        if (phase.reverse_on and not search.reversed_once
+                and self._search_level(search, phase.reverse_on)):
+            self._rfs_reverse(search)
             self._hard_stop()
             self._start_velocity(search.direction * self._params[AP.RFS_SPEED])
             self._update_marks()
             return
         want_active = phase.kind != "leave"
-        if self._search_level(phase.switch) == want_active:
-            self._rfs_phase_done()
+        if self._search_level(search, phase.switch) == want_active:
+            self._rfs_phase_done(search)
             self._rfs_enter()
 
-    def _rfs_reverse(self) -> None:
+    def _rfs_reverse(self, search: ReferenceSearch) -> None:
         """Modes 5/6 hit the limit switch: search the other way, and calibrate that way too."""
-        search = self._rfs
         search.reversed_once = True
         search.direction = -search.direction
         for phase in search.phases[search.index + 1:]:
             phase.direction = -phase.direction
 
-    def _rfs_finish_move(self) -> None:
-        zero, distance = reference_point(self._rfs.points)
-        self._rfs.points["zero"] = zero
+    def _rfs_finish_move(self, search: ReferenceSearch) -> None:
+        zero, distance = reference_point(search.points)
+        search.points["zero"] = zero
         if distance is not None:
             self._params[AP.SWITCH_DISTANCE] = distance
         self._start_positioning(zero, self._params[AP.RFS_SWITCH_SPEED])
@@ -506,7 +506,9 @@ class AxisFirmware(Axis):
         threshold = self._params[AP.STOP_ON_STALL]
         watching = False
         if threshold and self._standstill_since is None:
-            stalled = self._driver_stalled() if self.motor_driver is not None else self._load() == 0
+            motor_driver = self.motor_driver
+            stalled = (self._driver_stalled(motor_driver) if motor_driver is not None
+                       else self._load() == 0)
             if stalled and abs(self._actual_speed()) >= threshold:
                 self._abort_search()
                 self._hard_stop()
@@ -517,7 +519,7 @@ class AxisFirmware(Axis):
                 watching = True
         self._stall_watch = watching
 
-    def _driver_stalled(self) -> bool:
+    def _driver_stalled(self, motor_driver: MotorDriverLink) -> bool:
         """The modelled driver's stallGuard2 flag, once it is from this motion: the driver
         measures at full steps (four with the filter), so until the motor has made that
         many since it started the flag is the last motion's and the firmware ignores it."""
@@ -526,7 +528,7 @@ class AxisFirmware(Axis):
             full_step *= stallguard.FILTER_FULL_STEPS
         if abs(self.chip.motor_position - self._motion_origin) < full_step:
             return False
-        return self.motor_driver.stalled()  # type: ignore[union-attr]
+        return motor_driver.stalled()
 
     def _update_coolstep(self) -> None:
         """Bring coolStep's current scale up to the present (called at every position read)."""
@@ -751,7 +753,7 @@ class AxisFirmware(Axis):
         self.chip.set_pins(*self.board.pins(self.chip.motor_position))
         self._check_levels()
         if self._rfs is not None:
-            self._rfs_step()
+            self._rfs_step(self._rfs)
 
     # == the world =============================================================================
 
