@@ -77,7 +77,7 @@ class AxisBoard:
 
     def load(self, motor_position: int) -> int:
         """The world's load value with the motor at ``motor_position`` (what a modelled
-        driver's stallGuard2 measures, axes/tmc262.py)."""
+        driver's stallGuard2 measures, axes/chips/tmc42x/tmc262.py)."""
         return self.world.load_at(self.mechanical(motor_position))
 
     def pins(self, motor_position: int) -> tuple[bool, bool, bool]:

@@ -3,8 +3,9 @@
 A *chip model* is the silicon: a register file behind SPI datagrams and the motion it makes.
 It counts time in its own clock ticks and never reads a clock; the firmware layer above it
 asks it to run up to a tick and is told when something notable happens on the way, so that
-the simulator can jump from event to event.  ``axes/tmc4210.py`` is the first chip model;
-every other chip (TMC4361A, TMC429) implements the same contract.
+the simulator can jump from event to event.  Every chip (TMC4210, TMC429, TMC4361A) subclasses
+:class:`ChipModel`; the chip-specific half of the firmware that drives one subclasses
+:class:`ChipDriver`, whose optional members have their defaults here, in one place.
 
 The pins a chip reads (reference switches, home, encoder) are driven by a :class:`Board`:
 the module's input stage and the mechanics of the world (``axes/board.py``).
@@ -12,8 +13,16 @@ the module's input stage and the mechanics of the world (``axes/board.py``).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from enum import IntEnum
-from typing import Protocol, Self
+from typing import TYPE_CHECKING, Protocol, Self
+
+from tmcl_spec.numbers import NS_PER_S
+
+#: How far ahead the firmware looks for the next event (a driver's :attr:`ChipDriver.
+#: lookahead_ns` by default); also bounds how many steps pass between two reads of a 24-bit
+#: position register (4 s at 1 Mpps is well below 2**23).
+LOOKAHEAD_NS = 4 * NS_PER_S
 
 
 class Stop(IntEnum):
@@ -42,33 +51,39 @@ class Board(Protocol):
         ...
 
 
-class ChipModel(Protocol):
+class ChipModel(ABC):
     """One emulated motion controller (or one motor of a multi-motor chip).
 
     Host access is :meth:`spi` only, as on the real board; the other members serve the
-    simulator's time keeping and the world's pins.
+    simulator's time keeping and the world's pins.  A subclass implements every abstract
+    method and sets the attributes (:attr:`motor_position` may be a property).
     """
 
     clock_hz: int
     #: Chip clock ticks fully processed (the chip's own unit of time).
     t: int
-    #: Steps that reached the motor, as an unwrapped integer (what the mechanics follow).
-    motor_position: int
 
+    if TYPE_CHECKING:  # read through the contract; a plain attribute or a property of the chip
+        @property
+        def motor_position(self) -> int:
+            """Steps that reached the motor, as an unwrapped integer (what the mechanics follow)."""
+            ...
+
+    @abstractmethod
     def spi(self, frame: int) -> int:
         """Exchange one datagram (its width is the chip's: 32 bits TMC4210/TMC429, 40 TMC4361A)."""
-        ...
 
+    @abstractmethod
     def clone(self) -> Self:
         """An independent copy, to look ahead without disturbing this chip."""
-        ...
 
+    @abstractmethod
     def adopt(self, twin: Self) -> Self:
         """Continue with the state a :meth:`clone` reached; returns the chip to use from now on
         (the twin itself for a one-motor chip, this object for a motor of a shared chip).
         Raises :class:`StaleLookahead` if the twin no longer fits."""
-        ...
 
+    @abstractmethod
     def run(self, until: int, budget: int | None = None) -> Stop | None:
         """Advance to tick ``until``; return early (``t < until``) at a notable instant.
 
@@ -77,106 +92,25 @@ class ChipModel(Protocol):
         The firmware's look-ahead passes one, so no setting can make a request's work
         unbounded; bringing the chip to the present passes none.
         """
-        ...
 
+    @abstractmethod
     def at_rest(self) -> bool:
         """True if nothing will change by itself until a datagram or a pin changes it."""
-        ...
 
+    @abstractmethod
     def ticks_at(self, t_ns: int) -> int:
         """Ticks that have happened by simulated time ``t_ns``."""
-        ...
 
+    @abstractmethod
     def ns_at(self, ticks: int) -> int:
         """Simulated time (ns, rounded up) of tick ``ticks``."""
-        ...
 
+    @abstractmethod
     def set_pins(self, left: bool, right: bool, home: bool) -> None:
         """Drive the switch inputs (electrical levels); edges act at once."""
-        ...
 
 
-class ChipDriver(Protocol):
-    """The chip-specific half of the TMCL firmware for one axis: what it does with its chip.
-
-    The generic half (:class:`axes.firmware.AxisFirmware`: parameters, reference search,
-    stallGuard, encoder, current, events, time) calls these; a driver talks to :attr:`chip`
-    through SPI datagrams only.  Speeds are in the axis's units (pps, or the chip's own in
-    unit mode 0), positions are the 32-bit AP 1 / AP 0 values.
-    """
-
-    #: The chip; the firmware replaces it by a look-ahead copy it has run forward.
-    chip: ChipModel
-    #: AP 1 as of the last :meth:`read_position`.
-    position: int
-    # Optional: ``lookahead_ns``, how far the firmware runs a look-ahead copy (default
-    # axes.firmware.LOOKAHEAD_NS, which keeps 24-bit position registers unambiguous).
-
-    def power_up(self) -> None:
-        """Initialise the chip as the firmware does after reset."""
-
-    def register_access(self, address: int, value: int | None = None) -> int:
-        """Commands 146/147: one raw datagram (None reads); the chip's answer as signed 32 bit."""
-
-    # -- readings at the chip's present ----------------------------------------------------------
-
-    def read_position(self) -> int:
-        """Read the position from the chip (and keep it in :attr:`position`)."""
-
-    def moving(self) -> bool: ...
-
-    def actual_speed(self) -> int:
-        """AP 3: signed speed now."""
-
-    def levels(self) -> tuple[bool, bool, bool]:
-        """Logical (left, right, home) switch levels as the chip reports them."""
-
-    def take_switch_stop(self) -> bool:
-        """True once after a stop switch stopped the motor (the flag is cleared)."""
-
-    def mode_name(self) -> str:
-        """Telemetry's name for the chip's mode: "position", "velocity", "hold", ..."""
-
-    def heading(self) -> int:
-        """Direction of travel, or of the travel about to start (-1, 0, +1)."""
-
-    # -- commands ----------------------------------------------------------------------------
-
-    def start_velocity(self, speed: int) -> None:
-        """ROR/ROL: run at a signed speed with AP 5's acceleration."""
-
-    def start_positioning(self, target: int, top_speed: int) -> None:
-        """MVP: ramp to ``target`` at up to ``top_speed``."""
-
-    def continue_move(self, target: int) -> None:
-        """At a notable instant of a move to ``target`` (rolling targets on narrow chips)."""
-
-    def refill_mark(self, target: int) -> int | None:
-        """A motor position the firmware must be woken at during a move (or None)."""
-
-    def ramp_stop(self) -> None:
-        """MST: decelerate to standstill."""
-
-    def hard_stop(self) -> None:
-        """Stop at once."""
-
-    def set_position(self, value: int) -> bool:
-        """AP 1 write; True if a move in flight was turned into a ramped stop."""
-
-    def limits_changed(self, positioning: bool, velocity_command: int) -> None:
-        """A speed, acceleration, ramp or unit parameter changed: re-plan what runs."""
-
-    def configure_stops(self, searching: bool) -> None:
-        """Stop switches as the parameters say; a reference search drives through them."""
-
-    # Optional (AxisFirmware looks for them with getattr):
-    #   live_parameters: frozenset[int] -- chip-specific parameters read from the chip, through
-    #       read_parameter(number) -> int (the TMC42x drivers: AP 135, AP 138);
-    #   motor_driver: MotorDriverLink -- a modelled motor driver IC behind the chip driver;
-    #   set_positioning_mode() -- AP 138 changed during a move (TMC42x).
-
-
-class MotorDriverLink(Protocol):
+class MotorDriverLink(ABC):
     """The firmware's routines for a modelled motor driver IC (the TMC262 on the TMC429
     modules), reached by the chip driver: the current, microsteps, stallGuard2 and coolStep
     parameters act on the driver chip's registers and are read back from it.  Without one,
@@ -188,23 +122,146 @@ class MotorDriverLink(Protocol):
     #: position read, :meth:`regulate`).
     regulating: bool
 
+    @abstractmethod
     def configure(self, number: int | None = None) -> None:
         """Write the driver registers parameter ``number`` is part of (None: all of them)."""
 
+    @abstractmethod
     def set_current(self, value: int) -> None:
         """Run or standby current now, 0..255 (AP 6 / AP 7)."""
 
+    @abstractmethod
     def regulate(self, speed: int) -> None:
         """The firmware's coolStep switch: on at or above AP 182 (and below AP 22), else off."""
 
+    @abstractmethod
     def load(self) -> int:
         """AP 206: the stallGuard2 value the driver measured."""
 
+    @abstractmethod
     def stalled(self) -> bool:
         """The driver's stallGuard2 flag: its last measurement read 0."""
 
+    @abstractmethod
     def current_scale(self) -> int | None:
         """AP 180: the current scale coolStep set (0..31), None while coolStep is off."""
 
+    @abstractmethod
     def flags(self) -> int:
         """AP 208: the driver's status flags."""
+
+
+class ChipDriver(ABC):
+    """The chip-specific half of the TMCL firmware for one axis: what it does with its chip.
+
+    The generic half (:class:`axes.firmware.AxisFirmware`: parameters, reference search,
+    stallGuard, encoder, current, events, time) calls these; a driver talks to :attr:`chip`
+    through SPI datagrams only.  Speeds are in the axis's units (pps, or the chip's own in
+    unit mode 0), positions are the 32-bit AP 1 / AP 0 values.  The members with a body are
+    optional: their defaults are what a driver without that feature does.
+    """
+
+    #: The chip; the firmware replaces it by a look-ahead copy it has run forward.
+    chip: ChipModel
+    #: AP 1 as of the last :meth:`read_position`.
+    position: int
+
+    # -- optional, with their defaults -------------------------------------------------------
+
+    #: Chip-specific axis parameters read from the chip at the present time, through
+    #: :meth:`read_parameter` (the TMC42x drivers: AP 135, AP 138).
+    live_parameters: frozenset[int] = frozenset()
+    #: A modelled motor driver IC behind the chip driver (the TMC429 modules' TMC262): the
+    #: current, microstep, stallGuard2 and coolStep parameters act on it.
+    motor_driver: MotorDriverLink | None = None
+    #: How far the firmware runs a look-ahead copy of the chip (:data:`LOOKAHEAD_NS` keeps
+    #: 24-bit position registers unambiguous; a chip with a 32-bit position may look further).
+    lookahead_ns: int = LOOKAHEAD_NS
+
+    def read_parameter(self, number: int) -> int:
+        """The value of one of :attr:`live_parameters`, read from the chip."""
+        raise ValueError(f"{type(self).__name__} reads no axis parameter {number} from its chip "
+                         f"(it is not one of its live_parameters)")
+
+    def set_positioning_mode(self) -> None:
+        """AP 138 (ramp or soft positioning) changed during a move: apply it to the move in
+        flight (TMC42x).  A chip without that choice has nothing to do."""
+        return
+
+    # -- required ------------------------------------------------------------------------------
+
+    @abstractmethod
+    def power_up(self) -> None:
+        """Initialise the chip as the firmware does after reset."""
+
+    @abstractmethod
+    def register_access(self, address: int, value: int | None = None) -> int:
+        """Commands 146/147: one raw datagram (None reads); the chip's answer as signed 32 bit."""
+
+    # -- readings at the chip's present ----------------------------------------------------------
+
+    @abstractmethod
+    def read_position(self) -> int:
+        """Read the position from the chip (and keep it in :attr:`position`)."""
+
+    @abstractmethod
+    def moving(self) -> bool:
+        """True while the motor moves (or a ramp is about to move it)."""
+
+    @abstractmethod
+    def actual_speed(self) -> int:
+        """AP 3: signed speed now."""
+
+    @abstractmethod
+    def levels(self) -> tuple[bool, bool, bool]:
+        """Logical (left, right, home) switch levels as the chip reports them."""
+
+    @abstractmethod
+    def take_switch_stop(self) -> bool:
+        """True once after a stop switch stopped the motor (the flag is cleared)."""
+
+    @abstractmethod
+    def mode_name(self) -> str:
+        """Telemetry's name for the chip's mode: "position", "velocity", "hold", ..."""
+
+    @abstractmethod
+    def heading(self) -> int:
+        """Direction of travel, or of the travel about to start (-1, 0, +1)."""
+
+    # -- commands ----------------------------------------------------------------------------
+
+    @abstractmethod
+    def start_velocity(self, speed: int) -> None:
+        """ROR/ROL: run at a signed speed with AP 5's acceleration."""
+
+    @abstractmethod
+    def start_positioning(self, target: int, top_speed: int) -> None:
+        """MVP: ramp to ``target`` at up to ``top_speed``."""
+
+    @abstractmethod
+    def continue_move(self, target: int) -> None:
+        """At a notable instant of a move to ``target`` (rolling targets on narrow chips)."""
+
+    @abstractmethod
+    def refill_mark(self, target: int) -> int | None:
+        """A motor position the firmware must be woken at during a move (or None)."""
+
+    @abstractmethod
+    def ramp_stop(self) -> None:
+        """MST: decelerate to standstill."""
+
+    @abstractmethod
+    def hard_stop(self) -> None:
+        """Stop at once."""
+
+    @abstractmethod
+    def set_position(self, value: int) -> bool:
+        """AP 1 write; True if a move in flight was turned into a ramped stop."""
+
+    @abstractmethod
+    def limits_changed(self, positioning: bool, velocity_command: int) -> None:
+        """A speed, acceleration, ramp or unit parameter changed: re-plan what runs."""
+
+    @abstractmethod
+    def configure_stops(self, searching: bool) -> None:
+        """Stop switches as the parameters say; a reference search drives through them."""

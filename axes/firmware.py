@@ -4,7 +4,7 @@
 reference-search state machine (plans in axes/reference_search.py), stallGuard, the encoder
 and its deviation, the motor current, the events a host or a program sees, and time.  It
 reaches its chip only through a *driver* (:class:`axes.core.ChipDriver`), the chip-specific
-half of the firmware that speaks the chip's SPI datagrams (``axes/tmc4210_firmware.py`` for
+half of the firmware that speaks the chip's SPI datagrams (``axes/chips/tmc42x/tmc4210_firmware.py`` for
 the TMC4210).  The mechanics and the input stage are the :class:`axes.board.AxisBoard`.
 
 Time: the axis keeps the simulated time it was last advanced to.  To find its next event it
@@ -21,16 +21,13 @@ from dataclasses import dataclass
 from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
-from axes.interface import AxisEvent, AxisEventKind, AxisStatus
+from axes.interface import Axis, AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld, LoadZone, Switch
-from tmcl_spec.numbers import NS_PER_MS, NS_PER_S, to_int32
+from tmcl_spec.numbers import NS_PER_MS, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
 
-#: How far ahead the firmware looks for the next event; also bounds how many steps pass
-#: between two reads of a 24-bit position register (4 s at 1 Mpps is well below 2**23).
-LOOKAHEAD_NS = 4 * NS_PER_S
 #: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
 #: it the look-ahead stops short and the axis looks again from there when that time comes.
 LOOKAHEAD_BUDGET = 2_000
@@ -64,7 +61,6 @@ PRESCALER_FUNCTION_BITS = 0x1F
 # == the axis ==================================================================================
 
 
-_UNKNOWN = object()  # lookahead not computed since the last change
 _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
 
 #: Parameters every TMCL module's table has (the others may be missing and count as off,
@@ -95,8 +91,11 @@ class _Lookahead:
     time_ns: int
 
 
-class AxisFirmware:
-    """One TMCL axis: axis parameters in, datagrams to its chip (through the driver) out."""
+class AxisFirmware(Axis):
+    """One TMCL axis: axis parameters in, datagrams to its chip (through the driver) out.
+
+    A core's axis class subclasses it with the :class:`axes.interface.Axis` constructor and
+    passes the factory of its driver."""
 
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec], world: AxisWorld | None,
                  make_driver: DriverFactory) -> None:
@@ -111,18 +110,20 @@ class AxisFirmware:
         #: The modelled motor driver IC the chip driver reaches (the TMC262 of the TMC429
         #: modules): stallGuard2, coolStep and the current act on it.  Without one, they come
         #: from axes/stallguard.py (docs/motion.md, "stallGuard2 and coolStep").
-        self.motor_driver: MotorDriverLink | None = getattr(self.driver, "motor_driver", None)
+        self.motor_driver: MotorDriverLink | None = self.driver.motor_driver
         #: Chip-specific parameters the driver reads from its chip (e.g. AP 135, AP 138).
         self._chip_live: frozenset[int] = frozenset(
-            getattr(self.driver, "live_parameters", frozenset()) & parameters.keys())
+            self.driver.live_parameters & parameters.keys())
         #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
         self._encoder_prescaler = AP.FULLSTEPS not in parameters
         #: How far the look-ahead runs the chip; a driver may ask for another horizon.
-        self._lookahead_ns: int = getattr(self.driver, "lookahead_ns", LOOKAHEAD_NS)
+        self._lookahead_ns: int = self.driver.lookahead_ns
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
-        #: The chip's next notable instant; None = nothing ahead, _UNKNOWN = not computed.
-        self._lookahead_cache: _Lookahead | object | None = _UNKNOWN
+        #: The chip's next notable instant (None: nothing ahead), once computed since the last
+        #: change (``_lookahead_known``).
+        self._lookahead_cache: _Lookahead | None = None
+        self._lookahead_known = False
         self._target = 0  # AP 0, 32 bit
         self._positioning = False
         self._awaiting_arrival = False
@@ -159,18 +160,19 @@ class AxisFirmware:
     # == time ==================================================================================
 
     def _invalidate(self) -> None:
-        self._lookahead_cache = _UNKNOWN
+        self._lookahead_known = False
 
     def _lookahead(self) -> _Lookahead | None:
         """Run a copy of the chip to its next notable instant (or the horizon)."""
-        if self._lookahead_cache is not _UNKNOWN:
-            return self._lookahead_cache  # type: ignore[return-value]
+        if self._lookahead_known:
+            return self._lookahead_cache
         twin = self.chip.clone()
         horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + self._lookahead_ns
         stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))
         self._lookahead_cache = result
+        self._lookahead_known = True
         return result
 
     def _timer_due(self) -> int | None:
@@ -202,8 +204,8 @@ class AxisFirmware:
         while True:
             ahead = self._lookahead()
             timer = self._timer_due()
-            chip_at = ahead.time_ns if ahead is not None else None
-            if chip_at is not None and chip_at <= t_ns and (timer is None or chip_at <= timer):
+            if ahead is not None and (chip_at := ahead.time_ns) <= t_ns and (
+                    timer is None or chip_at <= timer):
                 try:
                     self.driver.chip = self.driver.chip.adopt(ahead.chip)
                 except StaleLookahead:
@@ -265,7 +267,7 @@ class AxisFirmware:
                 if self._rfs is None:
                     self._emit(AxisEventKind.TARGET_REACHED)
         if self._rfs is not None:
-            self._rfs_step()
+            self._rfs_step(self._rfs)
         self._check_stall()
         self._check_deviation()
         self._update_marks()
@@ -380,7 +382,7 @@ class AxisFirmware:
             return 0
         plan, inverted = reference_plan(self._params[AP.RFS_MODE])
         self._abort_search()
-        self._rfs = ReferenceSearch(plan, inverted, points={})
+        self._rfs = ReferenceSearch(plan, inverted)
         self._errors = 0
         self.driver.configure_stops(searching=True)
         self._rfs_enter()
@@ -393,10 +395,10 @@ class AxisFirmware:
             self._rfs_state = 0
             self.driver.configure_stops(searching=False)
 
-    def _search_level(self, switch: str) -> bool:
+    def _search_level(self, search: ReferenceSearch, switch: str) -> bool:
         left, right, home = self._levels
         if switch == "home":
-            return home != self._rfs.inverted_home
+            return home != search.inverted_home
         return left if switch == "left" else right
 
     def _rfs_enter(self) -> None:
@@ -406,59 +408,57 @@ class AxisFirmware:
             self._rfs_state = search.index + 1
             phase = search.phase
             if phase.kind == "finish":
-                self._rfs_finish_move()
+                self._rfs_finish_move(search)
                 return
             want_active = phase.kind != "leave"
-            if self._search_level(phase.switch) == want_active:
-                self._rfs_phase_done()
+            if self._search_level(search, phase.switch) == want_active:
+                self._rfs_phase_done(search)
                 search = self._rfs
                 continue
             fast = phase.kind == "seek"
             speed = self._params[AP.RFS_SPEED if fast else AP.RFS_SWITCH_SPEED]
             search.direction = phase.direction
-            if phase.reverse_on and self._search_level(phase.reverse_on):
-                self._rfs_reverse()
+            if phase.reverse_on and self._search_level(search, phase.reverse_on):
+                self._rfs_reverse(search)
             self._start_velocity(search.direction * speed)
             return
 
-    def _rfs_phase_done(self) -> None:
-        search = self._rfs
+    def _rfs_phase_done(self, search: ReferenceSearch) -> None:
         phase = search.phase
         if phase.record:
             search.points[phase.record] = self._position
         self._hard_stop()
         search.index += 1
 
-    def _rfs_step(self) -> None:
+    def _rfs_step(self, search: ReferenceSearch) -> None:
         """React to switch levels during a search (called at every notable instant)."""
-        search = self._rfs
         phase = search.phase
         if phase.kind == "finish":
             if not self._awaiting_arrival and self._position == self._target:
                 self._rfs_complete()
             return
-        if phase.reverse_on and not search.reversed_once and self._search_level(phase.reverse_on):
-            self._rfs_reverse()
+        if (phase.reverse_on and not search.reversed_once
+                and self._search_level(search, phase.reverse_on)):
+            self._rfs_reverse(search)
             self._hard_stop()
             self._start_velocity(search.direction * self._params[AP.RFS_SPEED])
             self._update_marks()
             return
         want_active = phase.kind != "leave"
-        if self._search_level(phase.switch) == want_active:
-            self._rfs_phase_done()
+        if self._search_level(search, phase.switch) == want_active:
+            self._rfs_phase_done(search)
             self._rfs_enter()
 
-    def _rfs_reverse(self) -> None:
+    def _rfs_reverse(self, search: ReferenceSearch) -> None:
         """Modes 5/6 hit the limit switch: search the other way, and calibrate that way too."""
-        search = self._rfs
         search.reversed_once = True
         search.direction = -search.direction
         for phase in search.phases[search.index + 1:]:
             phase.direction = -phase.direction
 
-    def _rfs_finish_move(self) -> None:
-        zero, distance = reference_point(self._rfs.points)
-        self._rfs.points["zero"] = zero
+    def _rfs_finish_move(self, search: ReferenceSearch) -> None:
+        zero, distance = reference_point(search.points)
+        search.points["zero"] = zero
         if distance is not None:
             self._params[AP.SWITCH_DISTANCE] = distance
         self._start_positioning(zero, self._params[AP.RFS_SWITCH_SPEED])
@@ -506,7 +506,9 @@ class AxisFirmware:
         threshold = self._params[AP.STOP_ON_STALL]
         watching = False
         if threshold and self._standstill_since is None:
-            stalled = self._driver_stalled() if self.motor_driver is not None else self._load() == 0
+            motor_driver = self.motor_driver
+            stalled = (self._driver_stalled(motor_driver) if motor_driver is not None
+                       else self._load() == 0)
             if stalled and abs(self._actual_speed()) >= threshold:
                 self._abort_search()
                 self._hard_stop()
@@ -517,7 +519,7 @@ class AxisFirmware:
                 watching = True
         self._stall_watch = watching
 
-    def _driver_stalled(self) -> bool:
+    def _driver_stalled(self, motor_driver: MotorDriverLink) -> bool:
         """The modelled driver's stallGuard2 flag, once it is from this motion: the driver
         measures at full steps (four with the filter), so until the motor has made that
         many since it started the flag is the last motion's and the firmware ignores it."""
@@ -526,7 +528,7 @@ class AxisFirmware:
             full_step *= stallguard.FILTER_FULL_STEPS
         if abs(self.chip.motor_position - self._motion_origin) < full_step:
             return False
-        return self.motor_driver.stalled()  # type: ignore[union-attr]
+        return motor_driver.stalled()
 
     def _update_coolstep(self) -> None:
         """Bring coolStep's current scale up to the present (called at every position read)."""
@@ -665,7 +667,7 @@ class AxisFirmware:
         if number not in _LIVE_PARAMETERS:
             if number in self._chip_live:
                 self._sync()
-                return self.driver.read_parameter(number)  # type: ignore[attr-defined]
+                return self.driver.read_parameter(number)
             return self._params[number]  # configuration: no need to bring the chip up to date
         self._sync()
         if number == AP.TARGET_POSITION:
@@ -744,15 +746,14 @@ class AxisFirmware:
                 self._positioning = False
                 self._awaiting_arrival = False
             return
-        set_mode = getattr(self.driver, "set_positioning_mode", None)
-        if self._positioning and set_mode is not None:
-            set_mode()
+        if self._positioning:
+            self.driver.set_positioning_mode()
 
     def _pins_changed(self) -> None:
         self.chip.set_pins(*self.board.pins(self.chip.motor_position))
         self._check_levels()
         if self._rfs is not None:
-            self._rfs_step()
+            self._rfs_step(self._rfs)
 
     # == the world =============================================================================
 

@@ -3,13 +3,22 @@
 Time is an integer count of nanoseconds of *simulated* time, passed in by the caller; an
 axis never reads a clock.  That keeps every axis deterministic and lets the simulator jump
 from event to event on a virtual clock.
+
+Two halves, as abstract base classes: :class:`AxisControl` is what the module's firmware
+needs of an axis (TMCL commands and time), :class:`AxisRig` what the test rig around it needs
+(the world, faults of the mechanics, telemetry); :class:`Axis` is both, and is what a chip
+core's axis class subclasses (``axes/cores.py``).
 """
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
+
+from tmcl_spec.parameters import ParamSpec
 
 if TYPE_CHECKING:
     from axes.world import AxisWorld, LoadZone, Switch
@@ -62,86 +71,116 @@ class AxisStatus:
     mechanical_position: int = 0
 
 
-class Axis(Protocol):
-    """One axis as the TMCL firmware sees it: commands in, axis parameters in and out."""
+class AxisControl(ABC):
+    """One axis as the TMCL firmware sees it: commands in, axis parameters in and out, time."""
 
     index: int
 
+    @abstractmethod
     def advance_to(self, t_ns: int) -> list[AxisEvent]:
         """Run the motion up to simulated time ``t_ns``; return the events that happened."""
-        ...
 
+    @abstractmethod
     def next_event_ns(self) -> int | None:
         """Earliest future time at which something observable happens by itself, if any."""
-        ...
 
+    @abstractmethod
     def rotate(self, velocity: int) -> None:
         """ROR/ROL: velocity mode with a signed target velocity (pps)."""
-        ...
 
+    @abstractmethod
     def stop(self) -> None:
         """MST: velocity mode, target velocity 0 (a ramped stop)."""
-        ...
 
+    @abstractmethod
     def move_to(self, target: int) -> None:
         """MVP: positioning mode towards an absolute target."""
-        ...
 
+    @abstractmethod
     def emergency_stop(self) -> None:
         """Stop at once (heartbeat timeout, deviation, stall)."""
-        ...
 
+    @abstractmethod
     def get_parameter(self, number: int) -> int:
         """GAP: the value of an axis parameter (already validated against the table)."""
-        ...
 
+    @abstractmethod
     def set_parameter(self, number: int, value: int) -> None:
         """SAP: write an axis parameter; raise ValueError if the firmware refuses the value."""
-        ...
 
+    @abstractmethod
     def reference_search(self, action: int) -> int:
         """RFS START (0) / STOP (1) / STATUS (2); STATUS returns 0 when no search runs."""
-        ...
 
-    def status(self) -> AxisStatus:
-        """Everything telemetry shows about the axis, without side effects."""
-        ...
-
+    @abstractmethod
     def register_access(self, address: int, value: int | None = None) -> int:
         """Commands 146/147: one raw datagram to the chip (None reads); the chip's answer."""
-        ...
 
-    # -- the world around the axis (world file, run-time API) ---------------------------------
+    def reset_board(self) -> None:
+        """Command 143 type 0 of the evaluation system: the board is detected again and its
+        chip configured anew.  A TMCL module's axis has no such board: nothing happens."""
+        return
+
+
+class AxisRig(ABC):
+    """One axis as the rig around it sees it: the world (world file, run-time API), faults of
+    the mechanics and the wiring (tmcl_server/faults.py), and telemetry."""
 
     @property
+    @abstractmethod
     def world(self) -> AxisWorld:
-        ...
+        """The switches, load zones, encoder and faults around this axis."""
 
+    @abstractmethod
     def set_world(self, world: AxisWorld) -> None:
         """Replace the switches, load zones and encoder of this axis (edges happen now)."""
-        ...
 
+    @abstractmethod
     def set_switch(self, name: str, switch: Switch | None) -> None:
         """Place (or with None remove) the "left", "right" or "home" switch."""
-        ...
 
+    @abstractmethod
     def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
-        ...
+        """Replace the load zones (and the load outside them, unless None)."""
 
+    @abstractmethod
     def set_encoder_slip(self, slip: float) -> None:
-        ...
+        """The fraction of the motion the encoder misses (0..1; ValueError outside)."""
 
-    # -- faults of the mechanics and the wiring (tmcl_server/faults.py) -----------------------
-
+    @abstractmethod
     def set_stuck(self, stuck: bool, load: int | None = None) -> None:
         """The motor stops following its steps (or follows them again); ``load``: what
         stallGuard2 reads meanwhile (None: the world's load)."""
-        ...
 
+    @abstractmethod
     def break_switch(self, name: str, level: bool | None) -> None:
         """Hold a switch input at an electrical level (None: repaired)."""
-        ...
 
+    @abstractmethod
     def place_mechanics(self, mechanical: int) -> None:
         """After a restart: the mechanics stand at ``mechanical`` (the counters start at 0)."""
-        ...
+
+    @abstractmethod
+    def status(self) -> AxisStatus:
+        """Everything telemetry shows about the axis, without side effects."""
+
+
+class Axis(AxisControl, AxisRig):
+    """The whole contract of an axis: what a chip core's axis class implements.
+
+    A core's axis class is built as ``cls(index, parameters, world=..., clock_hz=...)``
+    (:meth:`build_axes`, :func:`axes.cores.make_axis`): a subclass keeps that signature.
+    """
+
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec],
+                 world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
+        """Axis ``index`` with the module's axis-parameter table, the world around it (None:
+        an empty one) and its chip's clock (None: the chip's own default)."""
+        self.index = index
+
+    @classmethod
+    def build_axes(cls, count: int, parameters: Mapping[int, ParamSpec],
+                   clock_hz: int | None = None) -> list[Axis]:
+        """A module's ``count`` axes on this core: one chip per axis.  A chip that drives
+        several motors overrides this to build them in groups sharing a chip."""
+        return [cls(index, parameters, clock_hz=clock_hz) for index in range(count)]

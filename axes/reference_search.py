@@ -8,7 +8,7 @@ the sequences where the manual's figures are missing are explained in docs/motio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass(slots=True)
@@ -87,7 +87,8 @@ class ReferenceSearch:
     phases: list[Phase]
     inverted_home: bool
     index: int = 0
-    points: dict[str, int] | None = None
+    #: Positions recorded on the way, by the phases' ``record`` names.
+    points: dict[str, int] = field(default_factory=dict)
     direction: int = 0
     reversed_once: bool = False
 

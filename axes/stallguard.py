@@ -70,7 +70,7 @@ def regulate(scale: int, above: int, measurements: int, sg_reading: int, semin: 
     Below ``SEMIN * 32`` every measurement raises the scale by 1, 2, 4 or 8 (SEUP); at or
     above ``(SEMIN + SEMAX + 1) * 32`` every 32, 8, 2 or 1 measurements (SEDN) lower it by 1;
     in between it stays.  It never leaves ``lowest..full``.  The firmware's model
-    (:class:`CoolStep`) and the TMC262 model (axes/tmc262.py) both regulate with this.
+    (:class:`CoolStep`) and the TMC262 model (axes/chips/tmc42x/tmc262.py) both regulate with this.
     """
     if not measurements:
         return scale, above

@@ -375,7 +375,10 @@ def locate_key(text: str, where: KeyPath) -> int | None:
         name = f"{prefix}.{part}" if prefix else part
         headers = [n for n in range(start, end) if _header(lines[n]) == name]
         if headers:
-            index = parts.pop(0) if parts and isinstance(parts[0], int) else 0
+            index = 0
+            if parts and isinstance(following := parts[0], int):  # the n-th such table
+                index = following
+                del parts[0]
             if index >= len(headers):
                 return found
             top = headers[index]

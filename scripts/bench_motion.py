@@ -36,7 +36,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.units import choose_pulse_div, choose_ramp_div, velocity_register
+from axes.chips.tmc42x.units import choose_pulse_div, choose_ramp_div, velocity_register
 from tmcl_server.clock import VirtualClock
 from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import Request

@@ -21,17 +21,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.core import Stop
-from axes.tmc42x import MASK24, MotorReg, datagram
-from axes.tmc429 import TMC429, GlobalReg, motor_address
-from axes.tmc4210 import EN_SD, TMC4210, Reg
-from axes.units import (
+from axes.chips.tmc42x.engine import MASK24, MotorReg, datagram
+from axes.chips.tmc42x.tmc429 import TMC429, GlobalReg, motor_address
+from axes.chips.tmc42x.tmc4210 import EN_SD, TMC4210, Reg
+from axes.chips.tmc42x.units import (
     choose_pulse_div,
     choose_ramp_div,
     pmul_pdiv,
     stop_speed,
     velocity_register,
 )
+from axes.core import Stop
 
 SPEED = 51200
 ACCELERATION = 51200

@@ -25,24 +25,24 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.core import Stop
-from axes.tmc4210 import EN_SD, MASK24, TMC4210, RampMode
-from axes.tmc4210 import Reg as Reg4210
-from axes.tmc4210 import datagram as datagram4210
-from axes.tmc4361a import (
+from axes.chips.tmc42x.tmc4210 import EN_SD, MASK24, TMC4210, RampMode
+from axes.chips.tmc42x.tmc4210 import Reg as Reg4210
+from axes.chips.tmc42x.tmc4210 import datagram as datagram4210
+from axes.chips.tmc42x.units import (
+    choose_pulse_div,
+    choose_ramp_div,
+    pmul_pdiv,
+    stop_speed,
+)
+from axes.chips.tmc42x.units import velocity_register as velocity_register_4210
+from axes.chips.tmc4361a import (
     TMC4361A,
     Reg,
     acceleration_register,
     bow_register,
     velocity_register,
 )
-from axes.units import (
-    choose_pulse_div,
-    choose_ramp_div,
-    pmul_pdiv,
-    stop_speed,
-)
-from axes.units import velocity_register as velocity_register_4210
+from axes.core import Stop
 
 CLOCK_HZ = 16_000_000
 AXES = 6

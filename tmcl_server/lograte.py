@@ -29,7 +29,7 @@ WIRE_LOGGERS = (
     "tmcl_server.transports.mqtt.bridge",
     "tmcl_server.simulation",
     "tmcl_server.dashboard.web",
-    "axes.tmc42x_firmware",
+    "axes.chips.tmc42x.firmware",
     "asyncio",  # the loop's own reports: "socket.accept() out of system resource", ...
 )
 

@@ -1,6 +1,6 @@
 """A literal, one-clk32-tick-at-a-time transcription of the digest's reference model (§4.8).
 
-Slow on purpose: it is the yardstick the fast engine in axes/tmc4210.py is tested against
+Slow on purpose: it is the yardstick the fast engine in axes/chips/tmc42x/tmc4210.py is tested against
 (tests/test_tmc4210.py), not part of the simulator.
 Stop switches are modelled as levels that stay put (``left`` / ``right`` active, the soft-stop
 bit, the disable bits and the tolerance window of REF_CONF): what the ramp generator does with
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from math import isqrt
 
-from axes.tmc4210 import DISTANCE_LIMIT, RampMode, sdiff24
+from axes.chips.tmc42x.tmc4210 import DISTANCE_LIMIT, RampMode, sdiff24
 
 
 class ReferenceChip:

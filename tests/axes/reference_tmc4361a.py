@@ -9,7 +9,7 @@ doing what velocity mode would do only while the final approach started one cloc
 would still end short of its aim point (a landing margin past the entry of the target step).
 The braking distance is found by simply running the final approach on a copy, tick by tick
 (memoised; a final approach longer than a million clocks counts as never ending).  Slow on
-purpose: ``tests/axes/test_tmc4361a.py`` compares the fast engine of ``axes/tmc4361a`` with
+purpose: ``tests/axes/test_tmc4361a.py`` compares the fast engine of ``axes/chips/tmc4361a`` with
 it.  No switches, events or encoder here: motion only.
 """
 

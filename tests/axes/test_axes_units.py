@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from axes.units import (
+from axes.chips.tmc42x.units import (
     a_max_lower_limit,
     a_max_upper_limit,
     acceleration_rate,

@@ -11,11 +11,11 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from axes.chips.tmc42x.tmc4210_firmware import TMC4210Axis
+from axes.chips.tmc42x.units import acceleration_rate, step_rate
+from axes.chips.tmc4361a.firmware import TMC4361AAxis
 from axes.firmware import AxisFirmware
 from axes.interface import AxisEvent, AxisEventKind
-from axes.tmc4210_firmware import TMC4210Axis
-from axes.tmc4361a_firmware import TMC4361AAxis
-from axes.units import acceleration_rate, step_rate
 from axes.world import AxisWorld, LoadZone, Switch
 
 NS = 1_000_000_000

@@ -9,9 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from axes.core import Stop
-from axes.tmc42x import MotorReg
-from axes.tmc262 import (
+from axes.chips.tmc42x.engine import MotorReg
+from axes.chips.tmc42x.tmc262 import (
     SG_PER_SGT,
     STANDSTILL_CLOCKS,
     TMC262,
@@ -21,7 +20,8 @@ from axes.tmc262 import (
     ReadSelect,
     drv_datagram,
 )
-from axes.tmc429 import EN_SD, TMC429, GlobalReg
+from axes.chips.tmc42x.tmc429 import EN_SD, TMC429, GlobalReg
+from axes.core import Stop
 from axes.world import DEFAULT_LOAD
 
 

@@ -11,7 +11,8 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from axes.tmc4210 import (
+from axes.chips.tmc42x.engine import GlobalReg, MotorReg
+from axes.chips.tmc42x.tmc4210 import (
     EN_SD,
     MASK24,
     MOT1R,
@@ -24,7 +25,7 @@ from axes.tmc4210 import (
     datagram,
     signed,
 )
-from axes.units import pmul_pdiv, stop_speed
+from axes.chips.tmc42x.units import pmul_pdiv, stop_speed
 from tests.axes.reference_tmc4210 import ReferenceChip
 
 IDLE_STATUS = 0x15
@@ -35,6 +36,12 @@ def status(chip: TMC4210) -> int:
 
 
 # == register file =============================================================================
+
+
+def test_the_register_names_are_the_families_axis_and_global_registers() -> None:
+    """Reg is spelt out for the type checker: it must stay MotorReg and GlobalReg, in order."""
+    family = [(member.name, member.value) for table in (MotorReg, GlobalReg) for member in table]
+    assert [(member.name, member.value) for member in Reg] == family
 
 
 def test_power_on_values_and_idle_status() -> None:

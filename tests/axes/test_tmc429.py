@@ -12,9 +12,8 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from axes.core import Stop
-from axes.tmc42x import MASK24, Irq, MotorReg, RampMode, datagram, signed
-from axes.tmc429 import (
+from axes.chips.tmc42x.engine import MASK24, Irq, MotorReg, RampMode, datagram, signed
+from axes.chips.tmc42x.tmc429 import (
     EN_REFR,
     EN_SD,
     INV_REF,
@@ -30,7 +29,14 @@ from axes.tmc429 import (
     TMC429Motor,
     motor_address,
 )
-from axes.units import choose_pulse_div, choose_ramp_div, pmul_pdiv, stop_speed, velocity_register
+from axes.chips.tmc42x.units import (
+    choose_pulse_div,
+    choose_ramp_div,
+    pmul_pdiv,
+    stop_speed,
+    velocity_register,
+)
+from axes.core import Stop
 from tests.axes.reference_tmc4210 import ReferenceChip
 
 IDLE_STATUS = 0x15  # no INT, no CDGW, no switch, all three motors at target

@@ -5,9 +5,9 @@ and TMC262 drivers configured and read through the chain.
 
 from __future__ import annotations
 
-from axes.tmc42x import MotorReg, RampMode
-from axes.tmc262 import TMC262, DrvReg, ReadSelect, drv_datagram
-from axes.tmc429 import (
+from axes.chips.tmc42x.engine import MotorReg, RampMode
+from axes.chips.tmc42x.tmc262 import TMC262, DrvReg, ReadSelect, drv_datagram
+from axes.chips.tmc42x.tmc429 import (
     CONTINUOUS_UPDATE,
     EN_SD,
     NXM,

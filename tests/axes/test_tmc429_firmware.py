@@ -11,19 +11,19 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from axes.cores import make_axes
-from axes.interface import AxisEventKind
-from axes.tmc42x import MotorReg, RampMode
-from axes.tmc429 import EN_REFR, EN_SD, SDO_INT, TYPE_VERSION, GlobalReg, motor_address
-from axes.tmc429_firmware import TMC429Axis
-from axes.tmc4210_firmware import TMC4210Axis
-from axes.units import (
+from axes.chips.tmc42x.engine import MotorReg, RampMode
+from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, SDO_INT, TYPE_VERSION, GlobalReg, motor_address
+from axes.chips.tmc42x.tmc429_firmware import TMC429Axis
+from axes.chips.tmc42x.tmc4210_firmware import TMC4210Axis
+from axes.chips.tmc42x.units import (
     a_max_lower_limit,
     a_max_upper_limit,
     acceleration_rate,
     pmul_pdiv,
     step_rate,
 )
+from axes.cores import make_axes
+from axes.interface import AxisEventKind
 from axes.world import AxisWorld, LoadZone, Switch
 from tmcl_spec.numbers import NS_PER_S
 from tmcl_spec.parameters import AP

@@ -17,8 +17,7 @@ import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
-from axes.core import Stop
-from axes.tmc4361a import (
+from axes.chips.tmc4361a import (
     TMC4361A,
     Event,
     RefConf,
@@ -31,6 +30,7 @@ from axes.tmc4361a import (
     velocity_pps,
     velocity_register,
 )
+from axes.core import Stop
 from tests.axes.reference_tmc4361a import ReferenceRamp, Registers
 
 MASK32 = 0xFFFF_FFFF

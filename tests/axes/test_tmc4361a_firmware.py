@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import pytest
 
+from axes.chips.tmc4361a import Reg
+from axes.chips.tmc4361a.firmware import TMC4361AAxis
 from axes.interface import AxisEventKind
-from axes.tmc4361a import Reg
-from axes.tmc4361a_firmware import TMC4361AAxis
 from tests.axes.test_axis_firmware import Harness
 from tests.axes.test_tmc4361a import _s_time, _sixpoint_time
 from tmcl_spec.parameters import AP

@@ -25,8 +25,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from axes.tmc42x import RampMode
-from axes.tmc4210 import TMC4210
+from axes.chips.tmc42x.engine import RampMode
+from axes.chips.tmc42x.tmc4210 import TMC4210
 from tmcl_server.clock import VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCLModule

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from axes.tmc42x import RampMode
+from axes.chips.tmc42x.engine import RampMode
 from tests.conftest import RawClient
 from tests.helpers.work_fuzz import CORES, TICKS_PER_S, Cost, engine_for, run_engine, trial, trial_rng
 from tmcl_server.clock import VirtualClock

@@ -22,12 +22,13 @@ from tmcl_server.faults import (
     load_fault_file,
     parse_fault,
 )
-from tmcl_server.module import TMCM6212
+from tmcl_server.module import TMCM6212, TMCLModule
 from tmcl_server.protocol import Reply, Request
 from tmcl_server.simulation import Simulation
 from tmcl_server.trace import Tracer
 from tmcl_server.transports.mqtt.fault_topics import apply_fault_message
 from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.modules import MODULE_TYPES
 from tmcl_spec.parameters import AP, GP
 
 
@@ -296,6 +297,39 @@ def test_a_broken_switch_reads_stuck_and_stops_the_motor_like_a_real_one() -> No
     rig.send(Opcode.MVP, 0, 2, 100)
     rig.simulation.advance(1.0)
     assert rig.gap(AP.ACTUAL_POSITION, 2) == 100 and rig.gap(AP.HOME_SWITCH, 2) == 0
+
+
+@pytest.mark.parametrize(("kind", "core"), [*((kind, None) for kind in MODULE_TYPES),
+                                           ("tmcm-6212", "tmc4361a")])
+def test_every_physical_fault_and_the_power_cycle_apply_on_every_core(kind: str, core: str | None) -> None:
+    """stuck, switch, sag and reset on each module type's own core (and the TMC4361A one): the
+    evaluation board's axis had no set_stuck, break_switch or place_mechanics (AttributeError)."""
+    module = TMCLModule(kind=kind, chip_core=core)
+    simulation = Simulation([module], VirtualClock())
+    faults = FaultInjector.of(simulation)
+    module.execute(Request(1, Opcode.ROR, 0, 0, 1000))
+    simulation.advance(0.5)
+    stuck = faults.add("stuck:axis=0")
+    before = module.axis(0).status()
+    simulation.advance(0.5)
+    after = module.axis(0).status()
+    assert after.position != before.position  # the motor keeps stepping ...
+    assert after.mechanical_position == before.mechanical_position  # ... the mechanics do not
+    faults.remove(stuck)
+    simulation.advance(0.1)
+    assert module.axis(0).status().mechanical_position != after.mechanical_position
+    module.execute(Request(1, Opcode.MST, 0, 0, 0))
+    simulation.advance(2.0)
+    switch = faults.add("switch:axis=0,switch=left,state=active")
+    assert module.axis(0).status().left_switch
+    faults.remove(switch)
+    assert not module.axis(0).status().left_switch
+    faults.remove(faults.add("sag:volts=9"))
+    mechanical = module.axis(0).status().mechanical_position
+    assert mechanical
+    faults.add("reset")  # a power cycle: the counters start again, the mechanics stay
+    status = module.axis(0).status()
+    assert status.position == 0 and status.mechanical_position == mechanical
 
 
 def test_a_supply_sag_and_its_end_through_gio() -> None:

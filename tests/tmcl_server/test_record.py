@@ -26,7 +26,7 @@ from tmcl_spec.parameters import AP
 
 SPEED = 51200  # AP 4, pps
 ACCELERATION = 25600  # AP 5, pps^2: the ramp to full speed takes SPEED / ACCELERATION = 2 s
-#: The chip's velocity register rounds AP 4 to its own step (axes/units.py): a read-back may
+#: The chip's velocity register rounds AP 4 to its own step (axes/chips/tmc42x/units.py): a read-back may
 #: exceed AP 4 by that much (51208 for 51200 on the TMC4210 at 16 MHz).
 VELOCITY_QUANTUM = 1e-3
 

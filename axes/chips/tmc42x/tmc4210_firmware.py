@@ -3,7 +3,7 @@
 :class:`TMC4210Driver` is what the module's microcontroller does with its TMC4210, and only
 that: it talks to the chip through :meth:`TMC4210.spi` datagrams.  The routines it shares with
 the TMC429 core (units, PULSE_DIV/RAMP_DIV and PMUL/PDIV, V_MIN, the 32-bit position fed to
-the chip's 24 bits in rolling pieces, switches, stops) are :class:`axes.tmc42x_firmware.
+the chip's 24 bits in rolling pieces, switches, stops) are :class:`axes.chips.tmc42x.firmware.
 TMC42xDriver`; this driver adds the TMC4210's set-up and its switch register.  Everything a
 TMCL axis does whatever its chip (reference search, stallGuard, encoder, current, events,
 time) is in :class:`axes.firmware.AxisFirmware`; :class:`TMC4210Axis` joins the two.
@@ -15,9 +15,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from axes.board import AxisBoard
-from axes.firmware import AxisFirmware
-from axes.tmc42x_firmware import ROLLING_REFRESH, ROLLING_SPAN, TMC42xDriver
-from axes.tmc4210 import (
+from axes.chips.tmc42x.firmware import ROLLING_REFRESH, ROLLING_SPAN, TMC42xDriver
+from axes.chips.tmc42x.tmc4210 import (
     DEFAULT_CLOCK_HZ,
     EN_SD,
     MOT1R,
@@ -25,6 +24,7 @@ from axes.tmc4210 import (
     TMC4210,
     Reg,
 )
+from axes.firmware import AxisFirmware
 from axes.world import AxisWorld
 from tmcl_spec.parameters import ParamSpec
 from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
@@ -58,8 +58,8 @@ class TMC4210Driver(TMC42xDriver):
 class TMC4210Axis(AxisFirmware):
     """One TMCM-6212 axis on a TMC4210: the TMCL firmware layer over the TMC4210 driver."""
 
-    def __init__(self, index: int, clock_hz: int = DEFAULT_CLOCK_HZ,
-                 world: AxisWorld | None = None,
-                 parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS) -> None:
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS,
+                 world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
+        clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         super().__init__(index, parameters, world,
-                         lambda params, board: TMC4210Driver(index, params, board, clock_hz))
+                         lambda params, board: TMC4210Driver(index, params, board, clock))

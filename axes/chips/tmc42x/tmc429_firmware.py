@@ -6,14 +6,14 @@ TMC429's driver chain (the stepRocker's open-source firmware does so; docs/modul
 
 * :class:`TMC429Driver` is the chip-specific half of an axis's firmware
   (:class:`axes.core.ChipDriver`): the TMC42x routines it shares with the TMC4210 core
-  (:class:`axes.tmc42x_firmware.TMC42xDriver`) on its motor's registers (``motor << 4 | IDX``),
+  (:class:`axes.chips.tmc42x.firmware.TMC42xDriver`) on its motor's registers (``motor << 4 | IDX``),
   the TMC429's set-up and its switch register.  It talks to the chip only through 32-bit SPI
   datagrams to the chip all its axes share.
 * :class:`TMC262Link` is the firmware's TMC262 routines for one axis
   (:class:`axes.core.MotorDriverLink`): the microstep, current, chopper, stallGuard2 and coolStep
   parameters are written to the TMC262 as 20-bit datagrams, AP 206/180/208 are read back from
   its status word.  stallGuard2 and coolStep are therefore the TMC262 model's
-  (axes/tmc262.py, which regulates with the law of axes/stallguard.py): one implementation.
+  (axes/chips/tmc42x/tmc262.py, which regulates with the law of axes/stallguard.py): one implementation.
 * :class:`TMC429Axis` joins a driver to :class:`axes.firmware.AxisFirmware`;
   :meth:`TMC429Axis.build_axes` builds a module's axes three to a chip.
 """
@@ -23,12 +23,14 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from axes.board import AxisBoard
+from axes.chips.tmc42x.engine import DEFAULT_CLOCK_HZ
+from axes.chips.tmc42x.firmware import TMC42xDriver
+from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
+from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
+from axes.core import MotorDriverLink
 from axes.firmware import AxisFirmware
+from axes.interface import Axis
 from axes.stallguard import CoolStep
-from axes.tmc42x import DEFAULT_CLOCK_HZ
-from axes.tmc42x_firmware import TMC42xDriver
-from axes.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
-from axes.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
 from axes.world import AxisWorld
 from tmcl_spec.parameters import AP, ParamSpec
 from tmcl_spec.tmc429_modules import AXIS_PARAMETERS_6110
@@ -42,7 +44,7 @@ SMGP_FIRMWARE = 0x000002
 READ_SELECT = ReadSelect.SG
 
 
-class TMC262Link:
+class TMC262Link(MotorDriverLink):
     """The firmware's TMC262 routines for one axis: software copies in, datagrams out.
 
     The registers are composed from the axis parameters (the firmware keeps them as its
@@ -191,23 +193,23 @@ class TMC429Driver(TMC42xDriver):
 class TMC429Axis(AxisFirmware):
     """One axis of a TMC429 module: the TMCL firmware layer over a TMC429 motor and its TMC262."""
 
-    def __init__(self, index: int, clock_hz: int = DEFAULT_CLOCK_HZ,
-                 world: AxisWorld | None = None,
-                 parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS_6110,
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS_6110,
+                 world: AxisWorld | None = None, clock_hz: int | None = None, *,
                  chip: TMC429 | None = None, motor: int | None = None) -> None:
         if chip is None:  # an axis of its own: motor 0 of a chip with one TMC262
-            chip, motor = TMC429(clock_hz, drivers=[TMC262()]), 0
+            clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
+            chip, motor = TMC429(clock, drivers=[TMC262()]), 0
         slot = index % NUMBER_OF_MOTORS if motor is None else motor
         super().__init__(index, parameters, world,
                          lambda params, board: TMC429Driver(index, params, board, chip, slot))
 
     @classmethod
     def build_axes(cls, count: int, parameters: Mapping[int, ParamSpec],
-                   clock_hz: int | None = None) -> list[TMC429Axis]:
+                   clock_hz: int | None = None) -> list[Axis]:
         """A module's ``count`` axes, three to a TMC429 (two chips for six), each with a TMC262."""
         clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         chips: Sequence[TMC429] = [
             TMC429(clock, drivers=[TMC262() for _ in range(min(NUMBER_OF_MOTORS, count - first))])
             for first in range(0, count, NUMBER_OF_MOTORS)]
-        return [cls(index, clock, parameters=parameters, chip=chips[index // NUMBER_OF_MOTORS],
+        return [cls(index, parameters, chip=chips[index // NUMBER_OF_MOTORS],
                     motor=index % NUMBER_OF_MOTORS) for index in range(count)]

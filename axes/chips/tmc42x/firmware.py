@@ -1,12 +1,12 @@
 """The firmware's routines for one motor of a TMC42x chip (TMC4210 or TMC429), shared by both.
 
-The TMC4210 is a one-motor cut of the TMC429 (``axes/tmc42x.py``): the sixteen axis registers
+The TMC4210 is a one-motor cut of the TMC429 (``axes/chips/tmc42x/engine.py``): the sixteen axis registers
 of a motor and their law (units, PULSE_DIV/RAMP_DIV, PMUL/PDIV, V_MIN, the 24-bit position)
 are the same, so is what the firmware does with them.  :class:`TMC42xDriver` is that common
 half of an :class:`axes.core.ChipDriver`; a chip's driver adds where its motor's registers
 are (``motor << 4 | IDX`` on the TMC429, IDX on the TMC4210), how the chip is set up at
-power-up and how its switch register is laid out (``axes/tmc4210_firmware.py``,
-``axes/tmc429_firmware.py``).  It talks to the chip through SPI datagrams only.
+power-up and how its switch register is laid out (``axes/chips/tmc42x/tmc4210_firmware.py``,
+``axes/chips/tmc42x/tmc429_firmware.py``).  It talks to the chip through SPI datagrams only.
 
 Two unit systems, chosen by the module's parameter table (docs/motion.md, "Units"):
 
@@ -17,31 +17,32 @@ Two unit systems, chosen by the module's parameter table (docs/motion.md, "Units
   the table has them (else they stay as they are), V_MIN is at least AP 130.
 
 Either way V_MIN is raised to what the chip needs to stop on the target
-(:func:`axes.units.stop_speed`), and PMUL/PDIV follow A_MAX (:func:`axes.units.pmul_pdiv`).
+(:func:`axes.chips.tmc42x.units.stop_speed`), and PMUL/PDIV follow A_MAX
+(:func:`axes.chips.tmc42x.units.pmul_pdiv`).
 """
 
 from __future__ import annotations
 
 import logging
+from abc import abstractmethod
 from collections.abc import Mapping
-from typing import Protocol
 
 from axes.board import AxisBoard
-from axes.core import ChipModel
-from axes.tmc42x import (
+from axes.chips.tmc42x.engine import (
     DISABLE_STOP_L,
     DISABLE_STOP_R,
     HALF24,
     MASK24,
     SOFT_STOP,
     Irq,
+    MotorEngine,
     MotorReg,
     RampMode,
     datagram,
     sdiff24,
     signed,
 )
-from axes.units import (
+from axes.chips.tmc42x.units import (
     DIVIDER_MAX,
     V_REGISTER_MAX,
     choose_pulse_div,
@@ -52,6 +53,7 @@ from axes.units import (
     stop_speed,
     velocity_register,
 )
+from axes.core import ChipDriver
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN, to_int32
 from tmcl_spec.parameters import AP
 
@@ -68,21 +70,15 @@ STOP_FLAG = 1 << Irq.STOP
 STOP_MASK = STOP_FLAG << 8
 
 
-class TMC42xChip(ChipModel, Protocol):
-    """A TMC42x chip (or one motor of it) as the firmware's routines drive it."""
-
-    def spi_data(self, frame: int) -> int:
-        """``spi(frame) & MASK24``, the data bits of the answer: the driver's reads ignore
-        the status byte, so a chip may skip sampling it (the frame acts the same)."""
-        ...
-
-
-class TMC42xDriver:
+class TMC42xDriver(ChipDriver):
     """The firmware's routines for one TMC42x motor (the common half of a ChipDriver).
 
-    Subclasses set :attr:`chip` and :attr:`motor`, and implement :meth:`setup_chip`
-    (global registers at power-up) and :meth:`levels` (the chip's switch register).
+    Subclasses pass the chip (a TMC42x :class:`MotorEngine`) and the motor, and implement
+    :meth:`setup_chip` (global registers at power-up) and :meth:`levels` (the chip's switch
+    register).
     """
+
+    chip: MotorEngine
 
     #: Name of the chip in log messages.
     chip_name = "TMC42x"
@@ -90,7 +86,7 @@ class TMC42xDriver:
     #: :meth:`read_parameter` for them): actual acceleration, ramp mode.
     live_parameters = frozenset({AP.ACTUAL_ACCELERATION, AP.RAMP_MODE})
 
-    def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard, chip: TMC42xChip,
+    def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard, chip: MotorEngine,
                  motor: int = 0) -> None:
         self.index = index
         #: The axis parameters (the firmware's dict, read here, never written).
@@ -125,9 +121,9 @@ class TMC42xDriver:
     def _read_global(self, address: int) -> int:
         return self.chip.spi_data(datagram(address, read=True))
 
+    @abstractmethod
     def setup_chip(self) -> None:
         """The chip's global registers as the firmware sets them at power-up."""
-        raise NotImplementedError
 
     def power_up(self) -> None:
         """Set up the chip, enable the int_stop interrupt (the firmware learns of hard switch
@@ -315,7 +311,7 @@ class TMC42xDriver:
         return bool(self.params[AP.SOFT_STOP] or self.params.get(AP.SOFT_STOP_FLAG, 0))
 
     def _write_ref_conf(self, mode: RampMode) -> None:
-        conf = mode
+        conf: int = mode
         if self._searching or self.params[AP.LEFT_DISABLE]:
             conf |= DISABLE_STOP_L
         if self._searching or self.params[AP.RIGHT_DISABLE]:

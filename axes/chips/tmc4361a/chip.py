@@ -1,7 +1,7 @@
 """One TMC4361A motion controller: its register file behind 40-bit SPI datagrams, and its motion.
 
-The register map and power-on values are in :mod:`axes.tmc4361a.registers`; the ramp
-generator (the motion law and the segment-jumping engine) in :mod:`axes.tmc4361a.ramp`.
+The register map and power-on values are in :mod:`axes.chips.tmc4361a.registers`; the ramp
+generator (the motion law and the segment-jumping engine) in :mod:`axes.chips.tmc4361a.ramp`.
 This module adds what a host sees around it: the one-frame read pipeline and the SPI status
 byte, separate read and write views of shared addresses, write side effects, STATUS flags and
 latched EVENTS (clear on read, EVENT_CLEAR_CONF, INTR), the stop switches and virtual stops,
@@ -19,8 +19,7 @@ from __future__ import annotations
 from functools import lru_cache
 from typing import Protocol, runtime_checkable
 
-from axes.core import Board, Stop
-from axes.tmc4361a.ramp import (
+from axes.chips.tmc4361a.ramp import (
     A_IDLE,
     A_START,
     A_WAIT,
@@ -31,7 +30,7 @@ from axes.tmc4361a.ramp import (
     RampRegisters,
     Stage,
 )
-from axes.tmc4361a.registers import (
+from axes.chips.tmc4361a.registers import (
     FLAG_EVENTS,
     MASK32,
     POWER_ON,
@@ -50,6 +49,7 @@ from axes.tmc4361a.registers import (
     datagram,
     signed32,
 )
+from axes.core import Board, ChipModel, Stop
 
 DEFAULT_CLOCK_HZ = 16_000_000
 #: Hidden STATUS bit (above the 32 real ones) that tracks the MAX_PHASE_TRAP condition.
@@ -85,7 +85,7 @@ class EncoderBoard(Board, Protocol):
         ...
 
 
-class TMC4361A:
+class TMC4361A(ChipModel):
     """The chip.  Host access is :meth:`spi`; the world drives pins through the board."""
 
     frame_bits = 40

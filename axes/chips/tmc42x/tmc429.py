@@ -9,9 +9,9 @@ Design
   and cover datagram, IF_CONFIGURATION, position compare, POWER_DOWN, TYPE_VERSION, the
   reference-switch register, SMGP), the 128 words of RAM, the status byte and :meth:`spi`.
 * Each motor is a :class:`TMC429Motor`: the shared TMC42x motor core
-  (:class:`axes.tmc42x.MotorEngine`: axis registers, switches, latch, interrupts, ramp and
+  (:class:`axes.chips.tmc42x.engine.MotorEngine`: axis registers, switches, latch, interrupts, ramp and
   pulse engine, identical to the TMC4210's) plus the motor's own board, its driver (a
-  :class:`axes.tmc262.TMC262` or nothing) and its own time ``t``.  A write to one motor's
+  :class:`axes.chips.tmc42x.tmc262.TMC262` or nothing) and its own time ``t``.  A write to one motor's
   registers never touches another; the chip pushes what its global registers mean for a
   motor (Step/Dir or chain, switch layout, ``inv_ref``, position compare, power-down) into
   the motor as wiring attributes.
@@ -44,8 +44,7 @@ from collections.abc import Sequence
 from enum import IntEnum
 from math import floor, pi, sin
 
-from axes.core import Board, StaleLookahead, Stop
-from axes.tmc42x import (
+from axes.chips.tmc42x.engine import (
     DEFAULT_CLOCK_HZ,
     MASK24,
     GlobalReg,
@@ -53,7 +52,8 @@ from axes.tmc42x import (
     MotorReg,
     datagram,
 )
-from axes.tmc262 import DATAGRAM_BITS, STANDSTILL_CLOCKS, TMC262, UNLOADED
+from axes.chips.tmc42x.tmc262 import DATAGRAM_BITS, STANDSTILL_CLOCKS, TMC262, UNLOADED
+from axes.core import Board, StaleLookahead, Stop
 
 TYPE_VERSION = 0x429101
 NUMBER_OF_MOTORS = 3

@@ -14,9 +14,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from axes.board import AxisBoard
+from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
+from axes.chips.tmc4361a.registers import MASK32, signed32
+from axes.core import ChipDriver
 from axes.firmware import AxisFirmware
-from axes.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
-from axes.tmc4361a.registers import MASK32, signed32
 from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_S, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
@@ -56,7 +57,7 @@ _READ_XACTUAL = datagram(Reg.XACTUAL)
 _READ_STATUS = datagram(Reg.STATUS)
 
 
-class TMC4361ADriver:
+class TMC4361ADriver(ChipDriver):
     """The firmware's TMC4361A routines for one axis (an :class:`axes.core.ChipDriver`)."""
 
     #: XACTUAL is the whole 32-bit AP 1: the look-ahead need not stop every 4 s to read it.
@@ -261,7 +262,7 @@ class TMC4361ADriver:
         DSTOP = the deceleration in force.  AP 21 is TZEROWAIT (direction reversals).
         """
         p = self.params
-        accelerations = {Reg.AMAX: p[AP.MAX_ACCELERATION]}
+        accelerations: dict[int, int] = {Reg.AMAX: p[AP.MAX_ACCELERATION]}
         if positioning:
             accelerations[Reg.DMAX] = p[AP.MAX_DECELERATION]
             six_point = p[AP.V1] > 0
@@ -386,8 +387,8 @@ class TMC4361ADriver:
 class TMC4361AAxis(AxisFirmware):
     """One TMCM-6212 axis on a TMC4361A: the TMCL firmware layer over the TMC4361A driver."""
 
-    def __init__(self, index: int, clock_hz: int = DEFAULT_CLOCK_HZ,
-                 world: AxisWorld | None = None,
-                 parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS) -> None:
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS,
+                 world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
+        clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         super().__init__(index, parameters, world,
-                         lambda params, board: TMC4361ADriver(index, params, board, clock_hz))
+                         lambda params, board: TMC4361ADriver(index, params, board, clock))

@@ -15,9 +15,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from axes.board import AxisBoard
-from axes.interface import AxisEvent, AxisStatus
-from axes.tmc4361a import TMC4361A, Reg, Status, datagram
-from axes.tmc4361a.registers import MASK32, POWER_ON, RESET_KEY, signed32
+from axes.chips.tmc4361a import TMC4361A, Reg, Status, datagram
+from axes.chips.tmc4361a.registers import MASK32, POWER_ON, RESET_KEY, signed32
+from axes.interface import Axis, AxisEvent, AxisStatus
 from axes.world import AxisWorld, LoadZone, Switch
 from tmcl_spec.numbers import to_int32
 from tmcl_spec.parameters import ParamSpec
@@ -73,11 +73,11 @@ def _c_div(value: int, divisor: int) -> int:
     return -quotient if value < 0 else quotient
 
 
-class TMC4361AEvalAxis:
-    """Motor 0 of a TMC4361A-EVAL, as the evaluation firmware drives it (an Axis)."""
+class TMC4361AEvalAxis(Axis):
+    """Motor 0 of a TMC4361A-EVAL, as the evaluation firmware drives it."""
 
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec] | None = None,
-                 world: AxisWorld | None = None, clock_hz: int = DEFAULT_CLOCK_HZ) -> None:
+                 world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
         self.index = index
         unknown = sorted(set(parameters or ()) - _SERVED)
         if unknown:
@@ -85,7 +85,7 @@ class TMC4361AEvalAxis:
                              f"not serve axis parameters {unknown} (module type "
                              f"landungsbruecke-tmc4361a)")
         self.board = EvalBoardInputs(world)
-        self.chip = TMC4361A(clock_hz, self.board)
+        self.chip = TMC4361A(DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz, self.board)
         self._now_ns = 0
         #: The TMC-API cache: last value written per address (reads of write-only ones).
         self._cache: dict[int, int] = {}
@@ -248,6 +248,7 @@ class TMC4361AEvalAxis:
     def set_world(self, world: AxisWorld) -> None:
         self._sync()
         self.board.set_world(world)
+        self.board.set_stuck(world.stuck, self.chip.motor_position)
         self._pins_changed()
 
     def set_switch(self, name: str, switch: Switch | None) -> None:
@@ -264,6 +265,40 @@ class TMC4361AEvalAxis:
         if not 0.0 <= slip <= 1.0:
             raise ValueError("slip must be between 0 and 1")
         self.board.world.encoder_slip = slip
+
+    # == faults of the mechanics and the wiring (tmcl_server/faults.py) ==========================
+
+    def set_stuck(self, stuck: bool, load: int | None = None) -> None:
+        """From now on the motor no longer follows its steps (or follows them again): the chip
+        keeps counting (XACTUAL moves on), the mechanics and the switches they actuate stay
+        where they stopped.  ENC_POS is the chip's own count of the steps on this board (no
+        encoder is modelled behind it), so it does not stop; ``load`` is kept in the world,
+        but nothing measures it without a driver board."""
+        self._sync()
+        world = self.board.world
+        world.stuck = stuck
+        world.stuck_load = load if stuck else None
+        self.board.set_stuck(stuck, self.chip.motor_position)
+        self.board.world_changed()
+        self._pins_changed()
+
+    def break_switch(self, name: str, level: bool | None) -> None:
+        """A broken switch: its line stays at the electrical ``level`` wherever the axis is
+        (as the world's levels are, before the board's pull-ups); None repairs it."""
+        self._sync()
+        if level is None:
+            self.board.world.broken_switches.pop(name, None)
+        else:
+            self.board.world.broken_switches[name] = level
+        self.board.world_changed()
+        self._pins_changed()
+
+    def place_mechanics(self, mechanical: int) -> None:
+        """After a restart: the mechanics stand at ``mechanical`` (world units) while the
+        chip's counters start from 0, so the world's switches stay where they are."""
+        self._sync()
+        self.board.place(mechanical, self.chip.motor_position)
+        self._pins_changed()
 
 
 def _velocity_register(pps: int) -> int:

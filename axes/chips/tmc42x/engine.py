@@ -4,8 +4,9 @@ The TMC4210 is a one-motor cut of the TMC429 (``shared/spec/tmc429.md`` §1): bo
 per motor, the same sixteen axis registers (IDX 0..15) and the same ramp and pulse generator.
 :class:`MotorEngine` is that motor: the axis registers, the switch logic, the latch, the
 interrupt flags, and the motion law of ``shared/spec/tmc4210.md`` §4.8.  A chip
-(:class:`axes.tmc4210.TMC4210`, :class:`axes.tmc429.TMC429`) owns the global registers and
-the SPI interface, and tells each engine how it is wired (see "Wiring" on the class).
+(:class:`axes.chips.tmc42x.tmc4210.TMC4210`, :class:`axes.chips.tmc42x.tmc429.TMC429`) owns
+the global registers and the SPI interface, and tells each engine how it is wired (see
+"Wiring" on the class).
 
 Motion follows the digest's reference model: a clk32 counter drives ramp ticks every
 ``2**RAMP_DIV`` and pulse ticks every ``2**PULSE_DIV`` clk32 periods, the velocity has 8
@@ -25,11 +26,12 @@ which the outside world changes so that the engine can stop there.
 from __future__ import annotations
 
 import copy
+from abc import abstractmethod
 from enum import IntEnum
 from math import isqrt
 from typing import Self
 
-from axes.core import Board, Stop
+from axes.core import Board, ChipModel, Stop
 from axes.search import first_true
 
 MASK24 = 0xFFFFFF
@@ -163,8 +165,12 @@ def datagram(address: int, data: int = 0, read: bool = False) -> int:
     return (address & 0x7F) << 25 | int(read) << 24 | (data & MASK24)
 
 
-class MotorEngine:
+class MotorEngine(ChipModel):
     """One motor of a TMC42x chip: axis registers, switches, latch, interrupts and motion.
+
+    The :class:`axes.core.ChipModel` of a TMC42x axis: a chip (the TMC4210) or a motor of
+    one (:class:`axes.chips.tmc42x.tmc429.TMC429Motor`) adds SPI (:meth:`spi`,
+    :meth:`spi_data`) and what a look-ahead copy is (:meth:`clone`, :meth:`adopt`).
 
     Wiring: the chip that owns the engine sets these plain attributes whenever its global
     registers change them (they are read on the engine's hot paths):
@@ -181,6 +187,8 @@ class MotorEngine:
 
     #: Bits of the IDX %1000 register that exist (the chip narrows or widens it).
     a_threshold_mask = 0x777FFF
+    #: Steps that reached the motor, unwrapped (a plain attribute: the engine moves it).
+    motor_position: int
 
     def __init__(self, clock_hz: int = DEFAULT_CLOCK_HZ, board: Board | None = None) -> None:
         if clock_hz <= 0:
@@ -228,6 +236,11 @@ class MotorEngine:
         self._work = 1  # loop iterations the last _fast took (run's work budget)
         self.ref_l = self.ref_r = self.gp_in = False  # electrical pin levels
         self._refresh_pins()
+
+    @abstractmethod
+    def spi_data(self, frame: int) -> int:
+        """``spi(frame) & MASK24``, the data bits of the answer: the firmware's reads ignore
+        the status byte, so a chip may skip sampling it (the frame acts the same)."""
 
     def at_rest(self) -> bool:
         """Stopped, and no ramp tick will start the motor again."""
@@ -494,6 +507,7 @@ class MotorEngine:
             return None
         d = abs(dx)
         mag = abs(vt)
+        low: int | None
         if mag == self.v_max and self.v_min >= self.v_max:
             low = 1  # V_MIN >= V_MAX: the clamped curve is V_MAX all the way to the target
         elif mag == self.v_max:
@@ -1027,13 +1041,14 @@ class MotorEngine:
     def _linear_batch(self, w: int, acc: int, d: int, room: int, max_ticks: int,
                       plan: tuple[int, int, int],
                       positioning: bool, fixed_target: int
-                      ) -> tuple[int, int, int, int, int | None] | None:
+                      ) -> tuple[int, int, int, int, int] | None:
         """Many ramp ticks of full-A_MAX slew at once (floor sums instead of a loop).
 
         ``w`` is the speed along the direction of travel (1/256 units).  In velocity mode the
         target is fixed; in ramp/soft mode it is the curve, and the batch ends before the tick
         at which the curve would limit the acceleration.  Returns (ticks, speed, accumulator,
-        steps, last target magnitude or None) or None if fewer than 16 ticks qualify.
+        steps, last target magnitude: 0 in velocity mode) or None if fewer than 16 ticks
+        qualify.
         """
         a_max = self.a_max
         if a_max == 0:
@@ -1070,7 +1085,7 @@ class MotorEngine:
             return None
         steps, new_acc = after(ticks)
         speed = w + ticks * a_max if rising else w - ticks * a_max
-        last_mag = None
+        last_mag = 0
         if positioning:
             before, _ = after(ticks - 1)
             last_mag = min(max(self._curve(d - before), self.v_min), self.v_max)

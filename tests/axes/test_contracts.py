@@ -1,0 +1,179 @@
+"""The contracts every chip core keeps (axes/interface.py, axes/core.py), checked on each entry of
+CHIP_CORES: what its axes, chips and drivers are, that nothing abstract is left, and one common
+behaviour (commands, time, the rig around the axis).  A new core is covered by its line in
+CHIP_CORES alone.
+"""
+
+from __future__ import annotations
+
+import inspect
+from functools import cache
+
+import pytest
+
+from axes.core import ChipDriver, ChipModel, MotorDriverLink
+from axes.cores import CHIP_CORES, axis_class, make_axes, make_axis
+from axes.firmware import AxisFirmware
+from axes.interface import Axis, AxisControl, AxisEvent, AxisEventKind, AxisRig, AxisStatus
+from axes.world import INFINITY, AxisWorld, LoadZone, Switch
+from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES, ModuleType, module_type
+from tmcl_spec.numbers import NS_PER_S
+from tmcl_spec.parameters import AP
+
+CORES = sorted(CHIP_CORES)
+#: ROR speed and MVP distance every core reaches in a few simulated seconds with its module
+#: type's defaults (pps, or the TMC429 modules' register units: a few thousand pps there too).
+SPEED = 1000
+DISTANCE = 3000
+
+
+@cache
+def profile(core: str) -> ModuleType:
+    """The module type that runs ``core`` with the most axes; a core no module type names
+    runs a TMCL module's axes (``--axis-core``): the default module type's."""
+    users = [module_type(key) for key in MODULE_TYPES if module_type(key).chip_core == core]
+    return max(users, key=lambda t: t.number_of_axes) if users else module_type(DEFAULT_MODULE_TYPE)
+
+
+def build(core: str) -> list[Axis]:
+    kind = profile(core)
+    return make_axes(core, kind.number_of_axes, kind.axis_parameters)
+
+
+def one_axis(core: str, world: AxisWorld | None = None) -> Axis:
+    return make_axis(core, 0, profile(core).axis_parameters, world=world)
+
+
+def implements_everything(obj: object, *contracts: type) -> None:
+    """No abstract member is left, and the attributes the contracts declare are set."""
+    cls = type(obj)
+    assert not inspect.isabstract(cls), f"{cls.__name__} leaves {sorted(cls.__abstractmethods__)}"
+    for contract in contracts:
+        assert isinstance(obj, contract), f"{cls.__name__} is no {contract.__name__}"
+        for name in contract.__abstractmethods__:
+            member = inspect.getattr_static(cls, name)
+            assert not getattr(member, "__isabstractmethod__", False), f"{cls.__name__}.{name}"
+        for name in inspect.get_annotations(contract):
+            if not name.startswith("_"):
+                assert hasattr(obj, name), f"{cls.__name__} has no {name} ({contract.__name__})"
+
+
+def advance(axis: Axis, now: int, until: int) -> list[AxisEvent]:
+    """From ``now`` to ``until`` from event to event, as the module does; no event is dated
+    after the time it was asked for."""
+    events: list[AxisEvent] = []
+    for _ in range(100_000):
+        due = axis.next_event_ns()
+        if due is None or due > until:
+            break
+        now = max(due, now)
+        batch = axis.advance_to(now)
+        assert all(event.time_ns <= now for event in batch)
+        events += batch
+    else:
+        pytest.fail("the axis never stops asking for the same instant")
+    events += axis.advance_to(until)
+    assert all(event.time_ns <= until for event in events)
+    return events
+
+
+def test_every_core_is_an_axis_class() -> None:
+    for core in CORES:
+        assert issubclass(axis_class(core), Axis)
+
+
+@pytest.mark.parametrize("core", CORES)
+def test_a_cores_axes_chips_and_drivers_are_the_contracts(core: str) -> None:
+    axes = build(core)
+    assert [axis.index for axis in axes] == list(range(profile(core).number_of_axes))
+    for axis in axes:
+        implements_everything(axis, Axis, AxisControl, AxisRig)
+        chip = axis.chip  # type: ignore[attr-defined]  # every core has one; not part of Axis
+        implements_everything(chip, ChipModel)
+        assert chip.clock_hz > 0 and isinstance(chip.t, int) and isinstance(chip.motor_position, int)
+        if isinstance(axis, AxisFirmware):
+            implements_everything(axis.driver, ChipDriver)
+            assert axis.driver.chip is chip
+            assert axis.driver.lookahead_ns > 0
+            link = axis.driver.motor_driver
+            if link is not None:
+                implements_everything(link, MotorDriverLink)
+
+
+@pytest.mark.parametrize("core", CORES)
+def test_a_rotation_moves_and_a_move_reaches_its_target_on_the_time_given(core: str) -> None:
+    axis = one_axis(core)
+    axis.advance_to(0)
+    axis.rotate(SPEED)
+    advance(axis, 0, NS_PER_S)
+    assert axis.get_parameter(AP.ACTUAL_POSITION) > 0
+    axis.stop()
+    advance(axis, NS_PER_S, 10 * NS_PER_S)
+    start = axis.get_parameter(AP.ACTUAL_POSITION)
+    target = start + DISTANCE
+    axis.move_to(target)
+    events = advance(axis, 10 * NS_PER_S, 40 * NS_PER_S)
+    assert axis.get_parameter(AP.ACTUAL_POSITION) == target
+    assert axis.status().position == target
+    if isinstance(axis, AxisFirmware):  # the TMCL firmware tells; the evaluation board has no events
+        assert [e.kind for e in events].count(AxisEventKind.TARGET_REACHED) == 1
+    axis.emergency_stop()
+    assert axis.reference_search(2) == 0
+    assert isinstance(axis.register_access(0x01), int)
+    axis.reset_board()  # the evaluation board's re-detection; nothing on a TMCL module
+    assert axis.next_event_ns() is None or axis.next_event_ns() >= 40 * NS_PER_S
+
+
+def rig(core: str, call, *args) -> bool:
+    """Call a rig method: it works (True), or the core says clearly it cannot (False)."""
+    try:
+        call(*args)
+    except ValueError as error:
+        assert core in str(error), f"{call.__name__}: {error} (names no core)"
+        return False
+    return True
+
+
+@pytest.mark.parametrize("core", CORES)
+def test_every_rig_method_works_on_every_core(core: str) -> None:
+    axis = one_axis(core, AxisWorld(free_load=300))
+    axis.advance_to(0)
+    assert axis.world.free_load == 300
+    assert isinstance(axis.status(), AxisStatus)
+
+    axis.rotate(SPEED)
+    advance(axis, 0, NS_PER_S)
+    if rig(core, axis.set_stuck, True):
+        before = axis.status()
+        advance(axis, NS_PER_S, 2 * NS_PER_S)
+        after = axis.status()
+        assert after.position != before.position  # the chip counts on ...
+        assert after.mechanical_position == before.mechanical_position  # ... the mechanics stay
+        rig(core, axis.set_stuck, False)
+        advance(axis, 2 * NS_PER_S, 3 * NS_PER_S)
+        assert axis.status().mechanical_position != after.mechanical_position
+    axis.stop()
+    advance(axis, 3 * NS_PER_S, 13 * NS_PER_S)
+    if rig(core, axis.place_mechanics, 12_345):
+        assert axis.status().mechanical_position == 12_345
+
+    # switches last: on the TMC4361A a stop event latched at standstill blocks motion toward
+    # that side until the firmware next reads EVENTS (docs/motion.md, "The TMC4361A core")
+    if rig(core, axis.set_switch, "left", Switch(-INFINITY, INFINITY)):
+        assert axis.status().left_switch
+        rig(core, axis.set_switch, "left", None)
+        assert not axis.status().left_switch
+    if rig(core, axis.break_switch, "right", True):
+        assert axis.status().right_switch
+        rig(core, axis.break_switch, "right", None)
+        assert not axis.status().right_switch
+    zones = [LoadZone(100, 200, 0)]
+    if rig(core, axis.set_load, zones, 500):
+        assert axis.world.load_zones == zones and axis.world.free_load == 500
+    if rig(core, axis.set_encoder_slip, 0.25):
+        assert axis.world.encoder_slip == 0.25
+    with pytest.raises(ValueError, match="slip"):
+        axis.set_encoder_slip(1.5)
+    world = AxisWorld(switches={"home": Switch(-INFINITY, INFINITY)})
+    if rig(core, axis.set_world, world):
+        assert axis.world is world and axis.status().home_switch
