@@ -35,4 +35,5 @@ python3 -m venv .venv
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -e '.[test]'
 .venv/bin/ruff check .
+.venv/bin/mypy tmcl_spec interpreter axes tmcl_server
 exec .venv/bin/python -m pytest -n 2 "$@"

@@ -68,9 +68,7 @@ class EvaluationCommands(ModuleCore):
             raise CommandError(Status.INVALID_COMMAND)
         if req.type == 0:
             for index in range(len(self.axes)):
-                reset = getattr(self.axis(index), "reset_board", None)
-                if reset is not None:
-                    reset()
+                self.axis(index).reset_board()
             return boards.detected
         if req.type == 4:
             return boards.supported
