@@ -178,6 +178,11 @@ class ChipDriver(ABC):
     #: 24-bit position registers unambiguous; a chip with a 32-bit position may look further).
     lookahead_ns: int = LOOKAHEAD_NS
 
+    def horizon_ns(self) -> int:
+        """How far the next look-ahead may run: :attr:`lookahead_ns`, or as far as the chip's
+        present settings keep its position registers unambiguous (TMC42x)."""
+        return self.lookahead_ns
+
     def read_parameter(self, number: int) -> int:
         """The value of one of :attr:`live_parameters`, read from the chip."""
         raise ValueError(f"{type(self).__name__} reads no axis parameter {number} from its chip "

@@ -116,8 +116,6 @@ class AxisFirmware(Axis):
             self.driver.live_parameters & parameters.keys())
         #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
         self._encoder_prescaler = AP.FULLSTEPS not in parameters
-        #: How far the look-ahead runs the chip; a driver may ask for another horizon.
-        self._lookahead_ns: int = self.driver.lookahead_ns
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
         #: The chip's next notable instant (None: nothing ahead), once computed since the last
@@ -167,7 +165,7 @@ class AxisFirmware(Axis):
         if self._lookahead_known:
             return self._lookahead_cache
         twin = self.chip.clone()
-        horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + self._lookahead_ns
+        horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + self.driver.horizon_ns()
         stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))

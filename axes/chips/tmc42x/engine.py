@@ -25,20 +25,29 @@ which the outside world changes so that the engine can stop there.
 
 from __future__ import annotations
 
-import copy
 from abc import abstractmethod
 from enum import IntEnum
+from functools import lru_cache
 from math import isqrt
-from typing import Self
+from typing import Self, TypeVar
 
 from axes.core import Board, ChipModel, Stop
 from axes.search import first_true
+
+_T = TypeVar("_T")
 
 MASK24 = 0xFFFFFF
 HALF24 = 1 << 23
 #: The deceleration ramp is internally limited to 2**19 steps (datasheet).
 DISTANCE_LIMIT = 1 << 19
 DEFAULT_CLOCK_HZ = 16_000_000
+#: Speeds a velocity register can hold (11 bits).
+V_RANGE = 2048
+#: Braking runs remembered (_descend): a program's repeated moves brake from the same states.
+DESCENT_CACHE_SIZE = 4096
+_DESCENTS: dict[tuple[int, ...], tuple[int, int, int, int, int]] = {}
+#: Ramp ticks of _descend that count as one unit of work (a loop turn of the general path).
+DESCENT_TICKS_PER_WORK = 4
 #: clk32 ticks per simulated second are clock_hz / 32; this is 32 s in ns.
 _NS_PER_32_TICKS = 32_000_000_000
 
@@ -160,6 +169,30 @@ def floor_sum(n: int, m: int, a: int, b: int) -> int:
         n, b, m, a = y_max // m, y_max % m, a, m
 
 
+@lru_cache(maxsize=64)
+def band_floors(soft: bool, pmul: int, pdiv: int) -> tuple[int, ...]:
+    """The ramp generator's curve as thresholds: for each speed c (0..2047), the largest
+    ``D = 2048 * distance - accumulator`` at which the curve is still below c.  The curve at
+    distance ``ceil(D / 2048)`` is at least c exactly when ``D > floors[c]`` (a distance
+    beyond the 2**19 limit counts as the limit; a speed the curve never reaches has a floor
+    above any distance)."""
+    floors = []
+    never = 1 << 62
+    k_mul = pmul << 8
+    for c in range(V_RANGE):
+        low = max(1, -(-(c << (3 + pdiv)) // pmul) if soft else -(-(c * c << pdiv) // k_mul))
+        floors.append((low - 1) << 11 if low <= DISTANCE_LIMIT else never)
+    return tuple(floors)
+
+
+def shallow_copy(obj: _T) -> _T:
+    """``copy.copy`` for a plain object with a ``__dict__``, without the pickle protocol
+    (several times faster: the firmware copies a chip at every look-ahead)."""
+    twin = object.__new__(type(obj))
+    twin.__dict__.update(obj.__dict__)
+    return twin
+
+
 def datagram(address: int, data: int = 0, read: bool = False) -> int:
     """Build a 32-bit host datagram for a 7-bit register (or RAM) address."""
     return (address & 0x7F) << 25 | int(read) << 24 | (data & MASK24)
@@ -248,7 +281,7 @@ class MotorEngine(ChipModel):
 
     def clone(self) -> Self:
         """An independent copy (for looking ahead without disturbing this motor)."""
-        return copy.copy(self)
+        return shallow_copy(self)
 
     # == time ==================================================================================
 
@@ -850,6 +883,27 @@ class MotorEngine(ChipModel):
                 target = mag << 8
                 if w == target and (mag in (v_max, v_min) or d >= DISTANCE_LIMIT):
                     break  # steady: the closed-form path takes over
+                if target < w < target + (a_max << 4):
+                    # braking along the curve: one cheap turn per ramp tick, whole bands in
+                    # one step (_descend); a speed far above the curve goes on below
+                    cap = (last - nr) // period + 1
+                    if work is not None:
+                        cap = min(cap, (work - iterations + 1) * DESCENT_TICKS_PER_WORK)
+                    down = self._descend(w, d, acc, room, cap, self._pulse_plan(nr))
+                    if down is not None:
+                        k, w_before, w, acc, steps, mag = down
+                        iterations += k // DESCENT_TICKS_PER_WORK
+                        a_step = w - w_before
+                        room -= steps
+                        d -= steps
+                        walked += steps
+                        applied += k
+                        nr += k * period
+                        vt_reg = mag * direction
+                        prev_mag = -1
+                        if w == 0 or nr > last:
+                            break
+                        continue
                 # While the clamped curve stays flat the target does: those ticks go in one
                 # batch (slow ramps, slow pulses or a long way at the distance limit).  Tried
                 # on entry and once the target has not changed for two ticks; a curve that
@@ -924,6 +978,95 @@ class MotorEngine(ChipModel):
         if self._steady_steps() is not None:
             return None
         return self._slow_tick(nr)
+
+    def _descend(self, w: int, d: int, acc: int, room: int, max_ticks: int,
+                 plan: tuple[int, int, int]) -> tuple[int, int, int, int, int, int] | None:
+        """Positioning ramp ticks from ``ramp_next`` on while the speed ``w`` (along the travel,
+        1/256 units) is at or above the ramp target: braking along the curve.
+
+        The state is one number, ``D = 2048 * distance - accumulator`` (the distance still to
+        go in 1/2048 steps): a pulse at speed V takes V from it, and the curve's value is at
+        least c exactly while ``D > band_floors(...)[c]``, so a ramp tick costs comparisons
+        and a subtraction instead of a square root.  While the speed sits on the curve, the
+        rest of its band (the distances with the same curve value) goes in one step.  Stops
+        before a tick whose pulses would reach ``room`` steps, after ``max_ticks`` ticks, when
+        the speed is steady (on V_MIN or V_MAX), or when it is far above the curve (the
+        caller's batches do that better).  Returns (ticks, speed before the last tick, speed,
+        accumulator, steps, ramp target of the last tick) or None if no tick was taken.
+        """
+        a = self.a_max
+        lo = min(self.v_min, self.v_max)  # the clamped curve's floor (all of it if V_MIN >= V_MAX)
+        hi = self.v_max
+        floors = band_floors(self.mode == _SOFT, self.pmul, self.pdiv)
+        c = self._curve(d)
+        c = lo if c < lo else hi if c > hi else c
+        t = c << 8
+        far = a << 4
+        per_ramp, every, ph = plan
+        D = (d << 11) - acc
+        d_floor = (d - room) << 11  # every pulse must leave D above this (steps < room)
+        # the same start (relative to the target and to ``room``) brakes the same way
+        key = (self.mode, self.pmul, self.pdiv, a, lo, hi, per_ramp, every, ph, w, D, d_floor)
+        known = _DESCENTS.get(key)
+        if known is not None and known[0] <= max_ticks:
+            n, w_before, w, D, c = known
+            d_now = -((-D) >> 11)
+            return n, w_before, w, (d_now << 11) - D, d - d_now, c
+        n = 0
+        w_before = w
+        while n < max_ticks:
+            if floors[c] >= D and c > lo:  # the curve drops to a lower band
+                c -= 1
+                while c > lo and floors[c] >= D:
+                    c -= 1
+                t = c << 8
+            nw = w - a
+            if nw < t:
+                nw = t
+            if ph:
+                ph -= 1
+            else:
+                nD = D - per_ramp * (nw >> 8)
+                if nD <= d_floor:
+                    break
+                D = nD
+                ph = every - 1
+            w_before = w
+            w = nw
+            n += 1
+            if w == t:
+                if c in (lo, hi):
+                    break  # steady: the closed-form path takes over
+                rest = D - floors[c]
+                step = per_ramp * c
+                if every > 1 or rest > step << 1:
+                    # on the curve for the rest of the band: q more pulses at speed c (fewer
+                    # if ``room`` comes first), each ``every`` ticks apart from ``ph`` on
+                    q = (rest - 1) // step + 1
+                    q_room = (D - d_floor - 1) // step
+                    k = ph + (q - 1) * every + 1 if q <= q_room else ph + q_room * every
+                    if k > max_ticks - n:
+                        k = max_ticks - n
+                    if k > 0:
+                        pulses = 0 if k <= ph else (k - 1 - ph) // every + 1
+                        D -= pulses * step
+                        ph = (ph - k) % every
+                        n += k
+                        w_before = w
+            elif w - t >= far:
+                break  # far above the curve: a linear slew, the caller's batches
+        else:
+            n = -n  # out of ticks: where a longer run goes on
+        if n <= 0:
+            if n == 0:
+                return None
+            n = -n
+        else:
+            if len(_DESCENTS) >= DESCENT_CACHE_SIZE:
+                _DESCENTS.clear()
+            _DESCENTS[key] = (n, w_before, w, D, c)
+        d_now = -((-D) >> 11)
+        return n, w_before, w, (d_now << 11) - D, d - d_now, c
 
     def _same_target_ticks(self, w: int, mag: int, d: int, room: int, acc: int, nr: int,
                            max_ticks: int) -> tuple[int, int, int, int] | None:

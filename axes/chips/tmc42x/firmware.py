@@ -54,7 +54,7 @@ from axes.chips.tmc42x.units import (
     velocity_register,
 )
 from axes.core import ChipDriver
-from tmcl_spec.numbers import INT32_MAX, INT32_MIN, to_int32
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN, NS_PER_S, to_int32
 from tmcl_spec.parameters import AP
 
 log = logging.getLogger(__name__)
@@ -65,6 +65,12 @@ MODE_NAMES = {RampMode.RAMP: "position", RampMode.SOFT: "position",
 #: Rolling targets: a move farther than this is fed to the chip in pieces of this length.
 ROLLING_SPAN = 1 << 22
 ROLLING_REFRESH = 1 << 21
+
+#: Steps a look-ahead may let pass between two reads of X_ACTUAL: a quarter of the 24-bit
+#: range, so the difference of two reads is never ambiguous (sdiff24 is, from 2**23 on).
+HORIZON_STEPS = 1 << 22
+#: The longest look-ahead (the TMC4361A core's: nothing in the firmware needs a shorter one).
+HORIZON_MAX_NS = 60 * NS_PER_S
 
 STOP_FLAG = 1 << Irq.STOP
 STOP_MASK = STOP_FLAG << 8
@@ -124,6 +130,15 @@ class TMC42xDriver(ChipDriver):
     @abstractmethod
     def setup_chip(self) -> None:
         """The chip's global registers as the firmware sets them at power-up."""
+
+    def horizon_ns(self) -> int:
+        """As far as HORIZON_STEPS at the fastest speed of the chip's PULSE_DIV (the look-ahead
+        copy runs without writes: its divider stays): 8 s at PULSE_DIV 0 and 16 MHz, a minute
+        from PULSE_DIV 3 on.  Fewer look-aheads per move (each costs a copy of the chip and the
+        firmware's reaction), the same events."""
+        chip = self.chip
+        rate = max_step_rate(chip.pulse_div, chip.clock_hz)
+        return min(HORIZON_MAX_NS, int(HORIZON_STEPS * NS_PER_S / rate))
 
     def power_up(self) -> None:
         """Set up the chip, enable the int_stop interrupt (the firmware learns of hard switch

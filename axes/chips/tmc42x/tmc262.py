@@ -28,11 +28,11 @@ nothing is measured at rest (the last value stays).  The driver keeps no clock o
 
 from __future__ import annotations
 
-import copy
 from enum import IntEnum, IntFlag
 from typing import Protocol, Self
 
 from axes import stallguard
+from axes.chips.tmc42x.engine import shallow_copy
 
 DATAGRAM_BITS = 20
 DATAGRAM_MASK = (1 << DATAGRAM_BITS) - 1
@@ -148,7 +148,7 @@ class TMC262:
 
     def clone(self) -> Self:
         """A copy still wired to the same motor (the owner re-attaches it to a twin)."""
-        return copy.copy(self)
+        return shallow_copy(self)
 
     # == fields ================================================================================
 

@@ -13,7 +13,6 @@ outside world changes so that the engine can stop there.
 
 from __future__ import annotations
 
-import copy
 from enum import IntEnum
 
 from axes.chips.tmc42x.engine import (
@@ -33,6 +32,7 @@ from axes.chips.tmc42x.engine import (
     datagram,
     floor_sum,
     sdiff24,
+    shallow_copy,
     signed,
 )
 from axes.core import Board, Stop
@@ -137,7 +137,7 @@ class TMC4210(MotorEngine):
 
     def clone(self) -> TMC4210:
         """An independent copy (for looking ahead without disturbing this chip)."""
-        twin = copy.copy(self)
+        twin = shallow_copy(self)
         twin.ram = list(self.ram)
         twin.legacy = list(self.legacy)
         return twin

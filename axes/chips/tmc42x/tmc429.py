@@ -39,7 +39,6 @@ Design
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Sequence
 from enum import IntEnum
 from math import floor, pi, sin
@@ -51,6 +50,7 @@ from axes.chips.tmc42x.engine import (
     MotorEngine,
     MotorReg,
     datagram,
+    shallow_copy,
 )
 from axes.chips.tmc42x.tmc262 import DATAGRAM_BITS, STANDSTILL_CLOCKS, TMC262, UNLOADED
 from axes.core import Board, StaleLookahead, Stop
@@ -167,7 +167,7 @@ class TMC429Motor(MotorEngine):
 
     def spi_data(self, frame: int) -> int:
         """The 24 data bits of the chip's answer to a datagram (the driver's reads)."""
-        return self.chip.spi(frame) & MASK24
+        return self.chip.spi_data(frame)
 
     def read(self, reg: MotorReg | int) -> int:
         """Convenience: the 24 data bits of one of this motor's axis registers."""
@@ -236,7 +236,7 @@ class TMC429Motor(MotorEngine):
         return self
 
     def _clone_into(self, chip: TMC429) -> TMC429Motor:
-        twin = copy.copy(self)
+        twin = shallow_copy(self)
         twin.chip = chip
         twin._origin_writes = self.writes
         if self.driver is not None:
@@ -364,7 +364,7 @@ class TMC429:
 
     def clone(self) -> TMC429:
         """An independent copy of the chip, its motors and drivers."""
-        twin = copy.copy(self)
+        twin = shallow_copy(self)
         twin.ram = list(self.ram)
         twin._origin_revision = self.revision
         twin._origin_chip = self
@@ -451,7 +451,18 @@ class TMC429:
         """
         for motor in self.motors:
             motor.powered_down = False
-        status = self.status_byte()
+        return self.status_byte() << 24 | self._exchange(frame)
+
+    def spi_data(self, frame: int) -> int:
+        """The 24 data bits of ``spi(frame)``'s answer: the same frame with the same effects,
+        without sampling the status byte (the firmware's reads ignore it; a program's GAP 1
+        reads the position through here every time)."""
+        for motor in self.motors:
+            motor.powered_down = False
+        return self._exchange(frame) & MASK24
+
+    def _exchange(self, frame: int) -> int:
+        """What a frame does after the status byte is sampled; its 24 answer bits."""
         cover_waiting = self.cover_pending or self._cover_echo
         self._cover_echo = self._capture_echo = False
         self._service_chain()
@@ -480,7 +491,7 @@ class TMC429:
         else:
             self._write(address, data)
             self.revision += 1
-        return status << 24 | answer
+        return answer
 
     def read(self, reg: int) -> int:
         """Convenience: the 24 data bits of a register read."""
