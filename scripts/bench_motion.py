@@ -13,6 +13,10 @@ each next move issued at the target-reached instant (as WAIT POS would):
 * ``hops`` (stress): the same, but axis 5 makes 20 000-step hops at 200 000 pps and
   1 000 000 pps², so ramps dominate.  Braking follows the chip's distance law one ramp tick
   at a time (it has no closed form), so time goes with the number of ramp ticks.
+* ``varied``: the ``program`` workload, but every move goes to a new target (±512 000 plus
+  a random offset of up to 100 000 steps, seeded): no two moves brake from the same state, so
+  this is what a move costs when the engine has not seen its braking before (the TMC42x
+  engine remembers the braking of moves it has made: ``program`` repeats its moves).
 * ``sramp`` (TMC4361A only): the ``program`` workload with S-shaped ramps, chosen through
   command 146 (RAMPMODE profile 2, BOW1..4 = 400 000 pps³) on every axis, AP 20 = 0; the
   moving axes at 200 000 pps and 100 000 pps².  S-ramps go through the firmware's look-ahead
@@ -29,6 +33,7 @@ values with AP 154/153, as the firmware would choose them).
 from __future__ import annotations
 
 import argparse
+import random
 import statistics
 import sys
 import time
@@ -85,6 +90,7 @@ def run(hours: float, workload: str, kind: str, core: str | None) -> tuple[float
 
     module.listeners.append(on_event)
     targets = {axis: 512_000 for axis in (0, 1, 2, 3, 5)}
+    offsets = random.Random(23)
     for axis in targets:
         limits(module, axis, 51200, 51200)
     if workload == "hops":
@@ -117,6 +123,9 @@ def run(hours: float, workload: str, kind: str, core: str | None) -> tuple[float
         while arrived:
             axis = arrived.pop()
             targets[axis] = -targets[axis]
+            if workload == "varied":
+                targets[axis] = (512_000 if targets[axis] > 0 else -512_000) + offsets.randrange(
+                    -100_000, 100_000)
             command(module, Opcode.MVP, 0, axis, targets[axis])
             moves += 1
         if simulation.now_ns >= next_reverse:
@@ -135,7 +144,7 @@ def main() -> int:
     args = parser.parse_args()
     simulated = args.hours * 3600
     setups = [tuple(s.split("/")) for s in args.setups.split(",") if s]
-    for workload in ("program", "hops", "sramp"):
+    for workload in ("program", "varied", "hops", "sramp"):
         baseline = None
         for kind, core in setups:
             if workload == "sramp" and core != "tmc4361a":

@@ -4,11 +4,16 @@ Slow on purpose: it is the yardstick the fast engine in axes/chips/tmc42x/tmc421
 (tests/test_tmc4210.py), not part of the simulator.
 Stop switches are modelled as levels that stay put (``left`` / ``right`` active, the soft-stop
 bit, the disable bits and the tolerance window of REF_CONF): what the ramp generator does with
-them.  Edges, the latch and interrupts are checked separately.
+them.  Edges, the latch and interrupts are checked separately, except where the levels follow
+the motor's position (``switches``): then an edge that activates the switch ahead of a moving
+motor stops it at once, as the engine documents (a hard stop acts on the pulse generator).
+``run_until`` ticks the same way but skips the clk32 ticks at which nothing can happen (neither
+a ramp nor a pulse tick): long moves in the tests.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from math import isqrt
 
 from axes.chips.tmc42x.tmc4210 import DISTANCE_LIMIT, RampMode, sdiff24
@@ -29,6 +34,22 @@ class ReferenceChip:
         self.soft_stop = self.disable_left = self.disable_right = False
         self.tolerance = 0
         self.arrivals: list[int] = []
+        #: Steps made, unwrapped (the motor's position).
+        self.position = 0
+        #: (left, right) switch levels as a function of the position, or None: they stay put.
+        self.switches: Callable[[int], tuple[bool, bool]] | None = None
+
+    def run_until(self, until: int) -> None:
+        """``tick()`` until ``t == until``, visiting only ticks that are multiples of the finer
+        divider (every ramp and pulse tick is one of them; the others change nothing)."""
+        step = 1 << min(self.ramp_div, self.pulse_div)
+        while self.t < until:
+            following = (self.t // step + 1) * step
+            if following > until:
+                self.t = until
+                return
+            self.t = following - 1
+            self.tick()
 
     def tick(self) -> None:
         self.t += 1
@@ -84,4 +105,20 @@ class ReferenceChip:
         self.acc += abs(self.v) >> 8
         if self.acc >= 2048:
             self.acc -= 2048
-            self.x_actual = (self.x_actual + (1 if self.v > 0 else -1)) & 0xFFFFFF
+            direction = 1 if self.v > 0 else -1
+            self.x_actual = (self.x_actual + direction) & 0xFFFFFF
+            self.position += direction
+            if self.switches is not None:
+                self.switch_edges(direction)
+
+    def switch_edges(self, direction: int) -> None:
+        """The levels at the new position; a switch ahead that turns active stops a hard-stopping
+        motor at once (outside the tolerance window, not disabled)."""
+        assert self.switches is not None
+        left, right = self.switches(self.position)
+        rising = ((direction < 0 and left and not self.left and not self.disable_left)
+                  or (direction > 0 and right and not self.right and not self.disable_right))
+        self.left, self.right = left, right
+        x = self.x_actual - (1 << 24) if self.x_actual & 1 << 23 else self.x_actual
+        if rising and abs(x) >= self.tolerance and not self.soft_stop:
+            self.v = 0

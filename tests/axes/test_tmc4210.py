@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from axes.chips.tmc42x import engine
 from axes.chips.tmc42x.engine import GlobalReg, MotorReg
 from axes.chips.tmc42x.tmc4210 import (
     EN_SD,
@@ -224,7 +225,8 @@ def _run_both(chip: TMC4210, ref: ReferenceChip, until: int, arrivals: list[int]
     while chip.t < until:
         if chip.run(until) is Stop.ARRIVED:
             arrivals.append(chip.t)
-    assert (chip.x_actual, chip.v) == (ref.x_actual, ref.v), f"at clk32 tick {until}"
+    assert (chip.x_actual, chip.v, chip.v_target) == (ref.x_actual, ref.v, ref.v_target), (
+        f"at clk32 tick {until}")
 
 
 change = st.one_of(
@@ -443,4 +445,241 @@ def test_engine_matches_the_reference_from_register_level_states(
             ref.tick()
         while chip.t < until:
             chip.run(until)
-        assert (chip.x_actual, chip.v) == (ref.x_actual, ref.v), f"at clk32 tick {until}"
+        assert (chip.x_actual, chip.v, chip.v_target) == (ref.x_actual, ref.v, ref.v_target), (
+        f"at clk32 tick {until}")
+
+
+# == long moves, dividers, marks and switches mid-ramp (the batched braking) ===================
+
+
+class _Strip:
+    """A board for the engine and the reference alike: a left stop switch active at and below
+    ``left``, a right one at and above ``right`` (None: none), and ``marks`` where nothing
+    changes (as the firmware's deviation and rolling-target marks): the engine must stop its
+    batches there and go on exactly as if it had not."""
+
+    def __init__(self, left: int | None, right: int | None, marks: list[int]) -> None:
+        self.left, self.right = left, right
+        edges = [] if left is None else [left, left + 1]
+        edges += [] if right is None else [right, right - 1]
+        self.marks = sorted(set(marks + edges))
+
+    def levels(self, position: int) -> tuple[bool, bool]:
+        return (self.left is not None and position <= self.left,
+                self.right is not None and position >= self.right)
+
+    def pins(self, motor_position: int) -> tuple[bool, bool, bool]:
+        return (*self.levels(motor_position), False)
+
+    def next_mark(self, motor_position: int, direction: int) -> int | None:
+        ahead = [m for m in self.marks if (m - motor_position) * direction > 0]
+        return min(ahead, key=lambda m: (m - motor_position) * direction) if ahead else None
+
+
+#: Event ticks (ramp or pulse ticks) the reference runs per example: about a second.
+_REFERENCE_EVENTS = 150_000
+
+
+def _long_case(pulse_div: int, ramp_div: int, v_max: int, a_max: int, v_min: int | None,
+               mode: RampMode, reach: float, changes: list[tuple[float, tuple[str, int]]],
+               board: _Strip | None = None, pos_comp: int | None = None, soft: bool = False,
+               checkpoints: int = 6) -> tuple[TMC4210, ReferenceChip]:
+    """A move of ``reach`` times what V_MAX covers in the reference's time budget, with
+    ``changes`` applied at fractions of that time, both models compared at checkpoints."""
+    horizon = _REFERENCE_EVENTS << min(ramp_div, pulse_div)
+    chip = TMC4210(board=board)
+    pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
+    chip.write(Reg.IF_CONFIGURATION, EN_SD)
+    chip.write(Reg.SMGP, MOT1R)  # wire the right switch
+    chip.write(Reg.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div)
+               if v_min is None else v_min)
+    chip.write(Reg.V_MAX, v_max)
+    chip.write(Reg.A_MAX, a_max)
+    chip.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
+    chip.write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
+    chip.write(Reg.REF_CONF_RAMP_MODE, soft << 10 | mode)
+    chip.write(Reg.INTERRUPT, 1 << (8 + Irq.REF_MISS))  # X_ACTUAL 0 is a position of interest
+    if pos_comp is not None:
+        chip.write(Reg.POS_COMP, pos_comp & MASK24)
+        chip.write(Reg.POS_COMP_INT, 1 << 8)
+    ref = _reference_for(chip)
+    ref.soft_stop = soft
+    if board is not None:
+        ref.switches = board.levels
+        ref.left, ref.right = board.levels(0)
+    distance = round(reach * v_max * (horizon >> pulse_div) / 2048)
+    chip.write(Reg.X_TARGET, distance & MASK24)
+    ref.x_target = distance & MASK24
+    stops = sorted({*(round(f * horizon) for f, _ in changes),
+                    *(horizon * (i + 1) // checkpoints for i in range(checkpoints))})
+    pending = sorted(changes, key=lambda change: change[0])
+    arrivals: list[int] = []
+    for until in stops:
+        if until <= 0:
+            continue
+        while ref.t < until:
+            ref.run_until(until)
+        while chip.t < until:
+            if chip.run(until) is Stop.ARRIVED:
+                arrivals.append(chip.t)
+        assert (chip.x_actual, chip.v, chip.motor_position, chip.v_target) == (
+            ref.x_actual, ref.v, ref.position, ref.v_target), f"at clk32 tick {until}"
+        while pending and round(pending[0][0] * horizon) <= until:
+            _, (what, value) = pending.pop(0)
+            if what == "x_target":
+                chip.write(Reg.X_TARGET, value & MASK24)
+                ref.x_target = value & MASK24
+            else:
+                chip.write(getattr(Reg, what.upper()), value)
+                setattr(ref, what, value)
+    assert arrivals == ref.arrivals
+    return chip, ref
+
+
+_long_change = st.tuples(st.floats(0.02, 0.95), st.one_of(
+    st.tuples(st.just("x_target"), st.integers(-300_000, 300_000)),
+    st.tuples(st.just("v_max"), st.integers(0, 2047)),
+    st.tuples(st.just("v_min"), st.integers(0, 300)),
+    st.tuples(st.just("a_max"), st.integers(0, 2047)),
+))
+_long = {
+    "pulse_div": st.integers(0, 4), "span": st.integers(-4, 5), "v_max": st.integers(1, 2047),
+    "a_max": st.one_of(st.integers(1, 2047), st.sampled_from([0, 1, 2, 3])),
+    "v_min": st.one_of(st.none(), st.integers(0, 60)),
+    "mode": st.sampled_from([RampMode.RAMP, RampMode.RAMP, RampMode.SOFT]),
+    "reach": st.floats(-0.6, 0.6), "changes": st.lists(_long_change, max_size=3),
+}
+
+
+def _long_moves(pulse_div: int, span: int, v_max: int, a_max: int, v_min: int | None,
+                mode: RampMode, reach: float, changes: list[tuple[float, tuple[str, int]]]) -> None:
+    ramp_div = min(13, max(0, pulse_div + span))
+    _long_case(pulse_div, ramp_div, v_max, a_max, v_min, mode, reach, changes)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(pulse_div=3, span=5, v_max=1678, a_max=220, v_min=None, mode=RampMode.RAMP, reach=0.45,
+         changes=[])  # the manual's example move's registers, braking from V_MAX
+@example(pulse_div=0, span=-4, v_max=2047, a_max=2047, v_min=None, mode=RampMode.RAMP,
+         reach=-0.5, changes=[(0.3, ("x_target", 1000))])  # a pulse every 16 ramp ticks
+@example(pulse_div=4, span=5, v_max=900, a_max=3, v_min=0, mode=RampMode.SOFT, reach=0.3,
+         changes=[(0.5, ("v_min", 200))])  # slow acceleration, V_MIN raised mid-ramp
+@example(pulse_div=2, span=3, v_max=2047, a_max=600, v_min=None, mode=RampMode.RAMP, reach=0.6,
+         changes=[(0.4, ("a_max", 0)), (0.6, ("a_max", 600))])  # A_MAX 0 in flight
+@given(**_long)
+def test_long_moves_match_the_reference(pulse_div: int, span: int, v_max: int, a_max: int,
+                                        v_min: int | None, mode: RampMode, reach: float,
+                                        changes: list[tuple[float, tuple[str, int]]]) -> None:
+    """Moves over tens of thousands of ramp ticks, with any dividers (a pulse every few ramp
+    ticks, or many pulses per ramp tick), V_MIN, no acceleration, the target, V_MAX, V_MIN or
+    A_MAX changed in flight: the batched braking lands on every step at the reference's tick."""
+    _long_moves(pulse_div, span, v_max, a_max, v_min, mode, reach, changes)
+
+
+@pytest.mark.soak
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**_long)
+def test_long_moves_match_the_reference_soak(pulse_div: int, span: int, v_max: int, a_max: int,
+                                             v_min: int | None, mode: RampMode, reach: float,
+                                             changes: list[tuple[float, tuple[str, int]]]) -> None:
+    _long_moves(pulse_div, span, v_max, a_max, v_min, mode, reach, changes)
+
+
+_marks = {
+    "pulse_div": st.integers(0, 3), "span": st.integers(-2, 5), "v_max": st.integers(200, 2047),
+    "a_max": st.integers(1, 2047), "reach": st.floats(-0.6, 0.6),
+    "left": st.one_of(st.none(), st.integers(-150_000, 0)),
+    "right": st.one_of(st.none(), st.integers(1, 150_000)),
+    "marks": st.lists(st.integers(-150_000, 150_000), max_size=12),
+    "soft": st.booleans(), "pos_comp": st.one_of(st.none(), st.integers(-150_000, 150_000)),
+    "changes": st.lists(_long_change, max_size=2),
+}
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(pulse_div=3, span=5, v_max=1678, a_max=220, reach=0.45, left=None, right=None,
+         marks=[20_000, 40_000, 50_000, 52_000, 52_001, 53_000], soft=False, pos_comp=54_000,
+         changes=[])  # marks all through the braking
+@example(pulse_div=1, span=3, v_max=2000, a_max=300, reach=0.5, left=None, right=60_000,
+         marks=[], soft=False, pos_comp=None, changes=[])  # a hard stop at a switch mid-ramp
+@example(pulse_div=1, span=3, v_max=2000, a_max=300, reach=-0.5, left=-60_000, right=None,
+         marks=[], soft=True, pos_comp=None, changes=[])  # a soft stop at a switch mid-ramp
+@given(**_marks)
+def test_marks_and_switches_mid_ramp_match_the_reference(
+        pulse_div: int, span: int, v_max: int, a_max: int, reach: float, left: int | None,
+        right: int | None, marks: list[int], soft: bool, pos_comp: int | None,
+        changes: list[tuple[float, tuple[str, int]]]) -> None:
+    """Positions that interrupt a batch (board marks, the position compare register, X_ACTUAL
+    0 with REF_MISS armed) and stop switches that the motor reaches mid-ramp, hard or soft:
+    the motion is the reference's, step for step."""
+    ramp_div = min(13, max(0, pulse_div + span))
+    _long_case(pulse_div, ramp_div, v_max, a_max, None, RampMode.RAMP, reach, changes,
+               board=_Strip(left, right, marks), pos_comp=pos_comp, soft=soft)
+
+
+def test_a_repeated_move_brakes_as_the_first_and_as_the_reference() -> None:
+    """The engine remembers braking runs (a program repeats its moves): the second of two
+    identical moves takes the remembered run, the first computes it; both are the
+    reference's, and forgetting changes nothing."""
+    engine._DESCENTS.clear()
+    runs = [_long_case(3, 8, 1678, 220, None, RampMode.RAMP, 0.45, [])[0] for _ in range(2)]
+    assert engine._DESCENTS, "the braking was remembered"
+    engine._DESCENTS.clear()
+    runs.append(_long_case(3, 8, 1678, 220, None, RampMode.RAMP, 0.45, [])[0])
+    assert len({(c.t, c.x_actual, c.acc, c.v) for c in runs}) == 1
+
+
+_braking_states = {
+    "pulse_div": st.integers(0, 6), "span": st.integers(-4, 5),
+    "a_max": st.one_of(st.integers(1, 2047), st.integers(1, 40)),
+    "pmul": st.integers(128, 255), "pdiv": st.integers(0, 13),
+    "v_min": st.one_of(st.integers(0, 40), st.integers(0, 2047)), "v_max": st.integers(1, 2047),
+    "mode": st.sampled_from([RampMode.RAMP, RampMode.SOFT]),
+    "distance": st.one_of(st.integers(1, 3000), st.integers(1, 600_000)),
+    "acc": st.integers(0, 2047), "lag": st.floats(0, 1), "direction": st.sampled_from([1, -1]),
+    "room": st.floats(0, 1), "max_ticks": st.integers(1, 2000),
+}
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(**_braking_states)
+def test_braking_batches_are_the_reference_ramp_ticks(
+        pulse_div: int, span: int, a_max: int, pmul: int, pdiv: int, v_min: int, v_max: int,
+        mode: RampMode, distance: int, acc: int, lag: float, direction: int, room: float,
+        max_ticks: int) -> None:
+    """The braking batch on its own (``MotorEngine._descend``), from any speed at or a little
+    above the curve, any distance, accumulator and dividers, a position of interest anywhere
+    up to the target and any tick budget: its ticks are the reference's, tick for tick, and
+    none of them reaches the position of interest."""
+    ramp_div = min(13, max(0, pulse_div + span))
+    chip = TMC4210()
+    for name, value in (("v_min", v_min), ("v_max", v_max), ("a_max", a_max), ("pmul", pmul),
+                        ("pdiv", pdiv), ("pulse_div", pulse_div), ("ramp_div", ramp_div),
+                        ("mode", mode), ("acc", acc)):
+        setattr(chip, name, value)
+    chip.x_target = distance * direction & MASK24
+    curve = min(max(chip._curve(distance), v_min), v_max) << 8
+    w = curve + int(lag * (a_max << 4)) - 1 if lag else curve
+    if w < curve:
+        w = curve
+    chip.ramp_next = 5 << ramp_div  # not at a multiple of a long pulse period
+    chip.t = chip.ramp_next - 1
+    chip.v = w * direction
+    steps_to_interest = max(1, round(room * distance))
+    engine._DESCENTS.clear()
+    down = chip._descend(w, distance, acc, steps_to_interest, max_ticks,
+                         chip._pulse_plan(chip.ramp_next))
+    ref = _reference_for(chip)
+    ref.x_target, ref.v, ref.acc, ref.t = chip.x_target, chip.v, acc, chip.t
+    if down is None:  # not one tick: the first one reaches the position of interest
+        ref.run_until(chip.ramp_next + (1 << ramp_div) - 1)
+        assert abs(signed(ref.x_actual, 24)) >= steps_to_interest
+        return
+    ticks, w_before, w_after, acc_after, steps, mag = down
+    assert 1 <= ticks <= max_ticks and steps < steps_to_interest
+    ref.run_until(chip.ramp_next - 1 + ((ticks - 1) << ramp_div))
+    v_before = ref.v
+    ref.run_until(chip.ramp_next - 1 + (ticks << ramp_div))
+    assert (ref.x_actual, ref.v, ref.acc, ref.v_target) == (
+        steps * direction & MASK24, w_after * direction, acc_after, mag * direction)
+    assert v_before == w_before * direction

@@ -386,7 +386,8 @@ def _run_all(chip: TMC429, refs: list[ReferenceChip], until: int, order: list[in
         while motor.t < until:
             if motor.run(until) is Stop.ARRIVED:
                 arrivals[index].append(motor.t)
-        assert (motor.x_actual, motor.v) == (ref.x_actual, ref.v), f"motor {index} at tick {until}"
+        assert (motor.x_actual, motor.v, motor.v_target) == (ref.x_actual, ref.v, ref.v_target), (
+            f"motor {index} at tick {until}")
     xeq = status(chip) & 0x15
     assert xeq == sum((r.x_actual == r.x_target) << 2 * i for i, r in enumerate(refs))
 

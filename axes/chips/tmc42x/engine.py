@@ -440,8 +440,10 @@ class MotorEngine(ChipModel):
             return isqrt((self.pmul * d << 8) >> self.pdiv)
         return (self.pmul * d) >> (3 + self.pdiv)
 
-    def _ramp_target(self) -> tuple[int, bool]:
-        """(target velocity, hard switch stop) that a ramp tick would use now."""
+    def _ramp_target(self) -> tuple[int, bool, int]:
+        """(target velocity, hard switch stop, target velocity before the stop switches) that
+        a ramp tick would use now.  In ramp and soft mode the last is what the tick writes to
+        V_TARGET: the curve's value (the digest's model writes it before the switches act)."""
         mode = self.mode
         # (comparisons rather than min/max: this runs at every ramp tick)
         if mode == _HOLD:
@@ -467,16 +469,24 @@ class MotorEngine(ChipModel):
         v = self.v
         direction = (v > 0) - (v < 0) or (vt > 0) - (vt < 0)
         if direction and self._switch_in_play(direction) and self._outside_window():
-            vt = max(vt, 0) if direction < 0 else min(vt, 0)
-            return vt, mode == _HOLD or not self.ref_conf & SOFT_STOP
-        return vt, False
+            stopped = max(vt, 0) if direction < 0 else min(vt, 0)
+            return stopped, mode == _HOLD or not self.ref_conf & SOFT_STOP, vt
+        return vt, False, vt
+
+    def _target_at(self, x: int) -> int:
+        """The positioning curve's target velocity (V_TARGET) with X_ACTUAL at ``x``."""
+        dx = sdiff24(self.x_target, x)
+        if dx == 0:
+            return 0
+        mag = min(max(self._curve(abs(dx)), self.v_min), self.v_max)
+        return mag if dx > 0 else -mag
 
     def _ramp_tick(self) -> None:
         """One ramp tick: the velocity steps towards the ramp target by up to A_MAX."""
-        vt, hard = self._ramp_target()
+        vt, hard, curve = self._ramp_target()
         mode = self.mode
         if mode < _VELOCITY:
-            self.v_target = vt
+            self.v_target = curve
         v_old = v = self.v
         if hard:
             if v:
@@ -502,7 +512,7 @@ class MotorEngine(ChipModel):
         Returns None if not steady, -1 for "as long as nothing else changes", else the number of
         further steps after which the ramp generator must be consulted again.
         """
-        vt, hard = self._ramp_target()
+        vt, hard, _ = self._ramp_target()
         v = self.v
         if hard and v:
             return None
@@ -704,15 +714,17 @@ class MotorEngine(ChipModel):
             if steady is not None:
                 moving = self.v != 0
                 # What each skipped ramp tick would have written (constant while steady).
-                vt_steady = self._ramp_target()[0]
+                vt_steady = self._ramp_target()[2]
+                velocity = self.v
                 stop = self._pulses(until) if steady < 0 else self._pulses(until, steady)
                 ramp = 1 << self.ramp_div
                 if self.ramp_next <= self.t:
                     self.a_actual = 0
                     if self.mode < _VELOCITY:
                         # with no acceleration the curve moves on while the speed cannot:
-                        # the last skipped tick wrote its value where the motor is now
-                        self.v_target = self._ramp_target()[0] if self.a_max == 0 else vt_steady
+                        # the last skipped tick wrote its value where the motor was then
+                        self.v_target = (self._skipped_target(velocity, stop is Stop.ARRIVED)
+                                         if self.a_max == 0 else vt_steady)
                 self.ramp_next = (self.t // ramp + 1) * ramp
                 if stop is not None:
                     return stop
@@ -736,6 +748,18 @@ class MotorEngine(ChipModel):
             if stop is not None:
                 return stop
         return None
+
+    def _skipped_target(self, velocity: int, arrived: bool) -> int:
+        """V_TARGET as the last ramp tick up to ``t`` wrote it, after pulses at a constant
+        ``velocity`` (A_MAX 0): the curve where the motor was at that tick.  The accumulator
+        says how many steps the pulses since then made (the pulse that ends a move at its
+        target adds nothing)."""
+        tick = self.t >> self.ramp_div << self.ramp_div
+        pulses = (self.t >> self.pulse_div) - ((tick - 1) >> self.pulse_div) - arrived
+        speed = abs(velocity) >> 8
+        since = -((self.acc - pulses * speed) >> 11)  # ceil((pulses * speed - acc) / 2048)
+        back = since if velocity > 0 else -since
+        return self._target_at((self.x_actual - back) & MASK24)
 
     def _can_fast(self) -> bool:
         return self.mode != _HOLD
@@ -1009,11 +1033,12 @@ class MotorEngine(ChipModel):
         key = (self.mode, self.pmul, self.pdiv, a, lo, hi, per_ramp, every, ph, w, D, d_floor)
         known = _DESCENTS.get(key)
         if known is not None and known[0] <= max_ticks:
-            n, w_before, w, D, c = known
+            n, w_before, w, D, mag = known
             d_now = -((-D) >> 11)
-            return n, w_before, w, (d_now << 11) - D, d - d_now, c
+            return n, w_before, w, (d_now << 11) - D, d - d_now, mag
         n = 0
         w_before = w
+        mag = c  # the ramp target of the last tick taken
         while n < max_ticks:
             if floors[c] >= D and c > lo:  # the curve drops to a lower band
                 c -= 1
@@ -1033,6 +1058,7 @@ class MotorEngine(ChipModel):
                 ph = every - 1
             w_before = w
             w = nw
+            mag = c
             n += 1
             if w == t:
                 if c in (lo, hi):
@@ -1064,9 +1090,9 @@ class MotorEngine(ChipModel):
         else:
             if len(_DESCENTS) >= DESCENT_CACHE_SIZE:
                 _DESCENTS.clear()
-            _DESCENTS[key] = (n, w_before, w, D, c)
+            _DESCENTS[key] = (n, w_before, w, D, mag)
         d_now = -((-D) >> 11)
-        return n, w_before, w, (d_now << 11) - D, d - d_now, c
+        return n, w_before, w, (d_now << 11) - D, d - d_now, mag
 
     def _same_target_ticks(self, w: int, mag: int, d: int, room: int, acc: int, nr: int,
                            max_ticks: int) -> tuple[int, int, int, int] | None:
@@ -1161,8 +1187,9 @@ class MotorEngine(ChipModel):
             return self._slow_tick(nr)
         ticks, w, acc, steps, _ = batch
         if self.mode < _VELOCITY:
-            if d is None:
-                self.v_target = 0  # the switch clamps the curve towards the target to 0
+            if d is None:  # the curve's value where the last tick found the motor
+                before, _ = self._slew_steps(ticks - 1, abs(self.v), self.acc, False, plan)
+                self.v_target = self._target_at((self.x_actual + before * travel) & MASK24)
             else:
                 before, _ = self._slew_steps(ticks - 1, abs(self.v), self.acc, False, plan)
                 if d + before:
