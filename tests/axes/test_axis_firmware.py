@@ -431,3 +431,20 @@ def test_lookahead_and_direct_runs_agree(core: str) -> None:
     crawl_arrival = next(e for e in crawl.events if e.kind is AxisEventKind.TARGET_REACHED)
     assert crawl_arrival.time_ns == arrival.time_ns
     assert jump.gap(1) == crawl.gap(1) == 77_777
+
+
+@pytest.mark.parametrize("speed", [499_756, 51_200, 1_000])
+def test_the_lookahead_never_lets_half_the_24_bit_range_pass_unread(speed: int) -> None:
+    """The TMC42x look-ahead runs as long as 2**22 steps take at the fastest speed of the
+    chip's PULSE_DIV (longer at slow dividers, fewer look-aheads per move): a minute of
+    rotation, jumping from event to event, reads AP 1 right; no horizon lets 2**22 steps
+    pass."""
+    h = Harness()
+    h.sap(5, 7_000_000)
+    h.axis.rotate(speed)
+    h.advance(60)
+    chip = h.axis.chip
+    assert h.gap(1) == chip.motor_position > 0
+    horizon = h.axis.driver.horizon_ns()
+    assert 4 * NS <= horizon <= 60 * NS
+    assert horizon * step_rate(2047, chip.pulse_div, chip.clock_hz) <= 2**22 * NS

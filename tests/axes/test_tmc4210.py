@@ -683,3 +683,21 @@ def test_braking_batches_are_the_reference_ramp_ticks(
     assert (ref.x_actual, ref.v, ref.acc, ref.v_target) == (
         steps * direction & MASK24, w_after * direction, acc_after, mag * direction)
     assert v_before == w_before * direction
+
+
+@settings(max_examples=20, deadline=None)
+@given(pulse_div=st.integers(0, 5), ramp_div=st.integers(0, 7), target=st.integers(-3000, 3000),
+       ends=st.lists(st.integers(1, 20_000), min_size=1, max_size=4))
+def test_the_references_idle_tick_skipping_is_its_tick_by_tick_run(
+        pulse_div: int, ramp_div: int, target: int, ends: list[int]) -> None:
+    """``ReferenceChip.run_until`` (which the long-move tests use) visits only ramp and pulse
+    ticks: the same as calling ``tick`` for every clk32 tick."""
+    refs = [ReferenceChip(v_min=5, v_max=900, a_max=300, pmul=200, pdiv=3, pulse_div=pulse_div,
+                          ramp_div=ramp_div) for _ in range(2)]
+    for ref in refs:
+        ref.x_target = target & MASK24
+    for end in sorted(ends):
+        while refs[0].t < end:
+            refs[0].tick()
+        refs[1].run_until(end)
+        assert [vars(r) for r in refs[:1]] == [vars(refs[1])]
