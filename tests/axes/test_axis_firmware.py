@@ -11,8 +11,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from axes.chips.tmc42x.tmc4210 import MASK24, Reg, Stop
 from axes.chips.tmc42x.tmc4210_firmware import TMC4210Axis
-from axes.chips.tmc42x.units import acceleration_rate, step_rate
+from axes.chips.tmc42x.units import acceleration_rate, choose_pulse_div, step_rate
 from axes.chips.tmc4361a.firmware import TMC4361AAxis
 from axes.firmware import AxisFirmware
 from axes.interface import AxisEvent, AxisEventKind
@@ -448,3 +449,108 @@ def test_the_lookahead_never_lets_half_the_24_bit_range_pass_unread(speed: int) 
     horizon = h.axis.driver.horizon_ns()
     assert 4 * NS <= horizon <= 60 * NS
     assert horizon * step_rate(2047, chip.pulse_div, chip.clock_hz) <= 2**22 * NS
+
+
+# == on the fly (issue 24 item 6) ==============================================================
+
+
+def test_a_higher_speed_limit_is_taken_during_the_move() -> None:
+    """The manual's "on the fly alteration of motion parameters": AP 4 raised from 20,000 to
+    100,000 pps during an MVP runs the rest of the move at 100,000 pps (it ran at 31,235 pps,
+    the top of the first speed's PULSE_DIV, until the next MVP); the move ends on target."""
+    h = Harness()
+    h.sap(4, 20_000)
+    h.axis.move_to(1_000_000)
+    h.advance(2)
+    assert h.gap(3) == 20_004
+    h.sap(4, 100_000)
+    h.advance(2)
+    assert abs(h.gap(3) - 100_000) < 100
+    h.until(AxisEventKind.TARGET_REACHED)
+    assert (h.gap(1), h.gap(8)) == (1_000_000, 1)
+
+
+def _overshoots(h: Harness, target: int) -> bool:
+    """Run a copy of the chip to its arrival: does it pass ``target`` on the way (the position
+    compare register one step beyond the target fires, at the exact step)?"""
+    twin = h.axis.chip.clone()
+    direction = 1 if target > h.gap(1) else -1
+    twin.write(Reg.POS_COMP, (twin.x_target + direction) & MASK24)
+    twin.write(Reg.POS_COMP_INT, 1 << 8)
+    for _ in range(1000):
+        if twin.run(twin.t + 10**10) is Stop.ARRIVED:
+            break
+    return twin.pos_comp_flag or twin.x_actual != twin.x_target
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(speed=39677, acceleration=463175, target=-2985, factor=3, when=0.93)  # raised braking
+@example(speed=20000, acceleration=51200, target=1_000_000, factor=5, when=0.3)
+@given(speed=st.integers(500, 300_000), acceleration=st.integers(1000, 2_000_000),
+       target=st.one_of(st.integers(-20_000, 20_000), st.integers(-2_000_000, 2_000_000)),
+       factor=st.sampled_from([1.2, 1.5, 2, 3, 5, 10, 50]),
+       when=st.one_of(st.floats(0, 1), st.floats(0.9, 1)))
+def test_a_speed_limit_raised_in_flight_never_overshoots(
+        speed: int, acceleration: int, target: int, factor: float, when: float) -> None:
+    """AP 4 raised at any moment of a move, braking included: the chip (whose motion is the
+    tick-by-tick reference's) never passes the target, and where the move takes the higher
+    limit its PULSE_DIV is the new speed's."""
+    h = Harness()
+    h.sap(4, speed)
+    h.sap(5, acceleration)
+    h.axis.move_to(target)
+    twin = h.axis.chip.clone()
+    for _ in range(1000):
+        if twin.run(twin.t + 10**10) is Stop.ARRIVED:
+            break
+    h.advance(when * twin.ns_at(twin.t) / NS)
+    if h.gap(8):
+        return
+    before = h.axis.chip.pulse_div
+    h.sap(4, min(8_000_000, int(speed * factor)))
+    assert not _overshoots(h, target)
+    assert h.axis.chip.pulse_div in (before, choose_pulse_div(h.gap(4), h.axis.chip.clock_hz))
+    h.until(AxisEventKind.TARGET_REACHED, timeout_s=10_000)
+    assert (h.gap(1), h.gap(8)) == (target, 1)
+
+
+@pytest.mark.parametrize("core", CORES)
+def test_a_move_across_the_32_bit_wrap_takes_the_shorter_way(core: str) -> None:
+    """The manual's MVP note: "The distance between the actual position and the new position
+    must not be more than 2147483647 microsteps. Otherwise the motor will run in the opposite
+    direction in order to take the shorter distance (caused by 32 bit overflow)." MVP ABS from
+    just below 2**31 to just above -2**31 is 2000 steps forward across the wrap, not 4.3
+    billion back; 2**31 - 1 steps away is still the plain way."""
+    h = Harness(axis_class=CORES[core])
+    h.sap(4, 100_000)
+    h.sap(1, 2**31 - 1000)
+    h.axis.move_to(-(2**31) + 1000)
+    h.until(AxisEventKind.TARGET_REACHED, timeout_s=10)
+    assert (h.gap(1), h.axis.chip.motor_position) == (-(2**31) + 1000, 2000)
+    h.axis.move_to(2**31 - 1000)  # and back the same short way
+    h.until(AxisEventKind.TARGET_REACHED, timeout_s=10)
+    assert (h.gap(1), h.axis.chip.motor_position) == (2**31 - 1000, 0)
+    h.sap(1, -1000)
+    h.axis.move_to(2**31 - 1001)  # exactly 2**31 - 1 ahead: forward
+    h.advance(1)
+    assert -1000 < h.gap(1) < 2**31 - 1001
+
+
+def test_unit_mode_0_is_the_tmc4210_registers_at_the_dividers_in_force() -> None:
+    """AP 255 = 0 on the TMC4210 core (docs/motion.md, "Unit mode 0"): speeds and
+    accelerations are TMC4210 register values at the dividers chosen for the power-up
+    defaults (PULSE_DIV 3, RAMP_DIV 8): 1000 units step at 30,518 pps, 32 TMC5130 units
+    each."""
+    h = Harness()
+    h.sap(255, 0)
+    h.sap(5, 100)
+    h.axis.rotate(1000)
+    h.advance(2)
+    chip = h.axis.chip
+    assert (chip.pulse_div, chip.ramp_div, chip.v_max, chip.a_max) == (3, 8, 1000, 100)
+    assert h.gap(3) == 1000
+    before = h.gap(1)
+    h.advance(1)
+    rate = step_rate(1000, 3, 16_000_000)
+    assert abs(h.gap(1) - before - rate) <= 1
+    assert rate == 32 * 1000 * 16_000_000 / 2**24

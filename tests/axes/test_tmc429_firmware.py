@@ -273,3 +273,14 @@ def test_coolstep_lowers_the_tmc262_current_at_light_load_above_the_threshold_sp
     assert axis.current == 255 * 16 // 32
     axis.set_parameter(AP.SMARTENERGY_THRESHOLD_SPEED, 1500)  # now below it: off again
     assert axis.get_parameter(AP.SMARTENERGY_ACTUAL_CURRENT) == 31 and axis.chip.driver.semin == 0
+
+
+def test_a_move_across_the_32_bit_wrap_takes_the_shorter_way() -> None:
+    """The TMC429 modules share the firmware's 32-bit arithmetic (docs/motion.md, "MVP across
+    the 32-bit wrap"): 2000 steps forward across the wrap, not 4.3 billion back."""
+    axis = six_axes()[4]
+    axis.set_parameter(AP.ACTUAL_POSITION, 2**31 - 1000)
+    axis.move_to(-(2**31) + 1000)
+    events = run([axis], 30)
+    assert AxisEventKind.TARGET_REACHED in [event.kind for event in events]
+    assert (axis.get_parameter(AP.ACTUAL_POSITION), axis.chip.motor_position) == (-(2**31) + 1000, 2000)

@@ -26,11 +26,13 @@ from __future__ import annotations
 import logging
 from abc import abstractmethod
 from collections.abc import Mapping
+from math import isqrt
 
 from axes.board import AxisBoard
 from axes.chips.tmc42x.engine import (
     DISABLE_STOP_L,
     DISABLE_STOP_R,
+    DISTANCE_LIMIT,
     HALF24,
     MASK24,
     SOFT_STOP,
@@ -258,13 +260,15 @@ class TMC42xDriver(ChipDriver):
         if pps:
             pulse_div = choose_pulse_div(top_speed, clock_hz)
             if pulse_div != self._pulse_div and self._v_actual() and (
-                    pulse_div > self._pulse_div or self._mode() in (RampMode.RAMP, RampMode.SOFT)):
+                    pulse_div > self._pulse_div
+                    or (self._mode() in (RampMode.RAMP, RampMode.SOFT)
+                        and not self._coarser_is_safe(pulse_div, acceleration))):
                 # A finer scale mid-move would round the running speed (its fraction bits
                 # are lost in the rescale) and can cost a step of overshoot: a lower limit
                 # runs on the present, coarser scale until the motor is at rest.  A move to
-                # a target keeps its scale either way: on a coarser one the running speed can
-                # land above the new braking curve (its PMUL/PDIV rounds differently) and
-                # overshoot by a few steps; a higher limit takes effect from the next move.
+                # a target takes a coarser one (a higher limit) on the fly where the running
+                # speed, rescaled, is under the new braking curve; above it (raised while
+                # braking) it would overshoot by a few steps: the move keeps its scale.
                 pulse_div = self._pulse_div
             if abs(top_speed) > max_step_rate(0, clock_hz):
                 log.warning("axis %d: %d pps is beyond the %s at %d Hz; running at %d pps",
@@ -299,6 +303,31 @@ class TMC42xDriver(ChipDriver):
         v_top = self._to_register(top_speed)
         v_min = max(self._user_v_min(), stop_speed(a_max, *pair, v_top, ramp_div, pulse_div))
         self._write(MotorReg.V_MIN, min(v_min, V_REGISTER_MAX))
+
+    def _coarser_is_safe(self, pulse_div: int, acceleration: int) -> bool:
+        """Whether a move in flight may go on at the coarser ``pulse_div`` (a higher AP 4 than
+        the present scale reaches): the running speed, rescaled, must be at or under the new
+        braking curve one ramp period ahead of where the motor is, heading for the target.
+        Then the chip brakes in time as on any move; above it (a speed raised while braking)
+        it would pass the target by a few steps, so the move keeps its scale: its speed is the
+        curve's anyway, below the old limit (docs/motion.md, "On the fly")."""
+        v_actual = signed(self._read(MotorReg.V_ACTUAL), 12)
+        ahead = sdiff24(self._chip_target, self._x_last)
+        if ahead == 0 or (ahead > 0) != (v_actual > 0):
+            return False  # at the target or moving away from it: braking
+        ramp_div, a_max = choose_ramp_div(acceleration, pulse_div, self.chip.clock_hz)
+        pair = pmul_pdiv(a_max, ramp_div, pulse_div) if a_max else None
+        if pair is None:
+            return False
+        pmul, pdiv = pair
+        speed = round(abs(v_actual) * 2.0 ** (pulse_div - self._pulse_div))
+        pulses = 1 << (ramp_div - pulse_div) if ramp_div > pulse_div else 1
+        distance = min(abs(ahead) - -(-speed * pulses // 2048), DISTANCE_LIMIT)
+        if distance <= 0:
+            return False
+        if self._mode() == RampMode.SOFT:
+            return speed <= (pmul * distance) >> (3 + pdiv)
+        return speed <= isqrt((pmul * distance << 8) >> pdiv)
 
     def _user_v_min(self) -> int:
         """The V_MIN the parameters ask for: AP 20 (VSTOP, in the axis's units) or AP 130
@@ -370,8 +399,12 @@ class TMC42xDriver(ChipDriver):
             self._write_ref_conf(self._positioning_mode())
 
     def _feed_target(self, target: int) -> None:
-        """Write X_TARGET; a move beyond the 24-bit range goes in rolling pieces."""
-        remaining = target - self.position
+        """Write X_TARGET; a move beyond the 24-bit range goes in rolling pieces.
+
+        The way to the target is its 32-bit difference, as the firmware's int arithmetic
+        gives it (the manual's MVP note): a target more than 2**31 - 1 steps away is reached
+        the other way round, the shorter way across the wrap of the 32-bit position."""
+        remaining = to_int32(target - self.position)
         if abs(remaining) > ROLLING_SPAN:
             remaining = ROLLING_SPAN if remaining > 0 else -ROLLING_SPAN
         self._chip_target = (self._x_last + remaining) & MASK24
