@@ -522,3 +522,47 @@ def test_random_moves_land_on_target_without_overshoot(setups, targets) -> None:
 @given(**_moves)
 def test_random_moves_land_on_target_without_overshoot_soak(setups, targets) -> None:
     _moves_case(setups, targets)
+
+
+# == long moves: braking along the curve, three motors =========================================
+
+
+_long_setup = st.tuples(st.integers(0, 4), st.integers(-3, 5), st.integers(200, 2047),
+                        st.integers(1, 2047), st.floats(-0.5, 0.5))
+
+
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(setups=[(4, 4, 1678, 880, 0.3), (3, 5, 2047, 600, -0.3), (0, -3, 2047, 2047, 0.2)],
+         retarget=0.5)  # braking from V_MAX over hundreds of ramp ticks; a pulse every 8 ticks
+@given(setups=st.lists(_long_setup, min_size=3, max_size=3), retarget=st.floats(0.1, 0.9))
+def test_long_moves_of_three_motors_match_the_reference(setups, retarget: float) -> None:
+    """Each motor of one TMC429 brakes from V_MAX along the curve over thousands of ramp
+    ticks (the batched braking, remembered or not), one of them re-targeted in flight: every
+    motor is the reference's at every checkpoint and arrives at its tick."""
+    chip = step_dir_chip()
+    refs, horizons = [], []
+    for motor, (pulse_div, span, v_max, a_max, reach) in zip(chip.motors, setups, strict=True):
+        ramp_div = min(13, max(0, pulse_div + span))
+        configure(motor, v_max=v_max, a_max=a_max, pulse_div=pulse_div, ramp_div=ramp_div)
+        ref = _reference_for(motor)
+        horizon = 100_000 << min(pulse_div, ramp_div)
+        target = round(reach * v_max * (horizon >> pulse_div) / 2048) & MASK24
+        motor.write(MotorReg.X_TARGET, target)
+        ref.x_target = target
+        refs.append(ref)
+        horizons.append(horizon)
+    arrivals: list[list[int]] = [[], [], []]
+    for step in range(1, 9):
+        for index, (motor, ref) in enumerate(zip(chip.motors, refs, strict=True)):
+            until = horizons[index] * step // 8
+            ref.run_until(until)
+            while motor.t < until:
+                if motor.run(until) is Stop.ARRIVED:
+                    arrivals[index].append(motor.t)
+            assert (motor.x_actual, motor.v, motor.v_target) == (
+                ref.x_actual, ref.v, ref.v_target), f"motor {index} at tick {until}"
+            if index == 1 and step == max(1, round(retarget * 8)):
+                target = (motor.x_target - 5000) & MASK24
+                motor.write(MotorReg.X_TARGET, target)
+                ref.x_target = target
+    assert arrivals == [ref.arrivals for ref in refs]
