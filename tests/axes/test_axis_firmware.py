@@ -554,3 +554,20 @@ def test_unit_mode_0_is_the_tmc4210_registers_at_the_dividers_in_force() -> None
     rate = step_rate(1000, 3, 16_000_000)
     assert abs(h.gap(1) - before - rate) <= 1
     assert rate == 32 * 1000 * 16_000_000 / 2**24
+
+
+def test_a_new_target_in_flight_takes_a_higher_speed_limit_where_there_is_room() -> None:
+    """AP 4 raised while a short move brakes is kept on the present scale (its speed is the
+    braking curve's); a new, far target given then takes it at once: the scale is judged by
+    the new target."""
+    h = Harness()
+    h.sap(4, 20_000)
+    h.axis.move_to(30_000)
+    h.advance(1.6)  # braking towards 30,000
+    h.sap(4, 100_000)
+    assert h.axis.chip.pulse_div == 4  # the scale of 20,000 pps (up to 31,235 pps)
+    h.axis.move_to(1_000_000)
+    h.advance(2)
+    assert abs(h.gap(3) - 100_000) < 100
+    h.until(AxisEventKind.TARGET_REACHED)
+    assert h.gap(1) == 1_000_000

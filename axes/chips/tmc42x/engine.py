@@ -1021,7 +1021,8 @@ class MotorEngine(ChipModel):
         a = self.a_max
         lo = min(self.v_min, self.v_max)  # the clamped curve's floor (all of it if V_MIN >= V_MAX)
         hi = self.v_max
-        floors = band_floors(self.mode == _SOFT, self.pmul, self.pdiv)
+        soft = self.mode == _SOFT
+        floors = band_floors(soft, self.pmul, self.pdiv)
         c = self._curve(d)
         c = lo if c < lo else hi if c > hi else c
         t = c << 8
@@ -1030,7 +1031,7 @@ class MotorEngine(ChipModel):
         D = (d << 11) - acc
         d_floor = (d - room) << 11  # every pulse must leave D above this (steps < room)
         # the same start (relative to the target and to ``room``) brakes the same way
-        key = (self.mode, self.pmul, self.pdiv, a, lo, hi, per_ramp, every, ph, w, D, d_floor)
+        key = (soft, self.pmul, self.pdiv, a, lo, hi, per_ramp, every, ph, w, D, d_floor)
         known = _DESCENTS.get(key)
         if known is not None and known[0] <= max_ticks:
             n, w_before, w, D, mag = known
@@ -1039,6 +1040,7 @@ class MotorEngine(ChipModel):
         n = 0
         w_before = w
         mag = c  # the ramp target of the last tick taken
+        ended = False  # by itself or before ``room``: not for want of ticks
         while n < max_ticks:
             if floors[c] >= D and c > lo:  # the curve drops to a lower band
                 c -= 1
@@ -1053,6 +1055,7 @@ class MotorEngine(ChipModel):
             else:
                 nD = D - per_ramp * (nw >> 8)
                 if nD <= d_floor:
+                    ended = True
                     break
                 D = nD
                 ph = every - 1
@@ -1062,6 +1065,7 @@ class MotorEngine(ChipModel):
             n += 1
             if w == t:
                 if c in (lo, hi):
+                    ended = True
                     break  # steady: the closed-form path takes over
                 rest = D - floors[c]
                 step = per_ramp * c
@@ -1080,14 +1084,11 @@ class MotorEngine(ChipModel):
                         n += k
                         w_before = w
             elif w - t >= far:
+                ended = True
                 break  # far above the curve: a linear slew, the caller's batches
-        else:
-            n = -n  # out of ticks: where a longer run goes on
-        if n <= 0:
-            if n == 0:
-                return None
-            n = -n
-        else:
+        if n == 0:
+            return None
+        if ended:
             if len(_DESCENTS) >= DESCENT_CACHE_SIZE:
                 _DESCENTS.clear()
             _DESCENTS[key] = (n, w_before, w, D, mag)

@@ -388,9 +388,9 @@ class TMC42xDriver(ChipDriver):
         self._write_ref_conf(RampMode.VELOCITY)
 
     def start_positioning(self, target: int, top_speed: int) -> None:
+        self._feed_target(target)  # first: a move in flight judges a new scale by it
         self._set_dividers(self._top_speed(top_speed), self.params[AP.MAX_ACCELERATION])
         self._write(MotorReg.V_MAX, self._to_register(top_speed))
-        self._feed_target(target)
         self._write_ref_conf(self._positioning_mode())
 
     def set_positioning_mode(self) -> None:
