@@ -566,3 +566,42 @@ def test_long_moves_of_three_motors_match_the_reference(setups, retarget: float)
                 motor.write(MotorReg.X_TARGET, target)
                 ref.x_target = target
     assert arrivals == [ref.arrivals for ref in refs]
+
+
+def _chip_state(chip: TMC429) -> tuple[dict, list[dict]]:
+    """Everything a frame can change: the chip's own state and each motor's."""
+    top = {k: v for k, v in vars(chip).items() if k not in ("motors", "_origin_chip")}
+    motors = [{k: v for k, v in vars(m).items() if k not in ("chip", "driver", "board")}
+              for m in chip.motors]
+    return top, motors
+
+
+_any_frame = st.one_of(
+    st.builds(lambda address, data: datagram(address, data, read=True), st.integers(0, 0x7F),
+              st.integers(0, MASK24)),  # reads, the firmware's spi_data path
+    st.builds(datagram, st.sampled_from([*range(0x30, 0x40), 0x0, 0x16, 0x2B, 0x45]),
+              st.integers(0, MASK24)),  # global writes (the cover datagram, power-down, ...)
+)
+
+
+@settings(max_examples=80, deadline=None)
+@given(frames=st.lists(st.tuples(_any_frame, st.integers(0, 300)), min_size=1, max_size=12),
+       step_dir=st.booleans())
+def test_spi_data_answers_the_data_bits_of_spi_and_acts_the_same(
+        frames: list[tuple[int, int]], step_dir: bool) -> None:
+    """The firmware's reads (spi_data) skip the status byte: the same answer's data bits and the
+    same chip afterwards, for any frame (the cover datagram and its echo, power-down, RAM)."""
+    chips = [step_dir_chip() if step_dir else TMC429() for _ in range(2)]
+    for chip in chips:
+        chip.write(GlobalReg.SMGP, 2)
+        for motor in chip.motors:
+            configure(motor, v_max=900, a_max=30, pulse_div=0, ramp_div=2)
+            motor.write(MotorReg.X_TARGET, 4000)
+            motor.write(MotorReg.INTERRUPT, 0xFF00)
+    t = 0
+    for frame, ticks in frames:
+        t += ticks
+        for chip in chips:
+            chip.advance(t)
+        assert chips[1].motor(frame >> 29 & 1).spi_data(frame) == chips[0].spi(frame) & MASK24
+        assert _chip_state(chips[1]) == _chip_state(chips[0])
