@@ -104,6 +104,9 @@ PROGRAM_CHUNK_NS = 500_000
 #: On a real clock the recorder takes at most this many sample instants per turn (a request,
 #: a timer slice): it catches up over several, like a busy program.
 RECORDER_SAMPLES_PER_TURN = 16
+#: On a virtual clock a running program asks to be run this often (its instructions and events
+#: happen at the same instants whatever the turn; a real clock's turns are 10 ms).
+VIRTUAL_PROGRAM_SLICE_NS = 1_000_000_000
 #: On a real clock a program may fall this far behind before the rest is skipped, as on a
 #: CPU too slow for its work.
 MAX_LAG_NS = 50 * NS_PER_MS
@@ -139,6 +142,8 @@ class Simulation:
         self._request_ns = clock.request_ns
         for module in self.modules:
             module.on_address_change = self._forget_addresses
+            if clock.virtual:  # nothing lags a virtual clock: a busy program runs in long turns
+                module.program.on_virtual_clock(VIRTUAL_PROGRAM_SLICE_NS)
             module.advance_to(clock.now_ns())
         self.replan()
 
