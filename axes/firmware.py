@@ -131,6 +131,8 @@ class AxisFirmware(Axis):
         #: The chip's next notable instant (None: nothing ahead), once computed since the last
         #: change (``_lookahead_known``).
         self._lookahead_cache: _Lookahead | None = None
+        #: The last crossing found: (the look-ahead it holds for, values, time).
+        self._crossing: tuple[_Lookahead, tuple[int, ...], int] | None = None
         self._lookahead_known = False
         self._target = 0  # AP 0, 32 bit
         self._positioning = False
@@ -741,7 +743,11 @@ class AxisFirmware(Axis):
     def _first_time_at_position(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
         """The first time AP 1 equals one of ``values``, or the chip's next notable instant
         if it does not before: a copy of the chip runs with a mark at each value's motor
-        position (AP 1 and the motor position move together, step by step)."""
+        position (AP 1 and the motor position move together, step by step).  Kept while the
+        look-ahead it was found for holds."""
+        cached = self._crossing
+        if cached is not None and cached[0] is ahead and cached[1] == values:
+            return cached[2]
         self._sync()
         if not self.chip.steps_reach_motor():
             return 0  # AP 1 counts steps that do not move the motor: no marks to set
@@ -758,7 +764,9 @@ class AxisFirmware(Axis):
             twin.run(until, LOOKAHEAD_BUDGET)
         finally:
             board.firmware_marks = saved
-        return twin.ns_at(twin.t) if twin.t < until else ahead.time_ns
+        result = twin.ns_at(twin.t) if twin.t < until else ahead.time_ns
+        self._crossing = (ahead, values, result)
+        return result
 
     def set_parameter(self, number: int, value: int) -> bool:
         if number == AP.TARGET_SPEED and self._rotating_at(value):

@@ -194,3 +194,13 @@ def test_a_polling_loop_is_skipped_not_stepped() -> None:
     assert module.globals[2][9] == 50000 and -4 <= module.globals[2][10] <= 0
     assert interp.loops_skipped > 10_000  # passes of ~30 us over a ~1 s move each way
     assert interp.executed > 3 * interp.loops_skipped  # counted as if executed
+
+
+def test_the_server_option_steps_every_instruction() -> None:
+    """``--step-every-instruction`` (ServerConfig.skip_loops = False) is the stepping reference."""
+    from tmcl_server.server import ServerConfig, build_simulation
+
+    stepping = build_simulation(ServerConfig(endpoints={}, clock="virtual", skip_loops=False))
+    skipping = build_simulation(ServerConfig(endpoints={}, clock="virtual"))
+    assert not stepping.modules[0].program.skip_loops
+    assert skipping.modules[0].program.skip_loops

@@ -194,6 +194,15 @@ class ProgramSupport:
         """Run the program's instructions that start before ``end_ns`` (see Interpreter)."""
         return self.interpreter.run_until(now_ns, end_ns)
 
+    @property
+    def skip_loops(self) -> bool:
+        """Whether loops that change nothing are skipped (False: every instruction stepped)."""
+        return self.interpreter.skip_loops
+
+    @skip_loops.setter
+    def skip_loops(self, value: bool) -> None:
+        self.interpreter.skip_loops = value
+
     def on_virtual_clock(self, slice_ns: int) -> None:
         """Nothing waits for a real clock: a running program asks to be run every
         ``slice_ns`` only, its timers fire inside its runs (docs/scheduling.md)."""
