@@ -14,9 +14,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from hypothesis import HealthCheck, given, seed, settings  # noqa: E402
+from hypothesis import HealthCheck, given, seed, settings
 
-from tests.tmcl_server.test_loop_skipping import programs, run, worlds  # noqa: E402
+from tests.tmcl_server.test_loop_skipping import programs, run, worlds
 
 
 def main() -> int:
