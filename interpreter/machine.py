@@ -40,7 +40,7 @@ SLICE_NS = 10_000_000
 LOOP_PROBE_AFTER = 2
 LOOP_BACKOFF_MAX = 1024
 #: A pass longer than this many instructions is not analysed.
-MAX_PASS = 64
+MAX_PASS = 256
 #: "Steady until something intervenes" (axes.interface.FOREVER's value).
 FOREVER = 1 << 62
 
@@ -228,7 +228,7 @@ class Interpreter:
         #: server must (the handler runs on time); on a virtual clock the timers fire inside
         #: :meth:`run_until` at their instants anyway, so the caller need not stop there.
         self.wake_for_timers = True
-        #: Loops analysed or skipped so far (tests, benchmarks).
+        #: Passes of loops skipped so far (tests, benchmarks).
         self.loops_skipped = 0
         self._probe_calls: list[_Call] | None = None
         self._loop_wait = LOOP_PROBE_AFTER  # backward jumps until the next analysis
@@ -870,7 +870,8 @@ class Interpreter:
             return _CONTINUE
         period, length = self.time_ns - start, self.executed - executed
         after = self._registers()
-        if after == before:  # the pass changed nothing: the next ones do the same
+        steady = all(call.steady_until > call.time_ns for call in calls)
+        if steady and after == before:  # the pass changed nothing: the next ones do the same
             if not calls and not waited:
                 self._idle_loops[head] = (before, period, length)
             horizons = tuple((call.time_ns - start, call.steady_until) for call in calls)
@@ -879,7 +880,7 @@ class Interpreter:
             skipped = self._skip_to_flip(path, calls, before, after, start, period, length, limit)
         if skipped:
             self._loop_backoff = 1
-            self._loop_wait = 1 if after == before else 2
+            self._loop_wait = 1 if steady and after == before else 2
         else:
             self._give_up()
         return _CONTINUE
@@ -905,48 +906,55 @@ class Interpreter:
     def _skip_to_flip(self, path: list[int], calls: list[_Call], before: tuple[object, ...],
                       after: tuple[object, ...], start: int, period: int, length: int,
                       limit: int) -> int:
-        """A pass that reads one moving value (a position) and only compares it: skip to the
-        pass where a comparison could flip, the first time the value reaches a boundary."""
-        moving = [call for call in calls if call.steady_until <= call.time_ns]
-        if len(moving) != 1 or moving[0].status != STATUS_OK or moving[0].request[0] != _GAP:
+        """A pass that reads moving values (positions) and only compares them: skip to the pass
+        where a comparison could flip, the first time a value reaches one of its boundaries."""
+        moving = [index for index, call in enumerate(calls) if call.steady_until <= call.time_ns]
+        if any(calls[i].status != STATUS_OK or calls[i].request[0] != _GAP for i in moving):
             return 0
-        read = moving[0]
-        boundaries = _boundaries(self.code, path, calls, read, before, after)
-        if boundaries is None or read.value in boundaries:
+        boundaries = _boundaries(self.code, path, calls, set(moving), before, after)
+        if boundaries is None:
             return 0
-        opcode, type_, motor, _ = read.request
-        crossing = self.port.first_time_at(read.time_ns, opcode, type_, motor, boundaries) \
-            if boundaries else FOREVER
-        horizons = tuple((call.time_ns - start, crossing if call is read else call.steady_until)
-                         for call in calls)
-        return self._skip(period, length, limit, horizons, start, real_passes=1)
+        horizons = []
+        for index, call in enumerate(calls):
+            horizon = call.steady_until
+            if index in boundaries:
+                values = boundaries[index]
+                if call.value in values:
+                    return 0
+                opcode, type_, motor, _ = call.request
+                horizon = self.port.first_time_at(call.time_ns, opcode, type_, motor, values) \
+                    if values else FOREVER
+            horizons.append((call.time_ns - start, horizon))
+        return self._skip(period, length, limit, tuple(horizons), start, real_passes=1)
 
 
 #: Registers of the pass analysis (the indices in Interpreter._registers()).
 _ACC, _X, _ZERO, _CMP, _ERRORS, _STACK = 1, 2, 3, 4, 5, 6
 
 
-def _boundaries(code: list[Instruction], path: list[int], calls: list[_Call], read: _Call,
-                before: tuple[object, ...], after: tuple[object, ...]) -> tuple[int, ...] | None:
-    """The values of ``read`` at which the pass's branches could decide otherwise, if the pass
-    depends on it only through COMP and JC and leaves every register it reads before writing
-    as it found it; None if the pass is not of that shape."""
-    symbolic: dict[int, int] = {}  # register -> offset: its value is read + offset
+def _boundaries(code: list[Instruction], path: list[int], calls: list[_Call], moving: set[int],
+                before: tuple[object, ...],
+                after: tuple[object, ...]) -> dict[int, tuple[int, ...]] | None:
+    """For each moving read (an index of ``calls``), the values at which the pass's branches
+    could decide otherwise, if the pass depends on the moving reads only through COMP and JC
+    and leaves every register it reads before writing as it found it; None if the pass is not
+    of that shape."""
+    symbolic: dict[int, tuple[int, int]] = {}  # register -> (read, offset): read's value + offset
     written: set[int] = set()
     first_read: set[int] = set()
-    boundaries: set[int] = set()
-    pending = iter(calls)
+    boundaries: dict[int, set[int]] = {index: set() for index in moving}
+    pending = iter(enumerate(calls))
 
     def reads(register: int) -> None:
         if register not in written:
             first_read.add(register)
 
-    def writes(register: int, offset: int | None = None) -> None:
+    def writes(register: int, source: tuple[int, int] | None = None) -> None:
         written.add(register)
-        if offset is None:
+        if source is None:
             symbolic.pop(register, None)
         else:
-            symbolic[register] = offset
+            symbolic[register] = source
 
     for pc in path:
         op, ty, motor, va = code[pc]
@@ -959,14 +967,16 @@ def _boundaries(code: list[Instruction], path: list[int], calls: list[_Call], re
             writes(_ZERO)
         elif op == _COMP:
             reads(_ACC)
-            offset = symbolic.get(_ACC)
-            writes(_CMP, None if offset is None else offset - va)
-            writes(_ZERO, None if offset is None else offset - va)
+            source = symbolic.get(_ACC)
+            compared = None if source is None else (source[0], source[1] - va)
+            writes(_CMP, compared)
+            writes(_ZERO, compared)
         elif op == _JC:
             register = _ZERO if ty <= 1 else _CMP if ty <= 7 else _ERRORS
             reads(register)
             if register in symbolic:
-                boundaries.add(-symbolic[register])
+                index, offset = symbolic[register]
+                boundaries[index].add(-offset)
         elif op in (_JA, _WAIT):
             continue
         elif op in (_AAP, _AGP, _ACO):
@@ -978,15 +988,16 @@ def _boundaries(code: list[Instruction], path: list[int], calls: list[_Call], re
         elif op in _NOT_MODULE:
             return None  # CALCX, subroutines, interrupts, error flags: not analysed
         else:
-            call = next(pending)
+            index, call = next(pending)
             if call.status == STATUS_OK and (
                     (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
                     or (op == _RFS and ty == _RFS_STATUS)):
-                writes(_ACC, 0 if call is read else None)
-                writes(_ZERO, 0 if call is read else None)
+                source = (index, 0) if index in moving else None
+                writes(_ACC, source)
+                writes(_ZERO, source)
     if any(before[register] != after[register] for register in first_read):
         return None
-    return tuple(sorted(boundaries))
+    return {index: tuple(sorted(values)) for index, values in boundaries.items()}
 
 
 # Outcomes of _execute / _execute_other.

@@ -188,6 +188,49 @@ Back:
     JC GT, Back
     JA Loop
 """),
+    Shape("monitor", 1000, """
+    // a field program's shape: three axes moved, a monitor loop checking a limit setting
+    // and each axis's "position reached" with several exits, a host-set state variable
+    SAP 4, 0, 40000
+    SAP 4, 1, 60000
+    SAP 4, 2, 80000
+Cycle:
+    MVP ABS, 0, 500000
+    MVP ABS, 1, -300000
+    MVP ABS, 2, 700000
+WaitMove:
+    GGP 10, 2
+    COMP 99
+    JC EQ, Halt
+    GAP 212, 0
+    COMP 50
+    JC GT, Halt
+    GAP 8, 0
+    COMP 1
+    JC NE, WaitMove
+    GAP 8, 1
+    COMP 1
+    JC NE, WaitMove
+    GAP 8, 2
+    COMP 1
+    JC NE, WaitMove
+    WAIT TICKS, 0, 10
+    MVP ABS, 0, 0
+    MVP ABS, 1, 0
+    MVP ABS, 2, 0
+Back:
+    GAP 8, 0
+    COMP 1
+    JC NE, Back
+    WAIT POS, 1, 0
+    WAIT POS, 2, 0
+    JA Cycle
+Halt:
+    MST 0
+    MST 1
+    MST 2
+    STOP
+"""),
     Shape("timer", 100, """
     // a 1 ms timer interrupt whose handler counts in user variable 0
     VECT 0, Tick
