@@ -165,6 +165,8 @@ class ModuleCore:
         self.apply_world(self.world)
         self._tick_origin_ms = self.now_ns // NS_PER_MS
         self._random = random.Random(0)
+        #: GP 131 (where the module has it): the status of the last command that failed.
+        self.last_error = 0
         self._reach_request: tuple[int, bool, ReplySink, Interface] | None = None
         self._reach_watch: dict[int, _ReachWatch] = {}
         self._last_command_ns = {Interface.SERIAL: self.now_ns, Interface.CAN: self.now_ns}
@@ -180,8 +182,13 @@ class ModuleCore:
         """The module's axes: on its chip core (in groups where a chip drives several)."""
         count = self.type.number_of_axes
         if self._axis_factory is not None:
-            return [self._axis_factory(index) for index in range(count)]
-        return make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+            axes = [self._axis_factory(index) for index in range(count)]
+        else:
+            axes = make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+        if self.type.encoder_counts_per_rev is not None:
+            for axis in axes:  # the module's own encoder, where the world names none
+                axis.builtin_encoder_counts = self.type.encoder_counts_per_rev
+        return axes
 
     @property
     def accumulator(self) -> int:
@@ -270,14 +277,17 @@ class ModuleCore:
         opcode = request.opcode
         handler = self.handlers.get(opcode)
         if handler is None:
+            self.last_error = _INVALID_COMMAND
             return _INVALID_COMMAND, request.value
         touched = self._touched
         touched.clear()
         try:
             result = handler(request, sink, interface)
         except CommandError as exc:
+            self.last_error = int(exc.status)
             return exc.status, request.value
         except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
+            self.last_error = int(Status.EEPROM_LOCKED)
             return Status.EEPROM_LOCKED, request.value
         finally:
             if self.may_reschedule(opcode, request.motor):
@@ -580,6 +590,8 @@ class ModuleCore:
                 return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & 0x7FFF_FFFF
             if number == GP.RANDOM_NUMBER:
                 return self._random.randrange(2**31)
+            if number == GP.LAST_TMCL_ERROR:
+                return self.last_error
         return self.globals[bank][number]
 
     def write_global(self, number: int, bank: int, value: int) -> None:
