@@ -131,6 +131,11 @@ class AxisFirmware(Axis):
         self._chip_live: frozenset[int] = frozenset(self.driver.live_parameters & known)
         #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
         self._encoder_prescaler = AP.FULLSTEPS not in known
+        #: AP 212 counts microsteps with a prescaler (the TMC429 modules) and on the TMC4361
+        #: modules (whose own numbering has a DSTOP; the chip compares ENC_POS_DEV, in
+        #: microsteps); else encoder counts (the TMCM-6212).
+        self._deviation_in_microsteps = (self._encoder_prescaler
+                                         or AP.STOP_DECELERATION in known)
         #: How far the look-ahead runs the chip; a driver may ask for another horizon.
         self._lookahead_ns: int = self.driver.lookahead_ns
         self._now_ns = 0
@@ -597,14 +602,14 @@ class AxisFirmware(Axis):
         self._encoder_mech_base = self._mechanical()
 
     def _deviation(self) -> float:
-        """|AP 1 - AP 209| in the unit of AP 212: encoder counts, or with a prescaler (the
-        TMC429 modules) microsteps."""
+        """|AP 1 - AP 209| in the unit of AP 212: encoder counts, or microsteps (the TMC429
+        and TMC4361 modules)."""
         gap = abs(self._position - self._encoder_position())
-        return gap if self._encoder_prescaler else gap * self._counts_per_microstep()
+        return gap if self._deviation_in_microsteps else gap * self._counts_per_microstep()
 
     def _deviation_limit_steps(self, limit: int) -> float:
         """AP 212 in microsteps of AP 1."""
-        return limit if self._encoder_prescaler else limit / self._counts_per_microstep()
+        return limit if self._deviation_in_microsteps else limit / self._counts_per_microstep()
 
     def _check_deviation(self) -> None:
         limit = self._params[AP.MAX_DEVIATION]

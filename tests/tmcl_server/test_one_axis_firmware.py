@@ -138,6 +138,16 @@ def test_the_tmcm_1111_answers_in_pps_only_and_reads_the_encoder_speed() -> None
     assert abs(rig.gap(209) - rig.gap(1)) < 12.5
 
 
+def test_the_tmcm_1111_stops_on_an_encoder_deviation_in_microsteps() -> None:
+    world = World.from_dict({"axis": [{"index": 0, "encoder_slip": 0.5}]})
+    rig = Rig("tmcm-1111", world)
+    rig.sap(212, 1000)  # ENC_POS_DEV_TOL: microsteps
+    rig.move(51_200, seconds=3)
+    assert rig.ok(Opcode.GAP, 207) == 2  # stopped on the deviation
+    assert 2000 <= rig.gap(1) <= 2030  # the encoder saw half: 1000 microsteps behind
+    assert rig.gap(1) - rig.gap(209) == pytest.approx(1000, abs=20)
+
+
 # == the sensOstep encoder (TMCM-1140, 1160, 1161) ===========================================
 
 

@@ -185,6 +185,7 @@ def test_the_feature_classes_work_where_the_class_has_their_names(rig: Rig, kind
         ramp = motor.linear_ramp
         ramp.max_acceleration = 1000  # AP 5
         assert ramp.max_acceleration == 1000
+        assert ramp.enabled is None  # no class names an EnableRamp parameter
         if hasattr(ap, "MaxVelocity"):
             ramp.max_velocity = 1234
             assert ramp.max_velocity == 1234 and "'max_velocity': 1234" in str(ramp)
@@ -200,6 +201,8 @@ def test_the_feature_classes_work_where_the_class_has_their_names(rig: Rig, kind
         else:  # TMCM1160/1161 spell the smartEnergy names in lower camel case
             with pytest.raises(AttributeError):
                 sg.stop_velocity = 200
+            with pytest.raises(AttributeError):
+                str(sg)
         cool = motor.coolstep
         cool.current_minimum, cool.current_down_step, cool.current_up_step = 1, 2, 3
         assert (cool.current_minimum, cool.current_down_step, cool.current_up_step) == (1, 2, 3)
