@@ -27,9 +27,17 @@ REFERENCE_CONF = 0x01
 
 
 class Rig:
+    """A module and its simulation, commanded directly (``attach``: a simulator's own)."""
+
     def __init__(self, kind: str, world: World | None = None) -> None:
         self.module = TMCLModule(kind=kind, world=world)
         self.sim = Simulation([self.module], VirtualClock())
+
+    @classmethod
+    def attach(cls, sim: SimulatorThread) -> Rig:
+        rig = cls.__new__(cls)
+        rig.module, rig.sim = sim.module(), sim.simulation
+        return rig
 
     def cmd(self, opcode: int, type_: int = 0, motor: int = 0, value: int = 0) -> Reply:
         (_, reply), = self.sim.execute_on([self.module], Request(1, opcode, type_, motor, value),
@@ -146,6 +154,23 @@ def test_the_tmcm_1111_stops_on_an_encoder_deviation_in_microsteps() -> None:
     assert rig.ok(Opcode.GAP, 207) == 2  # stopped on the deviation
     assert 2000 <= rig.gap(1) <= 2030  # the encoder saw half: 1000 microsteps behind
     assert rig.gap(1) - rig.gap(209) == pytest.approx(1000, abs=20)
+
+
+def test_stored_tmcm_1111_parameters_come_back_by_their_own_numbers(tmp_path: Path) -> None:
+    state = str(tmp_path / "state")
+    for restart in (False, True):
+        with SimulatorThread(clock="virtual", module_type="tmcm-1111", tcp=["127.0.0.1:0"],
+                             state_dir=state) as sim:
+            rig = Rig.attach(sim)  # its commands run on the simulator's loop (sim.call)
+            if not restart:
+                for number, value in ((15, 300), (22, 4444), (12, 1)):
+                    sim.call(rig.sap, number, value)
+                    sim.call(rig.ok, Opcode.STAP, number)
+            else:
+                assert [sim.call(rig.gap, n) for n in (15, 22, 12)] == [300, 4444, 1]
+                assert sim.call(rig.register, VSTART) == 300 << 8
+                assert sim.call(rig.register, BOWS[0]) == 4444
+                assert sim.call(rig.register, REFERENCE_CONF) & 0b10  # stop_right_en
 
 
 # == the sensOstep encoder (TMCM-1140, 1160, 1161) ===========================================
