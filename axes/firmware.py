@@ -122,6 +122,7 @@ class AxisFirmware(Axis):
                         **{self._keys.get(n, n): spec.default for n, spec in parameters.items()}}
         for bits in _LIMIT_SWITCH_BITS.keys() & known:
             self._derive_limit_switch(bits)
+        self._input_stage_from_parameters()
         self.driver = make_driver(self._params, self.board)
         #: The modelled motor driver IC the chip driver reaches (the TMC262 of the TMC429
         #: modules): stallGuard2, coolStep and the current act on it.  Without one, they come
@@ -775,9 +776,7 @@ class AxisFirmware(Axis):
         elif number == AP.RAMP_MODE:
             self._ramp_mode_written()
         elif number in (AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY):
-            self.board.swap = bool(self._params[AP.SWAP_SWITCHES])
-            self.board.invert_left = bool(self._params[AP.LEFT_POLARITY])
-            self.board.invert_right = bool(self._params[AP.RIGHT_POLARITY])
+            self._input_stage_from_parameters()
             self._pins_changed()
         elif number == AP.MICROSTEPS:
             self._rebase_encoder()
@@ -787,6 +786,12 @@ class AxisFirmware(Axis):
             self._current_changed()
             if self._standby:
                 self._emit(AxisEventKind.CURRENT_CHANGED, False)
+
+    def _input_stage_from_parameters(self) -> None:
+        """The module's input stage: switches swapped and inverted as the parameters say."""
+        self.board.swap = bool(self._params[AP.SWAP_SWITCHES])
+        self.board.invert_left = bool(self._params[AP.LEFT_POLARITY])
+        self.board.invert_right = bool(self._params[AP.RIGHT_POLARITY])
 
     def _ramp_mode_written(self) -> None:
         """AP 138 (TMC429 modules): 2 (velocity) stops a move on a ramp, as MST does; 0/1

@@ -21,7 +21,9 @@ default ``minpower`` 10.8 V) and checks what its code and the test's assertions 
 
 Odemis runs moves in a thread and sleeps in wall time; the replay runs them one after the
 other on the virtual clock, a sleep being ``sim.advance``, and a move Odemis cancels while
-it may already have started is replayed as started (the more demanding case).  No Odemis code
+it may already have started is replayed as started (the more demanding case).  Its 0.1 s
+read timeout becomes a fail-safe (``WAIT_S``): the answers come at once in simulated time,
+but a loaded machine must not fail the replay in wall time.  No Odemis code
 is copied: the sequence is read from its source (docs/compatibility.md, "Odemis").
 """
 
@@ -48,6 +50,10 @@ USE_INTERNAL_UNIT_429 = {1110, 1140, 3110, 6110}  # speeds in TMC429 register un
 TMCL_OK_STATUS = {Status.OK, Status.LOADED}
 MINPOWER = 10.8  # V
 F_CLK = 16e6  # Odemis' TMC429 clock
+#: Odemis reads with a 0.1 s timeout; the simulator answers at once in simulated time, but a
+#: loaded machine may take longer in wall time: reads wait up to this (a fail-safe), and the
+#: checks for bytes beyond a reply look at what has arrived.
+WAIT_S = 5.0
 
 
 class TMCLError(Exception):
@@ -91,21 +97,29 @@ class Controller:
         assert len(names) == 1, names  # "/dev/ttyTMCM*" finds the simulated module
         self.port = serial.Serial(names[0], baudrate=9600, bytesize=serial.EIGHTBITS,
                                   parity=serial.PARITY_NONE, stopbits=serial.STOPBITS_ONE,
-                                  timeout=0.1, write_timeout=1)
+                                  timeout=WAIT_S, write_timeout=1)
         lock_exclusively(self.port.fileno())  # Odemis: flock(LOCK_EX | LOCK_NB)
         self.target = self.resynchronise()
 
     def resynchronise(self) -> int:
         self.port.reset_input_buffer()
-        assert self.port.read(1000) == b""  # nothing pending from an earlier controller
+        assert self._pending() == b""  # nothing left over from an earlier controller
         self.port.write(bytes(9))
         self.port.flush()
-        reply = self.port.read(10)
-        assert len(reply) == 9, reply
+        reply = self.port.read(9)
+        assert len(reply) == 9 and self._pending() == b"", reply  # Odemis reads 10: exactly 9
         _, address, status, _, _, checksum = struct.unpack(">BBBBiB", reply)
         assert status == Status.INVALID_COMMAND  # "Unknown command (expected)"
         assert checksum == sum(reply[:-1]) & 0xFF
         return address
+
+    def _pending(self) -> bytes:
+        """What the port holds right now (Odemis drains and checks with 0.1 s reads)."""
+        self.port.timeout = 0
+        try:
+            return self.port.read(1000)
+        finally:
+            self.port.timeout = WAIT_S
 
     def send(self, opcode: int, type_: int = 0, motor: int = 0, value: int = 0) -> int:
         frame = struct.pack(">BBBBi", self.target, opcode, type_, motor, value)
