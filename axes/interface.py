@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING
 
+from axes.world import DEFAULT_ENCODER_COUNTS_PER_REV
 from tmcl_spec.parameters import ParamSpec
 
 if TYPE_CHECKING:
@@ -150,6 +151,11 @@ class AxisControl(ABC):
 class AxisRig(ABC):
     """One axis as the rig around it sees it: the world (world file, run-time API), faults of
     the mechanics and the wiring (tmcl_server/faults.py), and telemetry."""
+
+    #: Counts per motor revolution of the encoder behind AP 209 where the world names none:
+    #: the module's own (``ModuleType.encoder_counts_per_rev``: the sensOstep's 1024), set by
+    #: the module after it builds its axes.
+    builtin_encoder_counts: int = DEFAULT_ENCODER_COUNTS_PER_REV
 
     @property
     @abstractmethod

@@ -26,6 +26,8 @@ LOAD_MAX = 1023
 ANALOG_MAX = 65535
 #: Highest supply voltage a world may set (the module is specified for 10..35 V).
 SUPPLY_VOLTAGE_MAX = 100.0
+#: Encoder counts per motor revolution where neither the world nor the module type says.
+DEFAULT_ENCODER_COUNTS_PER_REV = 51200
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,7 +96,9 @@ class AxisWorld:
     free_load: int = DEFAULT_LOAD
     #: Fraction of the motor's motion that the encoder does not see (lost steps), 0..1.
     encoder_slip: float = 0.0
-    encoder_counts_per_rev: int = 51200
+    #: None: the module's own encoder (``Axis.builtin_encoder_counts``: the sensOstep's 1024
+    #: on the TMCM-1140/1160/1161), else DEFAULT_ENCODER_COUNTS_PER_REV.
+    encoder_counts_per_rev: int | None = None
     motor_fullsteps_per_rev: int = 200
     #: Faults of the mechanics and wiring (tmcl_server/faults.py, docs/faults.md); they belong
     #: to the world, so a module restart keeps them.  The motor stops following its steps:
@@ -167,8 +171,8 @@ class AxisWorld:
         return cls(switches, zones,
                    _integer(data.get("load", DEFAULT_LOAD), (*where, "load"), 0, LOAD_MAX),
                    _number(data.get("encoder_slip", 0.0), (*where, "encoder_slip"), 0.0, 1.0),
-                   _integer(data.get("encoder_resolution", 51200),
-                            (*where, "encoder_resolution"), 1),
+                   None if data.get("encoder_resolution") is None else
+                   _integer(data["encoder_resolution"], (*where, "encoder_resolution"), 1),
                    _integer(data.get("motor_fullsteps", 200), (*where, "motor_fullsteps"), 1))
 
 

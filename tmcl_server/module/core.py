@@ -172,6 +172,8 @@ class ModuleCore:
         self.apply_world(self.world)
         self._tick_origin_ms = self.now_ns // NS_PER_MS
         self._random = random.Random(0)
+        #: GP 131 (where the module has it): the status of the last command that failed.
+        self.last_error = 0
         self._reach_request: tuple[int, bool, ReplySink, Interface] | None = None
         self._reach_watch: dict[int, _ReachWatch] = {}
         self._last_command_ns = {Interface.SERIAL: self.now_ns, Interface.CAN: self.now_ns}
@@ -187,8 +189,13 @@ class ModuleCore:
         """The module's axes: on its chip core (in groups where a chip drives several)."""
         count = self.type.number_of_axes
         if self._axis_factory is not None:
-            return [self._axis_factory(index) for index in range(count)]
-        return make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+            axes = [self._axis_factory(index) for index in range(count)]
+        else:
+            axes = make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+        if self.type.encoder_counts_per_rev is not None:
+            for axis in axes:  # the module's own encoder, where the world names none
+                axis.builtin_encoder_counts = self.type.encoder_counts_per_rev
+        return axes
 
     @property
     def accumulator(self) -> int:
@@ -277,6 +284,7 @@ class ModuleCore:
         opcode = request.opcode
         handler = self.handlers.get(opcode)
         if handler is None:
+            self.last_error = _INVALID_COMMAND
             return _INVALID_COMMAND, request.value
         touched = self._touched
         touched.clear()
@@ -284,10 +292,12 @@ class ModuleCore:
         try:
             result = handler(request, sink, interface)
         except CommandError as exc:
+            self.last_error = int(exc.status)
             if exc.status in _REFUSALS:  # refused before anything was done
                 self.changed = False
             return exc.status, request.value
         except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
+            self.last_error = int(Status.EEPROM_LOCKED)
             return Status.EEPROM_LOCKED, request.value
         finally:
             if self.changed and self.may_reschedule(opcode, request.motor):
@@ -305,8 +315,8 @@ class ModuleCore:
         if opcode == _GGP and motor == 0:
             if type_ == GP.TICK_TIMER:  # counts milliseconds
                 return (self.now_ns // NS_PER_MS + 1) * NS_PER_MS
-            if type_ == GP.RANDOM_NUMBER:  # each read draws the next number
-                return 0
+            if type_ in (GP.RANDOM_NUMBER, GP.LAST_TMCL_ERROR):  # the next number; a refused
+                return 0  # command of the same loop sets the last error (a refusal "changes nothing")
         return FOREVER  # inputs, outputs, variables, coordinates: changed only from outside
 
     def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...]) -> int:
@@ -610,6 +620,8 @@ class ModuleCore:
                 return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & 0x7FFF_FFFF
             if number == GP.RANDOM_NUMBER:
                 return self._random.randrange(2**31)
+            if number == GP.LAST_TMCL_ERROR:
+                return self.last_error
         return self.globals[bank][number]
 
     def write_global(self, number: int, bank: int, value: int) -> None:

@@ -211,11 +211,17 @@ def cmd_info(args: argparse.Namespace) -> int:
         version = conn.version_string()
         number = conn.ok(Opcode.GET_FIRMWARE_VERSION, 1) & 0xFFFF_FFFF
         kind = module_type_by_number(number >> 16)
-        bank0 = {n: conn.ok(Opcode.GGP, n, 0) for n in (
-            GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.HOST_ADDRESS, GP.BAUD_RATE,
-            GP.CAN_ID, GP.CAN_REPLY_ID, GP.CAN_SECONDARY_ID, GP.CAN_BIT_RATE)}
+        # what the module's table shows (a module without CAN hides its CAN rows: None)
+        shown = None if kind is None else kind.global_parameters[0]
+        bank0: dict[int, int | None] = {
+            n: conn.ok(Opcode.GGP, n, 0) if shown is None or (n in shown and shown[n].readable)
+            else None
+            for n in (GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.HOST_ADDRESS,
+                      GP.BAUD_RATE, GP.CAN_ID, GP.CAN_REPLY_ID, GP.CAN_SECONDARY_ID,
+                      GP.CAN_BIT_RATE)}
         status = conn.ok(Opcode.GET_APPLICATION_STATUS, 1) & 0xFFFF_FFFF
-    baud = (kind or module_type()).baud_rates.get(bank0[GP.BAUD_RATE])
+    rate = bank0[GP.BAUD_RATE]
+    baud = None if rate is None else (kind or module_type()).baud_rates.get(rate)
     mode = status >> 24
     info = {
         "version": version,
