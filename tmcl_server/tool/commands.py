@@ -404,7 +404,11 @@ def cmd_program(args: argparse.Namespace) -> int:
             else:
                 conn.ok(Opcode.RUN_APPLICATION, 1, 0, args.address_from)
             if args.wait:
-                _wait_for_program(conn, args.wait_timeout)
+                try:
+                    _wait_for_program(conn, args.wait_timeout)
+                except KeyboardInterrupt:
+                    raise Interrupted("interrupted: the program still runs on the module (stop it "
+                                      "with 'tmcl program stop')") from None
         elif action == "stop":
             conn.ok(Opcode.STOP_APPLICATION)
         elif action == "step":
