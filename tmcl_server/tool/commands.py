@@ -536,7 +536,8 @@ def _capture_frames(args: argparse.Namespace) -> Iterator[Frame]:
     path = Path(args.file)
     if is_can_log(path):
         return _can_log_or_text(path)
-    _check_text(path)
+    if path.is_file():  # (a pipe or device is streamed and checked as it comes)
+        _check_text(path)
     return _file_lines(path)
 
 
