@@ -31,11 +31,6 @@ if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null
     apt_install "dashboard browser" chromium chromium-driver
 fi
 
-# tmcl decode's tests dump captures with the real hexdump, od and xxd.
-if ! command -v hexdump >/dev/null 2>&1 || ! command -v xxd >/dev/null 2>&1; then
-    apt_install "hex dump" bsdextrautils xxd
-fi
-
 python3 -m venv .venv
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -e '.[test]'

@@ -283,7 +283,7 @@ def read_record(path: str | Path) -> tuple[list[Sample], list[Mark]]:
     naming the line when one is not a recorder's (a truncated file, another file)."""
     samples: list[Sample] = []
     marks: list[Mark] = []
-    with open(path, newline="") as stream:
+    with open(path, newline="", encoding="utf-8") as stream:
         for line, row in _rows(stream, file_format(path)):
             try:
                 if row.get("event"):

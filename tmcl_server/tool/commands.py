@@ -499,7 +499,7 @@ def _read_program(conn: Connection, args: argparse.Namespace) -> int:
             raise Refused(f"address {args.start} is outside module {conn.address}'s program memory")
     text = listing(instructions, args.start) if args.listing else disassemble(instructions)
     if args.output:
-        args.output.write_text(text)
+        args.output.write_text(text, encoding="utf-8")
     else:
         sys.stdout.write(text)
     return 0
