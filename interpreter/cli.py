@@ -3,6 +3,9 @@
     tmcl-asm assemble prog.tmc -o prog.bin [--listing prog.lst] [-I DIR] [--append-stop]
     tmcl-asm disassemble prog.bin [-o prog.tmc] [--listing]
     tmcl-asm list prog.tmc
+
+Every error of a source is printed, one ``file:line:column: message`` line each, in source
+order; the exit status is then 1.
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 from interpreter.assembler import AssemblyError, assemble_file
 from interpreter.disassembler import disassemble, listing
@@ -17,8 +21,15 @@ from interpreter.isa import decode_program
 from tmcl_spec.package import add_version_option
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """Usage errors in one line, not the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tmcl-asm", description="TMCL assembler and disassembler "
+    parser = _OneLineParser(prog="tmcl-asm", description="TMCL assembler and disassembler "
                                      "for the TMCM-6212 (TMCL-IDE source and binary formats).")
     add_version_option(parser)
     sub = parser.add_subparsers(dest="command", required=True)

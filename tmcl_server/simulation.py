@@ -393,12 +393,13 @@ class Simulation:
             targets = faults.before(request, interface, targets, sink)
             if not targets:
                 return []
+        for module in targets:  # first, so the tracer stamps the time the request runs at
+            self.sync_module(module)
         tracer = self.tracer
         if tracer is not None:
             sink = tracer.requested(request, interface, targets, sink)
         routed: list[Routed] = []
         for module in targets:
-            self.sync_module(module)
             reply = module.execute(request, interface, sink)
             if reply is not None:
                 routed.append((module, reply))

@@ -197,3 +197,24 @@ def test_trace_names_the_mqtt_topic_a_request_came_on(tmp_path: Path) -> None:
                and line.endswith("GAP 4 MaxPositioningSpeed m2 → 100 OK = 51200") for line in replies)
     assert any(" mqtt rig/1/request " in line and line.endswith("(wrong checksum) → 1 WRONG_CHECKSUM")
                for line in _lines(trace, " reply "))
+
+
+def test_on_a_real_clock_each_exchange_carries_the_time_the_module_handled_it() -> None:
+    """The module is brought up to the clock before the tracer notes the request, so the
+    simulated-time column is the request's own time, not the previous request's."""
+    from tests.helpers.clocks import ManualClock
+    from tmcl_server.module import TMCM6212
+    from tmcl_server.simulation import Simulation
+
+    clock = ManualClock()
+    simulation = Simulation([TMCM6212()], clock)
+    stream = io.StringIO()
+    Tracer(stream, "jsonl").attach(simulation)
+    for t_ns in (1_000_000_000, 2_500_000_000, 2_750_000_000):
+        clock.t = t_ns
+        routed = simulation.handle_serial_frame(Request(1, Opcode.GAP, AP.ACTUAL_POSITION, 0, 0).encode())
+        assert routed[0][1].status == Status.OK
+    lines = [json.loads(line) for line in stream.getvalue().splitlines()]
+    assert [line["sim"] for line in lines if line["kind"] == "cmd"] == [1.0, 2.5, 2.75]
+    times = [line["sim"] for line in lines]  # events that fell due meanwhile come first
+    assert times == sorted(times)
