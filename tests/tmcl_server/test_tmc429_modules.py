@@ -192,6 +192,25 @@ def test_ap_9_is_the_reference_switch_the_left_one(tmp_path, kind) -> None:
         assert motor.get_axis_parameter(reference) == 0
 
 
+def test_a_blocked_motor_stalls_through_the_tmc262_at_a_tuned_threshold(tmp_path, kind) -> None:
+    """The TMC262 model reads the same law: a blocked zone reads 0 at AP 174 = 24, the
+    partial load before it does not (docs/motion.md, "stallGuard2 and coolStep")."""
+    world = tmp_path / "world.toml"
+    world.write_text("[[axis]]\nindex = 0\n"
+                     "[[axis.load_zone]]\nfrom = 2000\nto = 5000\nload = 100\n"
+                     "[[axis.load_zone]]\nfrom = 8000\nto = 900000\nblocked = true\n")
+    with simulator(tmp_path, kind, world=str(world)) as sim, connect(sim, "tcp") as iface:
+        motor = PYTRINAMIC[kind](iface).motors[0]
+        motor.set_axis_parameter(AP.STALLGUARD_THRESHOLD, 24)
+        motor.set_axis_parameter(AP.STOP_ON_STALL, 100)  # TMC429 units
+        iface.rotate(0, 1500)
+        sim.advance(2.0)
+        assert motor.get_axis_parameter(AP.ACTUAL_SPEED) == 0
+        assert 8000 <= motor.actual_position <= 8000 + 2 * 256  # within the driver's full steps
+        assert motor.get_axis_parameter(AP.ERROR_FLAGS) == 1
+        assert motor.get_axis_parameter(AP.LOAD) == 0
+
+
 def test_user_variables_and_parameters_are_stored_across_a_restart(tmp_path, kind) -> None:
     state = str(tmp_path / "state")
     with simulator(tmp_path, kind, state_dir=state) as sim, connect(sim, "pty") as iface:

@@ -259,7 +259,7 @@ class TMC4361AEvalAxis(Axis):
     def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
         self.board.world.load_zones = list(zones)  # no driver board: nothing measures load
         if free_load is not None:
-            self.board.world.free_load = free_load
+            self.board.world.free_load, self.board.world.free_blocked = free_load, None
 
     def set_encoder_slip(self, slip: float) -> None:
         if not 0.0 <= slip <= 1.0:
