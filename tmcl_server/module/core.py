@@ -276,7 +276,7 @@ class ModuleCore:
         try:
             result = handler(request, sink, interface)
         except CommandError as exc:
-            return exc.status, request.value
+            return exc.status, request.value if exc.value is None else exc.value
         except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
             return Status.EEPROM_LOCKED, request.value
         finally:
