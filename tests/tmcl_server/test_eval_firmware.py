@@ -20,6 +20,7 @@ from pytrinamic.tmcl import TMCLReplyStatusError
 from axes.chips.tmc4361a.registers import Event, RefConf
 from tests.conftest import RawClient
 from tmcl_server.embed import SimulatorThread
+from tmcl_server.tool import main as tmcl
 from tmcl_spec.commands import MoveType, Opcode, Status
 
 REG = TMC4361.REG
@@ -251,3 +252,22 @@ def test_pytrinamic_reads_the_boards_inputs_and_info_and_drives_the_switches(sim
         with pytest.raises(TMCLReplyStatusError) as refused:
             iface.get_axis_parameter(1, 1)  # a second motor: the firmware's 3
         assert refused.value.reply.status == Status.WRONG_TYPE
+
+
+# == the tmcl tool ================================================================================
+
+def test_the_tmcl_tool_sends_the_boards_commands(sim, capsys) -> None:
+    def run(*argv: str) -> tuple[int, str]:
+        code = tmcl(["--tcp", sim.tcp, "--module-type", "landungsbruecke-tmc4361a", *argv])
+        return code, capsys.readouterr().out
+
+    assert run("send", "GIO", "5", "0") == (0, "GIO 5 b0 → 100 OK = 240\n")
+    assert run("send", "157", "0", "0", "--value") == (0, "12\n")
+    assert run("send", "GET_FIRMWARE_VERSION", "5", "--value") == (0, "3117\n")
+    assert run("send", "146", str(REG.REFERENCE_CONF), "0", str(int(RefConf.STOP_LEFT_EN)))[0] == 0
+    assert run("send", "144", "0", "0", "1")[0] == 0  # the left switch, pressed
+    assert int(run("send", "148", str(REG.STATUS), "--value")[1]) & STATUS_STOPL
+    code, out = run("send", "144", "3", "0")
+    assert "128 DELAYED = 0" in out
+    code, out = run("send", "GAP", "1", "1")
+    assert code != 0 and "3 WRONG_TYPE" in out
