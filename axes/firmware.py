@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
-from axes.interface import Axis, AxisEvent, AxisEventKind, AxisStatus
+from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld, LoadZone, Switch
@@ -79,6 +79,14 @@ _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_
                               AP.HOME_SWITCH, AP.LOAD, AP.ERROR_FLAGS, AP.ENCODER_POSITION,
                               AP.SMARTENERGY_ACTUAL_CURRENT, AP.MEASURED_SPEED,
                               AP.DRIVER_ERROR_FLAGS})
+#: Parameters whose write is an action even with the value they have (a move, a position or
+#: encoder set, a rotation, a ramp-mode stop): the others change nothing when written unchanged.
+_ACTION_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.TARGET_SPEED,
+                                AP.ENCODER_POSITION, AP.RAMP_MODE})
+#: Live parameters that change only at the chip's notable instants (switch edges are marks):
+#: steady between two events even while the axis moves.
+_LEVEL_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
+                               AP.HOME_SWITCH, AP.ERROR_FLAGS})
 #: Parameters whose writes re-plan the stop switches.
 _STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, AP.SOFT_STOP_FLAG,
                               AP.REFERENCE_SWITCH_TOLERANCE})
@@ -123,6 +131,8 @@ class AxisFirmware(Axis):
         #: The chip's next notable instant (None: nothing ahead), once computed since the last
         #: change (``_lookahead_known``).
         self._lookahead_cache: _Lookahead | None = None
+        #: The last crossing found: (the look-ahead it holds for, values, time).
+        self._crossing: tuple[_Lookahead, tuple[int, ...], int] | None = None
         self._lookahead_known = False
         self._target = 0  # AP 0, 32 bit
         self._positioning = False
@@ -318,14 +328,27 @@ class AxisFirmware(Axis):
             if self._rfs is None:
                 self._emit(AxisEventKind.TARGET_REACHED)
 
-    def rotate(self, velocity: int) -> None:
+    def _rotating_at(self, velocity: int) -> bool:
+        """Already doing what ROR ``velocity`` asks, with nothing for it to reset (the
+        firmware's own records: a raw register write is noticed at the next real command)."""
+        return (self._velocity_command == velocity and self._params[AP.TARGET_SPEED] == velocity
+                and not self._positioning and self._rfs is None and self._errors == 0
+                and self._standstill_since is None)
+
+    def rotate(self, velocity: int) -> bool:
+        if self._rotating_at(velocity):
+            return False
         self._command()
         self._abort_search()
         self._velocity_command = self._params[AP.TARGET_SPEED] = velocity
         self._start_velocity(velocity)
         self._after_command()
+        return True
 
-    def stop(self) -> None:
+    def stop(self) -> bool:
+        if (self._velocity_command == 0 and self._params[AP.TARGET_SPEED] == 0
+                and not self._positioning and self._rfs is None and self._errors == 0):
+            return False  # already stopping (or stopped) in velocity mode: nothing to change
         self._command()
         self._abort_search()
         self._velocity_command = self._params[AP.TARGET_SPEED] = 0
@@ -334,6 +357,7 @@ class AxisFirmware(Axis):
         self._awaiting_arrival = False
         self._errors = 0
         self._after_command()
+        return True
 
     def emergency_stop(self) -> None:
         self._command()
@@ -694,7 +718,61 @@ class AxisFirmware(Axis):
             return self.motor_driver.flags()
         return self._params[number]
 
-    def set_parameter(self, number: int, value: int) -> None:
+    # == what stays as it is (the interpreter's loop skipping, docs/scheduling.md) ================
+
+    def steady_until(self, number: int) -> int:
+        if number not in _LIVE_PARAMETERS and number not in self._chip_live:
+            return FOREVER  # a setting: only a command changes it
+        if number == AP.ERROR_FLAGS and self._errors:
+            return 0  # reading clears the flags
+        ahead = self._lookahead()
+        if ahead is None:
+            return FOREVER  # at rest: what it reads changes only at an event or a command
+        if number in _LEVEL_PARAMETERS:
+            return FOREVER  # switch levels and flags change only at the chip's notable instants
+        if number == AP.POSITION_REACHED:
+            return self._first_time_at_position((self._target,), ahead)
+        return 0  # a moving quantity
+
+    def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
+        if number != AP.ACTUAL_POSITION:
+            return 0
+        ahead = self._lookahead()
+        return FOREVER if ahead is None else self._first_time_at_position(values, ahead)
+
+    def _first_time_at_position(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
+        """The first time AP 1 equals one of ``values``, or the chip's next notable instant
+        if it does not before: a copy of the chip runs with a mark at each value's motor
+        position (AP 1 and the motor position move together, step by step).  Kept while the
+        look-ahead it was found for holds."""
+        cached = self._crossing
+        if cached is not None and cached[0] is ahead and cached[1] == values:
+            return cached[2]
+        self._sync()
+        if not self.chip.steps_reach_motor():
+            return 0  # AP 1 counts steps that do not move the motor: no marks to set
+        here = self.driver.position
+        marks = [self.chip.motor_position + to_int32(value - here) for value in values]
+        if self.chip.motor_position in marks:
+            return 0
+        twin = self.chip.clone()
+        board = self.board
+        saved = board.firmware_marks
+        board.firmware_marks = saved + marks
+        until = twin.ticks_at(ahead.time_ns)
+        try:  # it stops early at a mark (or, conservatively, at anything else)
+            twin.run(until, LOOKAHEAD_BUDGET)
+        finally:
+            board.firmware_marks = saved
+        result = twin.ns_at(twin.t) if twin.t < until else ahead.time_ns
+        self._crossing = (ahead, values, result)
+        return result
+
+    def set_parameter(self, number: int, value: int) -> bool:
+        if number == AP.TARGET_SPEED and self._rotating_at(value):
+            return False
+        if number not in _ACTION_PARAMETERS and self._params.get(number) == value:
+            return False  # a setting written with the value it has: as on the chip, no change
         self._command()
         if number == AP.TARGET_POSITION:
             self._abort_search()
@@ -712,6 +790,7 @@ class AxisFirmware(Axis):
             self._params[number] = value
             self._parameter_side_effects(number)
         self._after_command()
+        return True
 
     def _parameter_side_effects(self, number: int) -> None:
         if self.motor_driver is not None and number in self.motor_driver.parameters:

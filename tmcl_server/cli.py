@@ -118,6 +118,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--axis-core", choices=sorted(CHIP_CORES),
                         help="the motion-controller chip the axes run on (default: the module "
                              "type's own)")
+    parser.add_argument("--step-every-instruction", action="store_true",
+                        help="execute every TMCL program instruction, even in loops that change "
+                             "nothing (the reference the default skipping is checked against; "
+                             "same results, slower)")
     parser.add_argument("--world", metavar="FILE",
                         help="TOML file placing switches, load zones, encoder slip and inputs "
                              "(docs/world.md); default: free axes, open switches")
@@ -286,7 +290,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         trace_format=args.trace_format, record=args.record,
                         record_resolution=args.record_resolution, record_axes=record_axes,
                         faults=faults, wire_timing=args.wire_timing,
-                        processing_time=args.processing_time, max_connections=args.max_connections)
+                        processing_time=args.processing_time, max_connections=args.max_connections,
+                        skip_loops=not args.step_every_instruction)
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given

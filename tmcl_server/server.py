@@ -91,6 +91,9 @@ class ServerConfig:
     processing_time: float = 0.0002
     #: Clients one TCP endpoint serves at once; more are accepted and closed at once.
     max_connections: int = 256
+    #: Skip the passes of program loops that change nothing (docs/scheduling.md); False: the
+    #: stepping reference, every instruction executed (same results, slower).
+    skip_loops: bool = True
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -117,6 +120,7 @@ def build_simulation(config: ServerConfig) -> Simulation:
                             kind.analog_full_scale, CHIP_CORES) if config.world else World())
         module = TMCLModule(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world,
                             kind=kind, chip_core=config.axis_core)
+        module.program.skip_loops = config.skip_loops
         modules.append(module)
     return Simulation(modules, clock)
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from axes.cores import make_axes
-from axes.interface import Axis, AxisEvent, AxisEventKind
+from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind
 from axes.world import DEFAULT_SIDES, INFINITY, AxisWorld, LoadZone, Switch, World, check_supply_voltage
 from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
 from tmcl_server.eeprom import Eeprom, EepromWriteError
@@ -39,6 +39,10 @@ _GLOBAL_PARAMETER_COMMANDS = frozenset({int(Opcode.SGP), int(Opcode.STGP), int(O
 ADDRESS_PARAMETERS = frozenset({GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.CAN_ID,
                                 GP.CAN_SECONDARY_ID})
 _OK = int(Status.OK)
+#: Statuses of a command refused before it did anything (validation).
+_REFUSALS = frozenset({int(Status.INVALID_COMMAND), int(Status.WRONG_TYPE),
+                       int(Status.INVALID_VALUE)})
+_GAP, _GGP = int(Opcode.GAP), int(Opcode.GGP)
 _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
 #: The heartbeat period (GP 68 / GP 82, ms) watching each kind of interface.
@@ -102,6 +106,9 @@ class ModuleCore:
         #: Called when the serial or CAN addresses may have changed (routers cache them).
         self.on_address_change: Callable[[], None] | None = None
         self.now_ns = start_ns
+        #: Whether the command last performed changed anything (a refusal, a read and a write
+        #: of what already is do not): a program loop that changes nothing may be skipped.
+        self.changed = False
         #: Standalone mode: program memory, the interpreter, control commands 128-135.
         self.program = ProgramSupport(self, self.type.program_memory, self.type.number_of_axes,
                                       self.type.digital_inputs)
@@ -273,17 +280,40 @@ class ModuleCore:
             return _INVALID_COMMAND, request.value
         touched = self._touched
         touched.clear()
+        self.changed = opcode not in READ_ONLY_OPCODES  # a handler that changes nothing says so
         try:
             result = handler(request, sink, interface)
         except CommandError as exc:
+            if exc.status in _REFUSALS:  # refused before anything was done
+                self.changed = False
             return exc.status, request.value if exc.value is None else exc.value
         except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
             return Status.EEPROM_LOCKED, request.value
         finally:
-            if self.may_reschedule(opcode, request.motor):
+            if self.changed and self.may_reschedule(opcode, request.motor):
                 self._stale_axes |= touched  # the command may start, stop or move an event
                 self._due_stale = True
         return _OK, request.value if result is None else result
+
+    def steady_until(self, opcode: int, type_: int, motor: int, status: int) -> int:
+        """How long the command just performed (and unchanged) would answer the same and
+        change nothing if executed again, nothing intervening (see ModulePort.probe)."""
+        if status != _OK:
+            return FOREVER if status in _REFUSALS else 0
+        if opcode == _GAP:
+            return self.axes[motor].steady_until(type_)
+        if opcode == _GGP and motor == 0:
+            if type_ == GP.TICK_TIMER:  # counts milliseconds
+                return (self.now_ns // NS_PER_MS + 1) * NS_PER_MS
+            if type_ == GP.RANDOM_NUMBER:  # each read draws the next number
+                return 0
+        return FOREVER  # inputs, outputs, variables, coordinates: changed only from outside
+
+    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...]) -> int:
+        """For GAP of a moving value: when it first answers one of ``values`` (0: unknown)."""
+        if opcode != _GAP or not 0 <= motor < len(self.axes):
+            return 0
+        return self.axes[motor].first_time_at(type_, values)
 
     @staticmethod
     def may_reschedule(opcode: int, bank: int) -> bool:

@@ -177,14 +177,15 @@ class TMC4361AEvalAxis(Axis):
 
     # == motion (the firmware's rotate / moveTo) ===============================================
 
-    def rotate(self, velocity: int) -> None:
+    def rotate(self, velocity: int) -> bool:
         """ROR/ROL/MST: velocity mode, VMAX = the velocity (the profile stays)."""
         self._sync()
         self._field(Reg.RAMPMODE, RAMPMODE_POSITIONING, 0)
         self._write(Reg.VMAX, _velocity_register(velocity))
+        return True  # the evaluation firmware writes the registers every time
 
-    def stop(self) -> None:
-        self.rotate(0)
+    def stop(self) -> bool:
+        return self.rotate(0)
 
     def emergency_stop(self) -> None:
         self.rotate(0)  # the Landungsbruecke has no heartbeat; a plain stop
@@ -226,7 +227,11 @@ class TMC4361AEvalAxis(Axis):
             return to_int32(read(Reg.STDBY_DELAY))
         raise ValueError(f"axis parameter {number} is not served")
 
-    def set_parameter(self, number: int, value: int) -> None:
+    def set_parameter(self, number: int, value: int) -> bool:
+        self._set_parameter(number, value)
+        return True  # the evaluation firmware writes the register every time
+
+    def _set_parameter(self, number: int, value: int) -> None:
         self._sync()
         write = self._write
         if number in _PLAIN:
