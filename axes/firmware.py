@@ -920,8 +920,8 @@ class AxisFirmware(Axis):
     def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
         self._command()
         self.board.world.load_zones = list(zones)
-        if free_load is not None:
-            self.board.world.free_load = free_load
+        if free_load is not None:  # a value of its own: blocked if it is 0 (axes/world.py)
+            self.board.world.free_load, self.board.world.free_blocked = free_load, None
         self.board.world_changed()
         self._check_stall()
         self._after_command()

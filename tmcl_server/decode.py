@@ -174,6 +174,8 @@ def describe_reply(reply: Reply, request: Request | None = None) -> str:
 
 def describe_outcome(status: int, opcode: int, type_: int, value: int) -> str:
     """A reply's status, and its value when the command reads one (``type_`` is the request's)."""
+    if status == Status.TARGET_REACHED_EVENT and opcode != Opcode.TARGET_REACHED_EVENT:
+        return f"→ {status} DELAYED = {to_int32(value)}"  # the evaluation firmware's "not yet"
     text = f"→ {status} {status_name(status)}"
     if status == Status.TARGET_REACHED_EVENT:
         return f"{text} axes {_axes(value)}"

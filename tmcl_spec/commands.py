@@ -192,6 +192,7 @@ class Status(IntEnum):
     MAX_EXCEEDED = 9
     DOWNLOAD_NOT_POSSIBLE = 10
     TARGET_REACHED_EVENT = 128
+    DELAYED = 128  # the evaluation firmware's REPLY_DELAYED: not finished yet (an alias)
 
 
 class IOBank(IntEnum):

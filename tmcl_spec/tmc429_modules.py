@@ -249,7 +249,7 @@ TMCM_1110 = ModuleType(
     storable_axis_parameters=storable(AXIS_PARAMETERS_1110),
     digital_inputs=7,
     analog_inputs=7,
-    supply_voltage_channel=None,
+    supply_voltage_channel=SUPPLY_VOLTAGE_CHANNEL,  # as the family (docs/modules.md)
     **_FAMILY,
 )
 

@@ -16,6 +16,7 @@ from interpreter.cli import main as tmcl_asm
 from interpreter.disassembler import disassemble, listing
 from interpreter.interrupts import INTERRUPT_VECTORS
 from interpreter.isa import PROGRAM_MEMORY_SIZE, Instruction, decode_program, encode_program
+from tmcl_spec import tmcl_ide
 from tmcl_spec.commands import OPERANDS, Opcode
 from tmcl_spec.tmcm6212 import AXIS_PARAMETERS, BANK0_PARAMETERS, BANK3_PARAMETERS
 
@@ -205,20 +206,64 @@ def test_include_files_are_generated_from_the_tables() -> None:
 
 
 def _constants(name: str) -> dict[str, int]:
-    pairs = re.findall(r"^(\w+) = (\d+)", (INCLUDE_DIR / name).read_text(), re.MULTILINE)
+    pairs = re.findall(r"^(\w+) = (-?\d+)", (INCLUDE_DIR / name).read_text(), re.MULTILINE)
     return {key: int(value) for key, value in pairs}
 
 
 def test_include_files_cover_every_parameter_and_vector() -> None:
     params = _constants("TMCLParam.tmc")
-    ap = {v for k, v in params.items() if k.startswith("AP")}
-    assert ap == set(AXIS_PARAMETERS)
+    ap = {v for k, v in params.items() if k.startswith("AP") and k not in tmcl_ide.PARAMETER_VALUES}
+    assert ap == set(AXIS_PARAMETERS) | set(tmcl_ide.AXIS_PARAMETERS.values())
+    assert {k: params[k] for k in tmcl_ide.SYMBOLS} == tmcl_ide.SYMBOLS
     gp = [v for k, v in params.items() if k.startswith("GP")]
     assert sorted(gp) == sorted([*BANK0_PARAMETERS, *BANK3_PARAMETERS])
     assert params["APMaxPositioningSpeed"] == 4 and params["APMaxAcceleration"] == 5  # §7.3 names
     assert _constants("Interrupts.inc") == {name: n for n, (name, _) in INTERRUPT_VECTORS.items()}
     assert _constants("Interrupts.inc")["TI_TIMER0"] == 0  # the manual's §3.5.6.4 names
     assert _constants("Interrupts.inc")["TI_GLOBAL"] == 255
+
+
+def _ide_program() -> str:
+    """One instruction per name of the TMCL-IDE's TMCLParam.tmc, each in the field it names."""
+    lines = ["#include TMCLParam.tmc"]
+    lines += [f"SAP {name}, Motor0, 0" for name in tmcl_ide.AXIS_PARAMETERS]
+    lines += [f"GAP 1, {name}" for name in tmcl_ide.MOTORS]
+    lines += [f"SAP 0, 0, {name}" for name in tmcl_ide.PARAMETER_VALUES]
+    return "\n".join(lines) + "\n"
+
+
+def test_every_tmcl_ide_name_assembles_to_the_ides_number() -> None:
+    """A program written with the TMCL-IDE's include (its names, generated from
+    tmcl_spec/tmcl_ide.py) assembles with ours, each name standing for the IDE's number."""
+    program = assemble(_ide_program()).instructions
+    expected = ([(Opcode.SAP, n, 0, 0) for n in tmcl_ide.AXIS_PARAMETERS.values()]
+                + [(Opcode.GAP, 1, n, 0) for n in tmcl_ide.MOTORS.values()]
+                + [(Opcode.SAP, 0, 0, n) for n in tmcl_ide.PARAMETER_VALUES.values()])
+    assert [(i.opcode, i.type, i.motor, i.value) for i in program] == expected
+    assert len(program) == len(tmcl_ide.SYMBOLS)
+
+
+def test_ide_and_own_names_are_aliases() -> None:
+    """Where the IDE names a number otherwise, both names assemble to it (ours stay)."""
+    program = assemble("""
+        #include TMCLParam.tmc
+        SAP APRampMode, Motor0, APVRampModeVelocity
+        GAP APNextPosition, Motor1
+        GAP APTargetPosition, Motor1
+        GAP APActualVelocity, Motor0
+        GAP APActualSpeed, Motor0
+        GAP APStallguardThresholdLevel, Motor2
+        SAP APMixedDecay, Motor0, APVMixedDecayPermanent
+    """).instructions
+    assert [(i.type, i.motor, i.value) for i in program] == [
+        (138, 0, 2), (0, 1, 0), (0, 1, 0), (3, 0, 0), (3, 0, 0), (205, 2, 0), (203, 0, -1)]
+
+
+def test_tmcl_asm_assembles_an_ide_program(tmp_path: Path) -> None:
+    source = tmp_path / "ide.tmc"
+    source.write_text(_ide_program())
+    assert tmcl_asm(["assemble", str(source), "-o", str(tmp_path / "ide.bin")]) == 0
+    assert len(decode_program((tmp_path / "ide.bin").read_bytes())) == len(tmcl_ide.SYMBOLS)
 
 
 # -- tmcl-asm -----------------------------------------------------------------------------------

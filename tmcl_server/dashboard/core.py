@@ -443,7 +443,7 @@ class Dashboard:
     @staticmethod
     def set_free_load(module: TMCLModule, axis: int, value: int) -> None:
         """The load where no load zone lies (the zones of the world stay)."""
-        zones = [(z.low, z.high, z.load) for z in module.axis_world(axis).load_zones]
+        zones = [(z.low, z.high, z.load, z.blocked) for z in module.axis_world(axis).load_zones]
         module.set_load(axis, zones, value)
 
     def command(self, module: TMCLModule, message: dict[str, Any], endpoint: str) -> dict[str, Any]:

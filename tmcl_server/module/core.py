@@ -295,7 +295,7 @@ class ModuleCore:
             self.last_error = int(exc.status)
             if exc.status in _REFUSALS:  # refused before anything was done
                 self.changed = False
-            return exc.status, request.value
+            return exc.status, request.value if exc.value is None else exc.value
         except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
             self.last_error = int(Status.EEPROM_LOCKED)
             return Status.EEPROM_LOCKED, request.value
@@ -552,11 +552,13 @@ class ModuleCore:
         target.set_switch(name, Switch(-INFINITY, INFINITY) if active else None)
         self.world.axes.setdefault(axis, target.world)
 
-    def set_load(self, axis: int, zones: list[tuple[int, int, int]],
+    def set_load(self, axis: int,
+                 zones: list[tuple[int, int, int]] | list[tuple[int, int, int, bool | None]],
                  free_load: int | None = None) -> None:
-        """Load zones as (from, to, load value); load 0 stalls a motor faster than AP 181."""
+        """Load zones as (from, to, load value[, blocked]); load 0 (or blocked True) is a
+        blocked motor, which stalls a motor faster than AP 181 (docs/world.md)."""
         target = self._world_axis(axis)
-        target.set_load([LoadZone(lo, hi, load) for lo, hi, load in zones], free_load)
+        target.set_load([LoadZone(*zone) for zone in zones], free_load)
         self.world.axes.setdefault(axis, target.world)
 
     def set_encoder_slip(self, axis: int, slip: float) -> None:
