@@ -282,7 +282,7 @@ def read_record(path: str | Path) -> tuple[list[Sample], list[Mark]]:
     """Samples and marks back from a file written by ``--record`` (CSV or JSONL)."""
     samples: list[Sample] = []
     marks: list[Mark] = []
-    with open(path, newline="") as stream:
+    with open(path, newline="", encoding="utf-8") as stream:
         for row in _rows(stream, file_format(path)):
             if row.get("event"):
                 axis = row.get("axis")

@@ -439,7 +439,7 @@ def _read_program(conn: Connection, args: argparse.Namespace) -> int:
             bar.advance()
     text = listing(instructions, args.start) if args.listing else disassemble(instructions)
     if args.output:
-        args.output.write_text(text)
+        args.output.write_text(text, encoding="utf-8")
     else:
         sys.stdout.write(text)
     return 0
@@ -450,7 +450,8 @@ def _read_program(conn: Connection, args: argparse.Namespace) -> int:
 def cmd_decode(args: argparse.Namespace) -> int:
     if args.file is not None:
         try:
-            text = sys.stdin.read() if str(args.file) == "-" else Path(args.file).read_text()
+            text = sys.stdin.read() if str(args.file) == "-" else \
+                Path(args.file).read_text(encoding="utf-8", errors="replace")
         except OSError as exc:
             raise BadInput(f"{args.file}: {exc}") from None
     elif args.hex:
