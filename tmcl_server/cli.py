@@ -18,7 +18,7 @@ from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
 from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES, module_type
-from tmcl_spec.package import add_version_option, doc, safe_console
+from tmcl_spec.package import add_version_option, doc, docs_location, safe_console
 
 log = logging.getLogger("tmcl_server")
 
@@ -32,6 +32,23 @@ class UsageError(SystemExit):
 
     def __str__(self) -> str:
         return self.message
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Lines wrap at spaces only: a path to a documentation page stays whole."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        import textwrap
+
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False,
+                             break_long_words=False)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        import textwrap
+
+        return textwrap.fill(" ".join(text.split()), width, initial_indent=indent,
+                             subsequent_indent=indent, break_on_hyphens=False,
+                             break_long_words=False)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -68,8 +85,9 @@ def non_negative(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
-        prog="tmcl-server",
-        description="Simulated TRINAMIC TMCL modules (by default TMCM-6212, firmware V1.05).")
+        prog="tmcl-server", formatter_class=_HelpFormatter,
+        description="Simulated TRINAMIC TMCL modules (by default TMCM-6212, firmware V1.05).",
+        epilog=f"Documentation: {docs_location()}")
     who = parser.add_mutually_exclusive_group()
     who.add_argument("--modules", type=int, metavar="N",
                      help="host N modules with addresses (and CAN ids) 1..N (default 1)")
