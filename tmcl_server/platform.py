@@ -24,6 +24,7 @@ from tmcl_spec.package import doc
 
 if TYPE_CHECKING:
     import asyncio
+    import socket
 
 #: prctl option: the calling thread's timer slack in ns (linux/prctl.h).
 PR_SET_TIMERSLACK = 29
@@ -86,16 +87,18 @@ def _wake_on_signal(loop: asyncio.AbstractEventLoop) -> None:
     _keep_until_closed(loop, (receiver, sender))
 
 
-def _keep_until_closed(loop: asyncio.AbstractEventLoop, sockets: tuple[object, ...]) -> None:
+def _keep_until_closed(loop: asyncio.AbstractEventLoop,
+                       sockets: tuple[socket.socket, socket.socket]) -> None:
+    """Undo the wake-up when the loop closes (asyncio.Runner closes it on the way out)."""
     original_close = loop.close
 
     def close() -> None:
         with contextlib.suppress(ValueError):
             signal.set_wakeup_fd(-1)
         with contextlib.suppress(NotImplementedError, OSError, RuntimeError):
-            loop.remove_reader(sockets[0].fileno())  # type: ignore[attr-defined]
+            loop.remove_reader(sockets[0].fileno())
         for sock in sockets:
-            sock.close()  # type: ignore[attr-defined]
+            sock.close()
         original_close()
 
     loop.close = close  # type: ignore[method-assign]
@@ -129,14 +132,14 @@ def dump_stacks_on_signal() -> None:
 
 def fsync_directory(directory: os.PathLike[str] | str) -> None:
     """Make a rename in ``directory`` durable.  POSIX needs the directory itself flushed;
-    Windows cannot open a directory, and its rename (MoveFileEx) is journaled by NTFS.  A
-    system that refuses to open the directory (Windows, or a directory without read
-    permission) keeps what the file's own flush and the rename give."""
+    Windows cannot open a directory, and its rename (MoveFileEx) is journaled by NTFS.  Where
+    the directory cannot be opened (Windows, or no read permission on it) the file's own
+    flush and the rename, both done, stand: the store is in place, so it is not failed."""
     if not POSIX:
         return
     try:
         fd = os.open(directory, os.O_RDONLY)
-    except (PermissionError, IsADirectoryError):
+    except OSError:
         return
     try:
         os.fsync(fd)
