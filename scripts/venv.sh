@@ -64,7 +64,7 @@ ensure_venv() {
     _say "$who" "installing tmcl-sim with the extras $extras into .venv (a minute or two the first time) ..."
     # pip's own lines, a package each: "Collecting ...", "Installing collected packages ..."
     PYTHONUNBUFFERED=1 .venv/bin/python -m pip install --progress-bar off -e ".[$extras]" |
-        awk '/^(Collecting|Installing|Successfully|Obtaining|Building)/ { print "  " $0; fflush() }' >&2
+        awk '/^(Collecting|Processing|Installing|Successfully|Obtaining|Building)/ { print "  " $0; fflush() }' >&2
     printf '%s\nusing .venv (Python %s, set up with %s)\n' "$key" "$version" "$python" > "$stamp"
     _say "$who" ".venv is ready"
 }

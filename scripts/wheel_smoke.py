@@ -125,6 +125,8 @@ def make_venv(where: Path, wheel: Path) -> Path:
         WHEELHOUSE.mkdir(parents=True, exist_ok=True)
         run(sys.executable, "-m", "pip", "download", "--quiet", "--dest", WHEELHOUSE, *wanted,
             cwd=where.parent, env=clean_env())
+        for own in WHEELHOUSE.glob("tmcl_sim-*.whl"):  # the wheel under test comes from dist
+            own.unlink()
         run(*offline, cwd=where.parent, env=clean_env())
     return python
 
