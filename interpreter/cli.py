@@ -18,7 +18,7 @@ from typing import NoReturn
 from interpreter.assembler import AssemblyError, assemble_file
 from interpreter.disassembler import disassemble, listing
 from interpreter.isa import decode_program
-from tmcl_spec.package import add_version_option
+from tmcl_spec.package import add_version_option, safe_console
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -53,13 +53,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    safe_console()
     args = build_parser().parse_args(argv)
     try:
         if args.command == "disassemble":
             instructions = decode_program(args.binary.read_bytes())
             text = listing(instructions) if args.listing else disassemble(instructions)
             if args.output:
-                args.output.write_text(text)
+                args.output.write_text(text, encoding="utf-8")
             else:
                 sys.stdout.write(text)
             return 0
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     output = args.output or args.source.with_suffix(".bin")
     output.write_bytes(program.binary())
     if args.listing:
-        args.listing.write_text(program.listing())
+        args.listing.write_text(program.listing(), encoding="utf-8")
     print(f"{args.source}: {len(program.instructions)} commands -> {output}")
     return 0
 

@@ -18,7 +18,7 @@ from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
 from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES, module_type
-from tmcl_spec.package import add_version_option
+from tmcl_spec.package import add_version_option, doc, docs_location, safe_console
 
 log = logging.getLogger("tmcl_server")
 
@@ -32,6 +32,23 @@ class UsageError(SystemExit):
 
     def __str__(self) -> str:
         return self.message
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Lines wrap at spaces only: a path to a documentation page stays whole."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        import textwrap
+
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False,
+                             break_long_words=False)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        import textwrap
+
+        return textwrap.fill(" ".join(text.split()), width, initial_indent=indent,
+                             subsequent_indent=indent, break_on_hyphens=False,
+                             break_long_words=False)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -68,8 +85,9 @@ def non_negative(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
-        prog="tmcl-server",
-        description="Simulated TRINAMIC TMCL modules (by default TMCM-6212, firmware V1.05).")
+        prog="tmcl-server", formatter_class=_HelpFormatter,
+        description="Simulated TRINAMIC TMCL modules (by default TMCM-6212, firmware V1.05).",
+        epilog=f"Documentation: {docs_location()}")
     who = parser.add_mutually_exclusive_group()
     who.add_argument("--modules", type=int, metavar="N",
                      help="host N modules with addresses (and CAN ids) 1..N (default 1)")
@@ -90,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD][,mode=usb|rs485]",
                         default=[], help="serve on an existing serial port through pyserial "
                                          "(repeatable; mode as for --pty)")
-    can = parser.add_argument_group("CAN (see docs/can.md)")
+    can = parser.add_argument_group(f"CAN (see {doc('can.md')})")
     can.add_argument("--can", action="append", metavar="INTERFACE:CHANNEL[:BITRATE]", default=[],
                      help="join the simulated CAN bus to a python-can bus, e.g. socketcan:can0, "
                           "virtual:NAME (repeatable)")
@@ -124,13 +142,13 @@ def build_parser() -> argparse.ArgumentParser:
                              "same results, slower)")
     parser.add_argument("--world", metavar="FILE",
                         help="TOML file placing switches, load zones, encoder slip and inputs "
-                             "(docs/world.md); default: free axes, open switches")
+                             f"({doc('world.md')}); default: free axes, open switches")
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
     parser.add_argument("--loop", choices=LOOPS, default="auto",
                         help="event loop: uvloop (the fast extra) or asyncio's; default auto: "
                              "uvloop if installed")
-    watch = parser.add_argument_group("watching (see README: trace, recorder)")
+    watch = parser.add_argument_group(f"watching (see {doc('observe.md')})")
     watch.add_argument("--trace", nargs="?", const="-", metavar="FILE",
                        help="log every request, reply, event and dropped frame, decoded "
                             "(to stderr, or to FILE)")
@@ -146,8 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
     watch.add_argument("--http", action="append", metavar="[HOST:]PORT", default=[],
                        help="serve the live dashboard (axes, I/O, parameters, program debugger, "
                             "wire) to a browser; host 127.0.0.1 unless given; needs the extra "
-                            "tmcl-sim[http] (docs/dashboard.md)")
-    faults = parser.add_argument_group("faults and wire timing (see docs/faults.md)")
+                            f"tmcl-sim[http] ({doc('dashboard.md')})")
+    faults = parser.add_argument_group(f"faults and wire timing (see {doc('faults.md')})")
     faults.add_argument("--fault", action="append", metavar="SPEC", default=[],
                         help="inject a fault, e.g. noreply:opcode=GAP,rate=0.1,seed=7 or "
                              "delay:ms=50 or stuck:axis=0 (repeatable)")
@@ -314,6 +332,8 @@ def _start_error(exc: Exception) -> StartError:
     where = f"argument {option}: " if option and not text.startswith(option.split()[0]) else ""
     from tmcl_server.transports.pty import LinkInUseError
 
+    if isinstance(exc, ImportError):  # a library that cannot load here (pyserial without fcntl)
+        return StartError(f"{where}this Python cannot load a module it needs: {text}", 1)
     refused = isinstance(exc, LinkInUseError) or (isinstance(exc, OSError)
                                                   and exc.errno in _REFUSED)
     return StartError(f"{where}{text}", 1 if refused else 2)
@@ -350,6 +370,7 @@ async def run(config: ServerConfig) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Exit status 0 after a clean stop, 2 for a bad command-line value (one line on standard
     error, as argparse), 1 when the surroundings refuse (a port in use) or serving fails."""
+    safe_console()
     try:
         args = build_parser().parse_args(argv)
         logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
@@ -366,6 +387,10 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"tmcl-server: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        # Ctrl-C where the loop cannot watch signals (Windows): asyncio.Runner cancelled the
+        # server, which closed its endpoints and flushed the EEPROM on the way out (run()).
+        return 0
     return 0
 
 

@@ -137,7 +137,7 @@ def write_atomically(path: str | os.PathLike[str], text: str) -> None:
     import tempfile  # only for the ready file
 
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-    with os.fdopen(fd, "w") as f:
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(text)
     os.replace(tmp, target)
 
@@ -200,10 +200,9 @@ class Server:
 
                 FaultInjector.of(self.simulation).add_all(self.config.faults)
             for kind, arguments in self.config.endpoints.items():
-                cls = transport_class(kind)
                 for argument in arguments:
                     try:
-                        transport = cls.build(self, argument)
+                        transport = transport_class(kind).build(self, argument)
                         self.transports.append(transport)
                         started = await transport.start()
                     except Exception as exc:  # the command line can name the endpoint

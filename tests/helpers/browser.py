@@ -35,7 +35,7 @@ def missing_reason() -> str | None:
     except ImportError:
         return "selenium is not installed (pip install -e '.[test]')"
     if find_chromium() is None:
-        return "chromium and chromium-driver are not installed (scripts/test.sh installs them)"
+        return "chromium and chromium-driver are not installed (apt-get install chromium chromium-driver)"
     return None
 
 

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import aiomqtt
 import can
-import pytest
 from pytrinamic.connections import ConnectionManager
 
 from tests.conftest import RawClient
-from tests.helpers.mosquitto import MOSQUITTO, Broker
+from tests.helpers.mosquitto import Broker, missing_reason
+from tests.helpers.requirements import needs
 from tests.tmcl_server.test_cli import ServerProcess
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_can_reply
@@ -168,7 +168,7 @@ def test_trace_shows_program_start_stop_interrupts_and_138_events(tmcl_sim_facto
     assert any(line.endswith("VECT 0 6 → 101 LOADED") for line in lines)  # stored while downloading
 
 
-@pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed")
+@needs(missing_reason())
 def test_trace_names_the_mqtt_topic_a_request_came_on(tmp_path: Path) -> None:
     broker = Broker(tmp_path)
     trace = tmp_path / "trace.txt"

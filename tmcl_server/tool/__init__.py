@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from tmcl_server.tool.connection import EXIT_CODES, ToolError
-from tmcl_spec.package import add_version_option, version_text
+from tmcl_spec.package import add_version_option, safe_console, version_text
 
 _EPILOG = """examples:
   tmcl send SAP 4, 0, 51200                     set AP 4 of motor 0, as a TMCL program writes it
@@ -219,6 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from tmcl_server.tool import commands
 
+    safe_console()  # a cp1252 console shows "->" for the arrows in decoded replies
     parser = build_parser()
     args = parser.parse_args(argv)
     handler = {"send": commands.cmd_send, "info": commands.cmd_info, "dump": commands.cmd_dump,

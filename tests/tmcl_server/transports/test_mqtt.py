@@ -19,7 +19,8 @@ from paho.mqtt.properties import Properties
 
 from interpreter.assembler import assemble
 from tests.conftest import RawClient
-from tests.helpers.mosquitto import MOSQUITTO, Broker
+from tests.helpers.mosquitto import Broker, missing_reason
+from tests.helpers.requirements import needs
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_server.server import ServerConfig
@@ -27,8 +28,7 @@ from tmcl_server.transports.mqtt.bridge import MqttSettings
 from tmcl_server.upload import StreamClient, upload
 from tmcl_spec.commands import Opcode
 
-pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed "
-                                "(./scripts/test.sh installs it with apt-get)")
+pytestmark = needs(missing_reason())
 
 
 @pytest.fixture

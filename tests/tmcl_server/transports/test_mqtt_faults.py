@@ -8,12 +8,13 @@ import json
 
 import pytest
 
-from tests.helpers.mosquitto import MOSQUITTO, Broker
+from tests.helpers.mosquitto import Broker, missing_reason
+from tests.helpers.requirements import needs
 from tests.tmcl_server.transports.test_mqtt import json_of, probing, start_sim
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_spec.commands import Opcode
 
-pytestmark = pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed")
+pytestmark = needs(missing_reason())
 
 
 @pytest.fixture

@@ -153,6 +153,16 @@ class _ReplyRoute:
         self.send(reply)
 
 
+def _raise_if_cancelling() -> None:
+    """Honour a cancellation that a publish swallowed: before Python 3.12, asyncio.wait_for
+    (inside aiomqtt's publish) returns the result when the broker's acknowledgement and the
+    cancellation arrive together, and the task, still marked as cancelling, would wait on
+    forever while the server stops (seen on Ctrl-C, tests/tmcl_server/test_windows.py)."""
+    task = asyncio.current_task()
+    if task is not None and task.cancelling():
+        raise asyncio.CancelledError
+
+
 class MqttBridge(Transport):
     kind = "mqtt"
 
@@ -270,6 +280,7 @@ class MqttBridge(Transport):
                     properties.CorrelationData = message.correlation
                 await client.publish(message.topic, message.payload, qos=message.qos,
                                      retain=message.retain, properties=properties)
+                _raise_if_cancelling()
                 self._outbox.popleft()  # only once the broker has it
             self._outbox_ready.clear()
 
@@ -285,6 +296,7 @@ class MqttBridge(Transport):
                     payload = json.dumps({"t": stamp, **snapshot}, separators=(",", ":"))
                     await client.publish(f"{feed.base}/state", payload.encode(), qos=1,
                                          retain=True)
+                    _raise_if_cancelling()
                     feed.last_state = state
             await asyncio.sleep(period)
 
