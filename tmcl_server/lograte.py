@@ -29,6 +29,10 @@ WIRE_LOGGERS = (
     "tmcl_server.transports.mqtt.bridge",
     "tmcl_server.simulation",
     "tmcl_server.dashboard.web",
+    "tmcl_server.sidechannel",
+    "aiohttp.server",  # aiohttp's reports of a request or WebSocket message it could not handle
+    "aiohttp.web",
+    "aiohttp.websocket",
     "axes.chips.tmc42x.firmware",
     "asyncio",  # the loop's own reports: "socket.accept() out of system resource", ...
 )
