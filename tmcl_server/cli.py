@@ -315,13 +315,23 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         else DEFAULT_BUS_NAME)
     except ValueError as exc:
         raise UsageError(f"argument --can-bus: {exc}") from None
-    from tmcl_server.faults import FaultSpecError, load_fault_file, parse_fault
+    from tmcl_server.faults import MAX_FAULTS, FaultSpecError, load_fault_file, parse_fault
 
+    faults = []
     try:
-        faults = [spec for path in args.faults for spec in load_fault_file(path)]
-        faults += [parse_fault(text) for text in args.fault]
-    except FaultSpecError as exc:
-        raise UsageError(f"fault: {exc}") from None
+        for path in args.faults:
+            faults += load_fault_file(path)
+    except FaultSpecError as exc:  # names the file and the line
+        raise UsageError(f"argument --faults: {exc}") from None
+    for text in args.fault:
+        try:
+            faults.append(parse_fault(text))
+        except FaultSpecError as exc:
+            shown = text if len(text) <= 60 else f"{text[:60]}..."
+            raise UsageError(f"argument --fault {shown}: {exc}") from None
+    if len(faults) > MAX_FAULTS:
+        raise UsageError(f"argument --fault/--faults: {len(faults)} faults, at most {MAX_FAULTS} "
+                         "at once")
     record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock=args.clock, speed=args.speed, ready_file=args.ready_file,

@@ -34,6 +34,7 @@ from tmcl_server.dashboard.core import ActionError, Dashboard, Viewer
 from tmcl_server.dashboard.guard import TOKEN_ENV, AccessPolicy
 from tmcl_server.dashboard.limits import ConnectionGate, Pace
 from tmcl_server.endpoints import parse_host_port
+from tmcl_server.sidechannel import SideChannel
 from tmcl_server.transports.base import Transport, TransportHost
 from tmcl_server.transports.mqtt.payload import PayloadError, parse_json
 
@@ -99,6 +100,8 @@ class DashboardTransport(Transport):
         self._gate: ConnectionGate | None = None
         self._sampler: asyncio.Task[None] | None = None
         self._closing: set[asyncio.Task[bool]] = set()
+        #: The plots' samples: a failure stops them (one warning), the module goes on.
+        self._sampling = SideChannel("the dashboard's plots")
         self._requests = Pace(REQUEST_RATE, REQUEST_BURST)
         self._frames = Pace(FRAME_RATE, MAX_PAGES)
 
@@ -310,8 +313,13 @@ class DashboardTransport(Transport):
                 await asyncio.sleep(max(0.0, FRAME_PERIOD_S - (loop.time() - began)))
         except (ConnectionError, RuntimeError) as exc:  # the page went away mid-send
             log.debug("dashboard page %s: %s", viewer.endpoint, exc)
+        except Exception as exc:  # a frame that cannot be built: this page stops, nothing else
+            log.error("dashboard page %s: its frames stopped: %s: %s", viewer.endpoint,
+                      type(exc).__name__, exc)
+            await ws.close(message=b"internal error")
 
     async def _sample(self) -> None:
-        while True:
-            self.dashboard.sample({viewer.slot for viewer in self._pages.values()})
+        sample = self._sampling.guard(self.dashboard.sample, "sampling the axes")
+        while not self._sampling.stopped:
+            sample({viewer.slot for viewer in self._pages.values()})
             await asyncio.sleep(SAMPLE_PERIOD_S)
