@@ -29,7 +29,6 @@ WIRE_LOGGERS = (
     "tmcl_server.transports.mqtt.bridge",
     "tmcl_server.simulation",
     "tmcl_server.dashboard.web",
-    "tmcl_server.sidechannel",
     "aiohttp.server",  # aiohttp's reports of a request or WebSocket message it could not handle
     "aiohttp.web",
     "aiohttp.websocket",
