@@ -27,15 +27,20 @@ class Pace:
         #: When the next turn is due if nobody waits (the "theoretical arrival time").
         self._due = 0.0
 
-    def delay(self) -> float:
+    def delay(self, longest: float | None = None) -> float | None:
+        """The wait for the next turn, booked; None (and nothing booked) if it would be longer
+        than ``longest``."""
         now = self._clock()
         due = max(self._due, now)
+        wait = max(0.0, due - self.tolerance - now)
+        if longest is not None and wait > longest:
+            return None
         self._due = due + self.interval
-        return max(0.0, due - self.tolerance - now)
+        return wait
 
     async def turn(self) -> None:
         wait = self.delay()
-        if wait > 0:
+        if wait:
             await asyncio.sleep(wait)
 
 
@@ -85,16 +90,22 @@ class _GatedConnection(asyncio.Protocol):
 
 
 class ConnectionGate:
-    """At most ``limit`` connections at once; a new one past the limit closes the connection
-    whose client has been silent longest (an idle keep-alive, an abandoned socket), so idle
-    connections can never lock a live client out."""
+    """At most ``limit`` connections at once.  A new one past the limit closes the connection
+    whose client has been silent longest, if that one has been silent at least ``idle_s`` (an
+    idle keep-alive, an abandoned socket: idle connections never lock a live client out);
+    otherwise the newcomer is closed at once (every connection is busy: a flood must not
+    make the server trade one busy connection for another)."""
 
-    def __init__(self, factory: Callable[[], Any], limit: int, name: str) -> None:
+    def __init__(self, factory: Callable[[], Any], limit: int, name: str,
+                 idle_s: float = 1.0) -> None:
         if limit < 1:
             raise ValueError(f"a connection limit must be at least 1, got {limit}")
         self._factory = factory
         self.limit = limit
         self.name = name
+        self.idle_s = idle_s
+        #: Newcomers closed at once because every connection was busy.
+        self.refused = 0
         self.connections: set[_GatedConnection] = set()
         #: Connections closed to make room (for tests and the docs' figures).
         self.evicted = 0
@@ -105,8 +116,14 @@ class ConnectionGate:
     def admit(self, connection: _GatedConnection) -> bool:
         if len(self.connections) >= self.limit:
             victim = min(self.connections, key=lambda c: c.last_heard)
+            silent = time.monotonic() - victim.last_heard
+            if silent < self.idle_s:
+                self.refused += 1
+                log.warning("%s: %d busy connections (the limit); a new one is closed at once",
+                            self.name, len(self.connections))
+                return False
             log.warning("%s: %d connections (the limit); closing the one silent for %.1f s",
-                        self.name, len(self.connections), time.monotonic() - victim.last_heard)
+                        self.name, len(self.connections), silent)
             self.evicted += 1
             self.connections.discard(victim)
             if victim.transport is not None:

@@ -55,13 +55,16 @@ SAMPLE_PERIOD_S = 0.02
 #: show the Parameters section.
 PARAMETER_PERIOD_S = 0.5
 #: Connections one ``--http`` port holds at once (pages, scripts, a browser's parallel
-#: fetches); past it the one silent longest is closed.
+#: fetches); past it the one silent longest is closed if it has been silent a second, else the
+#: newcomer.
 MAX_CONNECTIONS = 32
 #: Pages (WebSockets) open at once; past it the one silent longest is closed.
 MAX_PAGES = 8
 #: Plain HTTP requests (page, static files, /api/...) answered per second over the whole port,
 #: and at once: more wait their turn with their connection's reading paused.
 REQUEST_RATE, REQUEST_BURST = 30.0, 60
+#: A request that would wait longer than this for its turn is answered 503 at once.
+MAX_WAIT_S = 3.0
 #: Frames sent per second to all pages together (each page at most 1 / FRAME_PERIOD_S).
 FRAME_RATE = 40.0
 #: Messages one page may send per second (acks come at most 10 a second).
@@ -177,8 +180,11 @@ class DashboardTransport(Transport):
             log.warning("dashboard: refused %s %s from %s: %s", request.method, request.path,
                         peer, refusal)
             return web.Response(status=403, text=f"tmcl-server dashboard: {refusal}\n")
-        wait = self._requests.delay()
-        if wait > 0:
+        wait = self._requests.delay(MAX_WAIT_S)
+        if wait is None:  # a backlog longer than MAX_WAIT_S already: answer at once
+            return web.Response(status=503, headers={"Retry-After": "1"},
+                                text="tmcl-server dashboard: too many requests, ask again later\n")
+        if wait:
             transport = request.transport
             if transport is not None:
                 transport.pause_reading()
@@ -187,6 +193,8 @@ class DashboardTransport(Transport):
             finally:
                 if transport is not None and not transport.is_closing():
                     transport.resume_reading()
+            if transport is None or transport.is_closing():  # the client left meanwhile
+                return web.Response(status=503)
         response = await handler(request)
         if (self.policy.token is not None and "token" in request.query
                 and not response.prepared):  # the page's later requests carry it as a cookie
