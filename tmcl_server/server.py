@@ -241,6 +241,8 @@ class Server:
                 module.eeprom.flush()
             except OSError:
                 log.exception("module %d: writing the EEPROM file failed", module.slot)
+        for module in self.simulation.modules[:1]:  # and every file on disk (one syncer)
+            module.eeprom.wait_durable()
         if self._can_bus is not None and self._can_bus.timing is not None:
             self._can_bus.timing.close()
         self.observers.close()
