@@ -29,12 +29,13 @@ WIRE_LOGGERS = (
     "tmcl_server.transports.mqtt.bridge",
     "tmcl_server.simulation",
     "tmcl_server.dashboard.web",
-    "aiohttp.server",  # aiohttp's reports of a request or WebSocket message it could not handle
-    "aiohttp.web",
-    "aiohttp.websocket",
     "axes.chips.tmc42x.firmware",
-    "asyncio",  # the loop's own reports: "socket.accept() out of system resource", ...
 )
+#: Libraries' loggers a host can make talk: the loop's own reports ("socket.accept() out of
+#: system resource", ...) and aiohttp's about a request or WebSocket message it could not handle
+#: (aiohttp/log.py names them).
+LIBRARY_LOGGERS = ("asyncio", "aiohttp.server", "aiohttp.web", "aiohttp.websocket")
+WIRE_LOGGERS = (*WIRE_LOGGERS, *LIBRARY_LOGGERS)
 
 
 class RepeatFilter(logging.Filter):

@@ -26,7 +26,7 @@ import pytest
 
 from tests.conftest import RawClient
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.lograte import REPEATS, WIRE_LOGGERS, RepeatFilter
+from tmcl_server.lograte import LIBRARY_LOGGERS, REPEATS, WIRE_LOGGERS, RepeatFilter
 from tmcl_server.loops import uvloop_available
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_spec.commands import Opcode
@@ -380,7 +380,13 @@ def test_every_wire_logger_is_rate_limited():
         if "getLogger(__name__)" in path.read_text()}
     assert logging_modules <= set(WIRE_LOGGERS)
     for name in WIRE_LOGGERS:
-        assert name == "asyncio" or importlib.util.find_spec(name) is not None, name
+        assert name in LIBRARY_LOGGERS or importlib.util.find_spec(name) is not None, name
+    aiohttp_log = importlib.util.find_spec("aiohttp.log")
+    if aiohttp_log is not None:  # the library's names, as aiohttp spells them
+        import aiohttp.log
+        names = {getattr(aiohttp.log, attr).name for attr in dir(aiohttp.log)
+                 if isinstance(getattr(aiohttp.log, attr), logging.Logger)}
+        assert {n for n in LIBRARY_LOGGERS if n.startswith("aiohttp.")} <= names
 
 
 # -- item 11: a connection that comes and goes leaves nothing behind --------------------------
