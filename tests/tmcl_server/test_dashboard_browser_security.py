@@ -104,8 +104,9 @@ def port_of(url: str) -> int:
 
 
 def settled(page: Any) -> dict[str, str]:
+    """The page's outcome once both attempts ended (an open socket still awaits its reply)."""
     outcome = page.execute_script("return window.outcome")
-    return outcome if "pending" not in outcome.values() else {}
+    return outcome if "pending" not in outcome.values() and outcome["ws"] != "open" else {}
 
 
 def stored_max_speed(sim: SimulatorThread) -> tuple[int, int]:
