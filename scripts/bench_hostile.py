@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import socket
 import subprocess
 import sys
@@ -42,7 +43,8 @@ class Server:
         self.proc = subprocess.Popen(
             [python, "-m", "tmcl_server", "--tcp", "127.0.0.1:0", "--http", "127.0.0.1:0",
              "--ready-file", str(ready)], cwd=checkout, stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL)
+            stderr=subprocess.DEVNULL,
+            env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})  # leave another checkout as it is
         deadline = time.monotonic() + 30
         while not ready.exists():
             if self.proc.poll() is not None or time.monotonic() > deadline:

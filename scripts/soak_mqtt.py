@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import socket
 import statistics
 import subprocess
@@ -96,7 +97,8 @@ class Server:
         self.proc = subprocess.Popen(
             [python, "-m", "tmcl_server", "--tcp", "127.0.0.1:0",
              "--mqtt", f"{self.broker.url}/{PREFIX}", "--ready-file", str(ready)],
-            cwd=checkout, stdout=subprocess.DEVNULL, stderr=open(self.stderr_path, "wb"))  # noqa: SIM115
+            cwd=checkout, stdout=subprocess.DEVNULL, stderr=open(self.stderr_path, "wb"),  # noqa: SIM115
+            env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})  # leave another checkout as it is
         deadline = time.monotonic() + 30
         while not ready.exists():
             if self.proc.poll() is not None or time.monotonic() > deadline:
