@@ -61,7 +61,7 @@ BACKOFF_START_S = 0.2
 BACKOFF_MAX_S = 5.0
 #: Replies (and answers such as ``sim_error``) waiting for the broker, at most this many; and
 #: as many events.  What comes beyond is dropped and counted (docs/mqtt.md, Reliability).
-MAX_QUEUED = 1000
+MAX_QUEUED = 10_000
 #: Messages sent to the broker before their acknowledgements are awaited together (QoS 1):
 #: one at a time, a broker's round trip limits the bridge to a few hundred a second.
 IN_FLIGHT = 16
