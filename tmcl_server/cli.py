@@ -13,6 +13,7 @@ from typing import NoReturn
 
 from axes.cores import CHIP_CORES
 from tmcl_server.loops import LOOPS, new_event_loop
+from tmcl_server.observe import DEFAULT_RECORD_MAX, DEFAULT_TRACE_MAX
 from tmcl_server.platform import add_stop_handlers, dump_stacks_on_signal
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
@@ -75,6 +76,31 @@ def positive(text: str) -> float:
     return value
 
 
+_SIZE_UNITS = {"": 1, "k": 1024, "m": 1024 ** 2, "g": 1024 ** 3}
+
+
+def size(text: str) -> int:
+    """Bytes: ``500000``, ``100k``, ``100M``, ``2G`` (binary units; ``0``: no limit)."""
+    body = text.strip().lower().removesuffix("b").removesuffix("i")
+    unit = body[-1:] if body[-1:] in _SIZE_UNITS else ""
+    number = body[:-1] if unit else body
+    try:
+        value = float(number)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size (e.g. 100M, 500k, 0)") from None
+    if not math.isfinite(value) or value < 0 or value * _SIZE_UNITS[unit] > 2 ** 62:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size (e.g. 100M, 500k, 0)")
+    bytes_ = int(value * _SIZE_UNITS[unit])
+    if 0 < bytes_ < 4096:
+        raise argparse.ArgumentTypeError(f"{text!r}: a file limit below 4k holds next to nothing "
+                                         "(0 means no limit)")
+    return bytes_
+
+
+def _megabytes(count: int) -> str:
+    return f"{count // (1024 * 1024)}M"
+
+
 def non_negative(text: str) -> float:
     """A finite number >= 0 (a duration)."""
     value = _number(text)
@@ -99,8 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "mode=usb")
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
     parser.add_argument("--max-connections", type=_positive_int, default=256, metavar="N",
-                        help="clients each TCP endpoint serves at once; more are accepted and "
-                             "closed at once (default 256)")
+                        help="clients each TCP endpoint serves at once; a new one past it "
+                             "closes the client silent longest (default 256)")
     parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
                         help="open a virtual serial port and link PATH to it (repeatable); "
                              "mode usb answers any address like the module's USB port, rs485 "
@@ -126,6 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "TMCL_MQTT_USERNAME/TMCL_MQTT_PASSWORD)")
     parser.add_argument("--mqtt-rate", type=positive, default=10.0, metavar="HZ",
                         help="at most this many state messages per module and second (default 10)")
+    parser.add_argument("--mqtt-faults", action="store_true",
+                        help="let MQTT clients inject faults (sim/fault, sim/power_cycle); off by "
+                             "default: every client of the broker could silence the module")
     parser.add_argument("--state-dir", metavar="DIR",
                         help="keep each module's EEPROM in DIR/module-<address>/ "
                              "(default: nothing persists)")
@@ -154,9 +183,15 @@ def build_parser() -> argparse.ArgumentParser:
                             "(to stderr, or to FILE)")
     watch.add_argument("--trace-format", choices=["text", "jsonl"], default="text",
                        help="trace lines as text (default) or one JSON object each")
+    watch.add_argument("--trace-max", type=size, default=DEFAULT_TRACE_MAX, metavar="SIZE",
+                       help="past this size the trace file becomes FILE.1 and a new one starts "
+                            f"(default {_megabytes(DEFAULT_TRACE_MAX)}; 0: no limit)")
     watch.add_argument("--record", metavar="FILE",
                        help="record position, velocity, acceleration, current, switches and "
                             "events of the axes to FILE (.csv or .jsonl)")
+    watch.add_argument("--record-max", type=size, default=DEFAULT_RECORD_MAX, metavar="SIZE",
+                       help="past this size the record file becomes FILE.1 and a new one starts "
+                            f"(default {_megabytes(DEFAULT_RECORD_MAX)}; 0: no limit)")
     watch.add_argument("--record-resolution", type=positive, default=0.01, metavar="SECONDS",
                        help="simulated time between two samples (default 0.01)")
     watch.add_argument("--record-axes", metavar="LIST",
@@ -164,7 +199,11 @@ def build_parser() -> argparse.ArgumentParser:
     watch.add_argument("--http", action="append", metavar="[HOST:]PORT", default=[],
                        help="serve the live dashboard (axes, I/O, parameters, program debugger, "
                             "wire) to a browser; host 127.0.0.1 unless given; needs the extra "
-                            f"tmcl-sim[http] ({doc('dashboard.md')})")
+                            f"tmcl-sim[http] ({doc('dashboard.md')}); beyond loopback it needs the "
+                            "token it prints")
+    watch.add_argument("--http-allow-origin", action="append", metavar="ORIGIN", default=[],
+                       help="let pages from ORIGIN (e.g. http://lab-pc:9000, or * for any) "
+                            "drive the dashboard; by default only its own page may (repeatable)")
     faults = parser.add_argument_group(f"faults and wire timing (see {doc('faults.md')})")
     faults.add_argument("--fault", action="append", metavar="SPEC", default=[],
                         help="inject a fault, e.g. noreply:opcode=GAP,rate=0.1,seed=7 or "
@@ -287,18 +326,34 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         if importlib.util.find_spec("aiohttp") is None:
             raise UsageError("argument --http: needs aiohttp: pip install 'tmcl-sim[http]'")
         endpoints["http"] = args.http
+        from tmcl_server.dashboard.guard import AccessPolicy
+
+        try:
+            AccessPolicy("127.0.0.1", args.http_allow_origin)
+        except ValueError as exc:
+            raise UsageError(f"argument --http-allow-origin: {exc}") from None
     try:
         can_bus_name = (check_bus_name(args.can_bus) if args.can_bus is not None
                         else DEFAULT_BUS_NAME)
     except ValueError as exc:
         raise UsageError(f"argument --can-bus: {exc}") from None
-    from tmcl_server.faults import FaultSpecError, load_fault_file, parse_fault
+    from tmcl_server.faults import MAX_FAULTS, FaultSpecError, load_fault_file, parse_fault
 
+    faults = []
     try:
-        faults = [spec for path in args.faults for spec in load_fault_file(path)]
-        faults += [parse_fault(text) for text in args.fault]
-    except FaultSpecError as exc:
-        raise UsageError(f"fault: {exc}") from None
+        for path in args.faults:
+            faults += load_fault_file(path)
+    except FaultSpecError as exc:  # names the file and the line
+        raise UsageError(f"argument --faults: {exc}") from None
+    for text in args.fault:
+        try:
+            faults.append(parse_fault(text))
+        except FaultSpecError as exc:
+            shown = text if len(text) <= 60 else f"{text[:60]}..."
+            raise UsageError(f"argument --fault {shown}: {exc}") from None
+    if len(faults) > MAX_FAULTS:
+        raise UsageError(f"argument --fault/--faults: {len(faults)} faults, at most {MAX_FAULTS} "
+                         "at once")
     record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock=args.clock, speed=args.speed, ready_file=args.ready_file,
@@ -309,7 +364,9 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         record_resolution=args.record_resolution, record_axes=record_axes,
                         faults=faults, wire_timing=args.wire_timing,
                         processing_time=args.processing_time, max_connections=args.max_connections,
-                        skip_loops=not args.step_every_instruction)
+                        skip_loops=not args.step_every_instruction,
+                        trace_max=args.trace_max, record_max=args.record_max,
+                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults)
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given

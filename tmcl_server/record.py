@@ -262,6 +262,10 @@ class RecordWriter:
             self._csv = csv.writer(stream, lineterminator="\n")
             self._csv.writerow(CSV_COLUMNS)
 
+    def header(self) -> str:
+        """What starts a new file (a rotated one): the CSV header line; nothing for JSONL."""
+        return ",".join(CSV_COLUMNS) + "\n" if self._csv is not None else ""
+
     def sample(self, sample: Sample) -> None:
         if self._csv is not None:
             self._csv.writerow((*(getattr(sample, name) for name in SAMPLE_FIELDS), "", ""))
