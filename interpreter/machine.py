@@ -566,8 +566,10 @@ class Interpreter:
             elif op == _COMP:
                 cmp_ = zero = acc - va
                 pc += 1
-            elif op == _JC:
-                if ty == 0:
+            elif op == _JC or op == _JA:
+                if op == _JA:
+                    taken = True
+                elif ty == 0:
                     taken = zero == 0
                 elif ty == 1:
                     taken = zero != 0
@@ -587,17 +589,7 @@ class Interpreter:
                     taken = bool(self.errors & _JC_ERROR_BIT.get(ty, 0))
                 if not taken:
                     pc += 1
-                elif va <= pc and watch and va >= 0:
-                    pc = va
-                    loops -= 1
-                    if loops <= 0:
-                        n += 1
-                        outcome = _LOOP
-                        break
-                else:
-                    pc = va if 0 <= va < end else end
-            elif op == _JA:
-                if va <= pc and watch and va >= 0:
+                elif va <= pc and watch and va >= 0:  # a loop: counts down to its analysis
                     pc = va
                     loops -= 1
                     if loops <= 0:

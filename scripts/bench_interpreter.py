@@ -10,7 +10,9 @@
    an idle and on a moving axis (the chip is brought to the instruction's instant and read over
    SPI).  Each as wall-clock microseconds per instruction and as a multiple of CALC; at the
    modelled 10 us per instruction, a program of such instructions needs cost/10 us of a core
-   on a real clock (docs/scheduling.md).
+   on a real clock (docs/scheduling.md).  These loops change nothing, so by default they would
+   be skipped (docs/scheduling.md, "Loops that change nothing"): they run in the stepping
+   reference here, every instruction executed.
 3. Direct-mode latency while a program runs: a busy program on a real clock, and a host
    sending GAP over TCP; round-trip times of the replies.
 
@@ -92,6 +94,7 @@ def instruction_cost_us(body: str, setup: str, simulated_s: float) -> float:
     module = TMCM6212()
     simulation = Simulation([module], VirtualClock())
     source = setup + "Loop:\n" + f"    {body}\n" * 9 + "    JA Loop\n"
+    module.program.skip_loops = False  # the cost of executing it (such a loop is skipped)
     module.program.interpreter.load(assemble(source).instructions)
     module.program.interpreter.start(0)
     simulation.advance(0.01)  # past the setup
