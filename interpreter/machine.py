@@ -566,7 +566,7 @@ class Interpreter:
             elif op == _COMP:
                 cmp_ = zero = acc - va
                 pc += 1
-            elif op == _JC or op == _JA:
+            elif op in (_JC, _JA):
                 if op == _JA:
                     taken = True
                 elif ty == 0:
