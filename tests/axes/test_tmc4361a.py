@@ -861,6 +861,101 @@ def test_a_move_of_a_step_or_two_ends_on_the_target_in_bounded_time(name: str, t
     _compare(Registers(clk_freq=F_TEST, **reference), quantum, [], tail=limit)
 
 
+
+# == a new target inside the braking distance ====================================================
+
+
+@pytest.mark.parametrize(("rampmode", "vstop", "tzerowait"), [
+    (5, 10, 0), (5, 10, 512), (5, 0, 0), (6, 10, 0), (6, 0, 512)])
+def test_a_target_inside_the_braking_distance_is_passed_and_reached_after_a_u_turn(
+        rampmode: int, vstop: int, tzerowait: int) -> None:
+    """Issue 24 item 2: at 100 000 pps with DMAX 51 200 pps² the motor needs ~97 656 steps to
+    stop; XTARGET moved 10 000 steps ahead cannot be met on the way.  The datasheet's
+    positioning mode ends "exactly on target" and a direction change in positioning goes
+    through the U-turn (§6.6: down to 0, or to VSTOP and then 0; TZEROWAIT; back to
+    XTARGET).  With VSTOP 10 the final approach used to settle at VSTOP and crawl away for
+    ever (87 936 steps past after 20 s).  Now: one stop past the target, then the arrival."""
+    chip = chip_with(rampmode=rampmode, vmax=velocity_register(100_000), amax=acceleration_register(
+        51_200), dmax=acceleration_register(51_200), vstop=velocity_register(vstop),
+        tzerowait=tzerowait, bow1=400_000, bow2=400_000, bow3=400_000, bow4=300_000,
+        xtarget=10_000_000)
+    chip.run(3 * MHZ16)
+    assert chip.read(Reg.VACTUAL) == 100_000  # cruising
+    target = signed(chip.read(Reg.XACTUAL)) + 10_000
+    chip.write(Reg.XTARGET, target)
+    seen = run_for(chip, 20)
+    assert [stop for stop, _, _ in seen] == [Stop.STOPPED, Stop.ARRIVED]
+    (_, stopped_at, turned), (_, arrived_at, _) = seen
+    assert turned - target > 80_000  # it could not stop before: it passed the target ...
+    assert arrived_at > stopped_at + tzerowait
+    assert signed(chip.read(Reg.XACTUAL)) == target  # ... and came back to it
+    assert chip.read(Reg.VACTUAL) == 0 and chip.read(Reg.STATUS) & Status.TARGET_REACHED_F
+    assert chip.run(chip.t + MHZ16) is None and signed(chip.read(Reg.XACTUAL)) == target
+    if tzerowait:  # the U-turn's standstill (§6.6 step 2) before the way back
+        twin = chip_with(rampmode=rampmode, vmax=velocity_register(100_000),
+                         amax=acceleration_register(51_200), dmax=acceleration_register(51_200),
+                         vstop=velocity_register(vstop), tzerowait=tzerowait, bow1=400_000,
+                         bow2=400_000, bow3=400_000, bow4=300_000, xtarget=10_000_000)
+        twin.run(3 * MHZ16)
+        twin.write(Reg.XTARGET, target)
+        for clock in (stopped_at, stopped_at + tzerowait):
+            while twin.t < clock:
+                twin.run(clock)
+            assert twin.ramp.w == 0 and twin.read(Reg.XACTUAL) == turned & MASK32
+        twin.run(stopped_at + tzerowait + 64)  # (an S-ramp keeps v = 0 for half a quantum)
+        assert twin.ramp.w > 0 and twin.ramp.s < 0
+
+
+@st.composite
+def close_targets(draw: st.DrawFn) -> tuple[Registers, int, int]:
+    """Positioning ramps with VSTOP (mostly), a moment in the move, and a new XTARGET that lies
+    0..80 steps ahead of the motor then (inside the braking distance for the slower ramps).
+
+    VSTART stays at or below VSTOP, as the datasheet asks (§6.3.9, "Set VSTART < VSTOP"):
+    a start at a VSTART the ramp cannot brake within the target step overshoots by design
+    and may turn back and forth around a close target for ever.
+    """
+    regs = draw(ramp_registers((1, 2)))
+    regs.rampmode = 4 | (regs.rampmode & 3)
+    regs.xtarget = draw(st.sampled_from([400, -400])) & MASK32
+    if draw(st.integers(0, 3)):
+        regs.vstop = draw(st.integers(1, max(1, abs(signed(regs.vmax)) // 2)))
+    regs.vstart = min(regs.vstart, regs.vstop)
+    return regs, draw(st.integers(50, 2500)), draw(st.integers(0, 80))
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(case=(Registers(rampmode=5, vmax=30720, vstop=10, amax=480, dmax=480, clk_freq=F_TEST,
+                         xtarget=400), 1500, 5), quantum=64)
+@example(case=(Registers(rampmode=6, vmax=30720, vstop=10, amax=480, dmax=480, bow1=300,
+                         bow2=300, bow3=300, bow4=200, clk_freq=F_TEST, xtarget=400), 1500, 5),
+         quantum=4)
+@given(case=close_targets(), quantum=st.sampled_from([1, 2, 4, 64]))
+def test_targets_moved_inside_the_braking_distance_match_the_reference_and_arrive(
+        case: tuple[Registers, int, int], quantum: int) -> None:
+    """The engine and the reference agree on the U-turn past a close target, clock for clock,
+    and both end on the target (no crawl away at VSTOP).
+
+    Except with BOW2 = BOW4 (S-ramps): the U-turn passes through 0 and carries its
+    deceleration into the way back (docs/tmc4361a.md, "BOW2 = BOW4"), so with soft bows a
+    target a few steps behind is passed again, in a cycle that need not settle; there only
+    the agreement with the reference is required.
+    """
+    regs, when, ahead = case
+    chip, ref = _pair(regs, quantum)
+    seen: list[tuple[int, Stop]] = []
+    _run_both(chip, ref, when, seen)
+    target = ref.x + ref.s * ahead
+    chip.write(Reg.XTARGET, target & MASK32)
+    ref.write("xtarget", target & MASK32)
+    _run_both(chip, ref, when + 40_000, seen)
+    assert [t for t, stop in seen if stop is Stop.ARRIVED] == ref.arrivals
+    assert [t for t, stop in seen if stop is Stop.STOPPED] == ref.stops
+    if regs.rampmode & 3 == 2 and regs.bow2 == regs.bow4:
+        return
+    assert ref.x == target and ref.w == 0 and ref.arrivals
+    assert chip.motor_position == target and chip.ramp.w == 0
+
 def test_the_pinned_case_arrives_on_its_second_clock() -> None:
     chip = chip_with(clock=F_TEST, **SHORT_MOVES["trapezoid, VSTOP 31"], xtarget=-1)
     assert chip.run(4000) is Stop.ARRIVED and chip.t == 2

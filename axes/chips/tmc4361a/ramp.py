@@ -373,9 +373,11 @@ class Ramp:
         if P.profile == 0:
             return (A_NORAMP,)
         if P.positioning:
-            if self.braking:
-                return (A_FALL, Variant.TO_TARGET, 0, False)
             n = ctx.target - self.x
+            if self.braking:
+                if n * self.s < 0:  # the final approach passed the target: a U-turn (§6.6)
+                    return (A_FALL, Variant.TO_ZERO, 0, True)
+                return (A_FALL, Variant.TO_TARGET, 0, False)
             direction = sign(n)
             V = P.V
             if (direction < 0 and ctx.blocked_neg) or (direction > 0 and ctx.blocked_pos):
@@ -640,8 +642,9 @@ class Ramp:
             if w <= goal:
                 w, next_stage, ended = goal, Stage.CRUISE, False
         elif continuous:
-            if w < 0:
+            if w < 0:  # through 0: motion continues to XTARGET (§6.6), a new approach
                 self.s = -self.s
+                self.braking = False
                 self.a = min(g, P.AMAX)
                 self.slope = RISE
                 self.stage = Stage.HOLD if self.a >= P.AMAX else Stage.UP
