@@ -15,7 +15,8 @@ import pytest
 from axes.chips.tmc4361a import Reg
 from axes.chips.tmc4361a.firmware import TMC4361AAxis
 from axes.interface import AxisEventKind
-from tests.axes.test_axis_firmware import Harness
+from axes.world import AxisWorld, Switch
+from tests.axes.test_axis_firmware import CORES, Harness
 from tests.axes.test_tmc4361a import _s_time, _sixpoint_time
 from tmcl_spec.parameters import AP
 from tmcl_spec.tmcm6212 import MAX_ACCELERATION_PPS2, MAX_VELOCITY_PPS
@@ -95,6 +96,9 @@ def test_ap17_changed_in_flight_takes_effect_and_mst_brakes_with_ap5() -> None:
 
 
 def test_the_manuals_full_speed_and_acceleration_ranges() -> None:
+    """The manual's AP 4 range (7 999 774 pps) is accepted and read back; the chip positions
+    at most at f/4 (datasheet §6.7.2, Table 18: 4 000 000 pps at 16 MHz) and rotates at up
+    to f/2, so a rotation runs at the full range."""
     h = harness()
     h.sap(AP.MAX_SPEED, MAX_VELOCITY_PPS)
     h.sap(AP.MAX_ACCELERATION, MAX_ACCELERATION_PPS2)
@@ -106,10 +110,34 @@ def test_the_manuals_full_speed_and_acceleration_ranges() -> None:
     assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(MAX_ACCELERATION_PPS2 * 0.5, rel=2e-5)
     assert h.axis.register_access(Reg.GENERAL_CONF) & 0b10
     h.advance(1.0)
-    assert h.gap(AP.ACTUAL_SPEED) == MAX_VELOCITY_PPS
+    assert h.gap(AP.MAX_SPEED) == MAX_VELOCITY_PPS
+    assert h.gap(AP.ACTUAL_SPEED) == CLOCK // 4
+    assert h.axis.register_access(Reg.VMAX) == (CLOCK // 4) << 8
     h.axis.rotate(-MAX_VELOCITY_PPS)
     h.advance(3.0)
     assert h.gap(AP.ACTUAL_SPEED) == -MAX_VELOCITY_PPS
+
+
+@pytest.mark.parametrize("clock", [16_000_000, 10_000_000])
+def test_the_datasheets_speed_ceiling_in_each_mode(clock: int) -> None:
+    """|VMAX| <= f/4 in positioning, <= f/2 in velocity mode (datasheet §6.7.2): beyond them
+    the real chip makes wrong step pulses or positions wrongly, so the firmware writes no
+    more (a raised AP 4 during a move too); AP 4 and AP 2 keep the values the host wrote."""
+    h = Harness(axis_class=lambda index, world=None: TMC4361AAxis(index, world=world,
+                                                                  clock_hz=clock))
+    h.sap(AP.MAX_ACCELERATION, MAX_ACCELERATION_PPS2)
+    h.sap(AP.MAX_DECELERATION, MAX_ACCELERATION_PPS2)
+    h.sap(AP.MAX_SPEED, 1_000_000)
+    h.axis.move_to(1_000_000_000)
+    h.advance(0.5)
+    assert h.gap(AP.ACTUAL_SPEED) == 1_000_000
+    h.sap(AP.MAX_SPEED, 7_000_000)  # on the fly
+    h.advance(1.5)
+    assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.MAX_SPEED)) == (clock // 4, 7_000_000)
+    h.axis.rotate(7_000_000)
+    h.advance(1.5)
+    assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.TARGET_SPEED)) == (min(7_000_000, clock // 2),
+                                                                 7_000_000)
 
 
 # == the six-point ramp of Table 14 ==============================================================
@@ -193,3 +221,89 @@ def test_register_access_is_32_bit_data_and_writes_bypass_the_firmware() -> None
     h.axis.register_access(Reg.VMAX, 10_000 << 8)  # velocity mode after power-up: it runs
     h.advance(1)
     assert h.gap(AP.ACTUAL_SPEED) == 10_000
+
+
+# == stop switches: a direction is blocked only while its switch is active (issue 24, item 1) ====
+
+
+@pytest.mark.parametrize("core", CORES)
+@pytest.mark.parametrize(("polarity", "speed"), [(AP.RIGHT_POLARITY, 20_000),
+                                                 (AP.LEFT_POLARITY, -20_000)])
+def test_a_polarity_toggled_at_standstill_leaves_no_direction_blocked(
+        core: str, polarity: int, speed: int) -> None:
+    """``SAP 24, 0, 1; SAP 24, 0, 0`` with no switch in the world: the inverted input reads
+    the switch active for a moment, the chip latches its stop event (datasheet §8.1.2: at
+    standstill too) and kept that direction locked, so ``ROR 0, 20000`` never moved.  The
+    firmware clears the stale event before a motion command; both cores now move."""
+    h = Harness(axis_class=CORES[core])
+    h.sap(polarity, 1)
+    assert h.gap(AP.RIGHT_SWITCH if speed > 0 else AP.LEFT_SWITCH) == 1
+    h.sap(polarity, 0)
+    h.axis.rotate(speed)
+    h.advance(0.5)
+    assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(speed, abs=5)
+    assert h.gap(AP.ACTUAL_POSITION) * speed > 0
+
+
+@pytest.mark.parametrize("core", CORES)
+@pytest.mark.parametrize(("standing_on", "speed"), [("left", 20_000), ("right", -20_000)])
+def test_swapping_switches_back_while_standing_on_one_leaves_the_other_side_free(
+        core: str, standing_on: str, speed: int) -> None:
+    """AP 14 toggled 1 -> 0 while the motor stands on a switch: for a moment the switch was
+    the other side's, whose event stayed latched.  Moving away from the real switch works;
+    moving into it stays blocked while it is active."""
+    side = "below" if standing_on == "left" else "above"
+    h = Harness(AxisWorld(switches={standing_on: Switch.place(0, side=side)}), CORES[core])
+    h.sap(AP.SWAP_SWITCHES, 1)
+    h.sap(AP.SWAP_SWITCHES, 0)
+    h.axis.rotate(-speed)  # into the switch it stands on: blocked
+    h.advance(0.5)
+    assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.ACTUAL_POSITION)) == (0, 0)
+    h.axis.rotate(speed)  # away from it
+    h.advance(0.5)
+    assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(speed, abs=5)
+    assert h.gap(AP.ACTUAL_POSITION) * speed > 0
+
+
+@pytest.mark.parametrize("core", CORES)
+def test_a_switch_released_at_standstill_frees_its_direction_for_mvp(core: str) -> None:
+    """A switch the world closes and opens again (here: puts under the motor and takes away)
+    while the motor stands still: an MVP toward that side moves and arrives."""
+    h = Harness(axis_class=CORES[core])
+    h.axis.set_switch("right", Switch.place(0, side="above"))
+    assert h.gap(AP.RIGHT_SWITCH) == 1
+    h.axis.set_switch("right", Switch.place(50_000, side="above"))
+    assert h.gap(AP.RIGHT_SWITCH) == 0
+    h.axis.move_to(10_000)
+    h.until(AxisEventKind.TARGET_REACHED, timeout_s=5)
+    assert h.gap(AP.ACTUAL_POSITION) == 10_000
+
+
+# == a target inside the braking distance (issue 24, item 2) =====================================
+
+
+@pytest.mark.parametrize("s_ramp", [False, True])
+def test_a_new_target_inside_the_braking_distance_is_reached_with_vstop(s_ramp: bool) -> None:
+    """AP 20 at its factory value (10 pps): an MVP to a target closer than the braking
+    distance used to end in a VSTOP crawl away from it for ever (87 936 steps past after
+    20 s, AP 8 = 0).  The move passes the target, turns (datasheet §6.6) and arrives."""
+    h = harness()
+    assert h.gap(AP.VSTOP) == 10
+    if s_ramp:
+        rampmode = h.axis.register_access(Reg.RAMPMODE)
+        h.axis.register_access(Reg.RAMPMODE, (rampmode & ~0b11) | 0b10)
+        for reg in (Reg.BOW1, Reg.BOW2, Reg.BOW3, Reg.BOW4):
+            h.axis.register_access(reg, 400_000)  # BOW2 = BOW4: the U-turn passes through 0
+    for number, value in ((AP.MAX_SPEED, 100_000), (AP.MAX_ACCELERATION, 51_200),
+                          (AP.MAX_DECELERATION, 51_200)):
+        h.sap(number, value)
+    h.axis.move_to(10_000_000)
+    h.advance(3.0)
+    assert h.gap(AP.ACTUAL_SPEED) == 100_000
+    target = h.gap(AP.ACTUAL_POSITION) + 10_000
+    h.axis.move_to(target)
+    h.until(AxisEventKind.TARGET_REACHED, timeout_s=20)
+    assert (h.gap(AP.ACTUAL_POSITION), h.gap(AP.POSITION_REACHED), h.gap(AP.ACTUAL_SPEED)) == (
+        target, 1, 0)
+    h.advance(1.0)
+    assert h.gap(AP.ACTUAL_POSITION) == target

@@ -36,6 +36,10 @@ REAL_ACCELERATION_MAX = 0xFF_FFFF / 4
 DIRECT_ACCELERATION_MAX = 1 << 20
 #: The largest VMAX/VSTART/VSTOP/VBREAK register value (23.8 fixed point, positive).
 VELOCITY_REGISTER_MAX = 0x7FFF_FFFF
+#: Datasheet §6.7.2 and Table 18: |VMAX| <= f/2 in velocity mode and <= f/4 in positioning
+#: mode ("INCORRECT step pulses ... and/or positioning is not executed properly" beyond).
+VELOCITY_MODE_CEILING_DIVISOR = 2
+POSITIONING_CEILING_DIVISOR = 4
 #: AP 21 counts 32 µs (manual Table 14: "0.000032 s").
 RAMP_WAIT_UNIT_S = 32e-6
 #: Unit mode 0: the manual's internal units (the TMC5130's, "used directly", Table 14 AP 255):
@@ -213,6 +217,13 @@ class TMC4361ADriver(ChipDriver):
         magnitude = min(magnitude, VELOCITY_REGISTER_MAX)
         return -magnitude if speed < 0 else magnitude
 
+    def _vmax_register(self, speed: int, positioning: bool) -> int:
+        """VMAX for a speed parameter, within the datasheet's ceiling for the mode (f/4 pps
+        in positioning, f/2 pps in velocity mode; docs/tmc4361a.md, "Speed ceiling")."""
+        divisor = POSITIONING_CEILING_DIVISOR if positioning else VELOCITY_MODE_CEILING_DIVISOR
+        ceiling = (self.chip.clock_hz << 8) // divisor
+        return max(-ceiling, min(self._velocity_register(speed), ceiling))
+
     def _pps2(self, acceleration: int) -> float:
         """An acceleration parameter in pps² (unit mode 0: internal units of f²/2^41 pps²)."""
         if self._pps_units:
@@ -295,10 +306,10 @@ class TMC4361ADriver(ChipDriver):
         in_positioning_mode = bool(self._read(Reg.RAMPMODE) & POSITIONING)
         if positioning and in_positioning_mode:
             self._write_ramp(positioning=True)
-            self._write(Reg.VMAX, self._velocity_register(self.params[AP.MAX_SPEED]))
+            self._write(Reg.VMAX, self._vmax_register(self.params[AP.MAX_SPEED], True))
         elif not in_positioning_mode:
             self._write_ramp(positioning=False)
-            self._write(Reg.VMAX, self._velocity_register(velocity_command))
+            self._write(Reg.VMAX, self._vmax_register(velocity_command, False))
 
     # == switches ==============================================================================
 
@@ -321,14 +332,27 @@ class TMC4361ADriver(ChipDriver):
 
     # == motion ================================================================================
 
+    def _release_stop_events(self) -> None:
+        """Clear the latched STOPL/STOPR events before a motion command (datasheet §8.1.2).
+
+        The chip latches a stop event whenever an enabled switch becomes active, also at
+        standstill (a polarity or swap change, a switch passing by), and blocks that direction
+        until the event is cleared, even after the switch is released.  The firmware clears
+        them (writing 1 clears only these two) so that, as on the TMC4210 core, only a switch
+        that is still active blocks: its STATUS flag keeps that direction locked.
+        """
+        self._write(Reg.EVENTS, _SWITCH_EVENTS)
+
     def start_velocity(self, speed: int) -> None:
+        self._release_stop_events()
         self._write_ramp(positioning=False)
         self._set_mode(positioning=False)
-        self._write(Reg.VMAX, self._velocity_register(speed))
+        self._write(Reg.VMAX, self._vmax_register(speed, False))
 
     def start_positioning(self, target: int, top_speed: int) -> None:
+        self._release_stop_events()
         self._write_ramp(positioning=True)
-        self._write(Reg.VMAX, self._velocity_register(top_speed))
+        self._write(Reg.VMAX, self._vmax_register(top_speed, True))
         self._set_mode(positioning=True)
         self._write(Reg.XTARGET, target)
 
