@@ -913,14 +913,18 @@ def close_targets(draw: st.DrawFn) -> tuple[Registers, int, int]:
 
     VSTART stays at or below VSTOP, as the datasheet asks (§6.3.9, "Set VSTART < VSTOP"):
     a start at a VSTART the ramp cannot brake within the target step overshoots by design
-    and may turn back and forth around a close target for ever.
+    and may turn back and forth around a close target for ever.  So does an S-ramp that
+    starts at full acceleration (any VSTART > 0 skips B1, §6.4; or an ASTART above AMAX):
+    taking the acceleration back with a soft bow carries the motor far past a target a few
+    steps away, so S-ramps here start with B1 (VSTART 0, ASTART <= AMAX).
     """
     regs = draw(ramp_registers((1, 2)))
     regs.rampmode = 4 | (regs.rampmode & 3)
     regs.xtarget = draw(st.sampled_from([400, -400])) & MASK32
     if draw(st.integers(0, 3)):
         regs.vstop = draw(st.integers(1, max(1, abs(signed(regs.vmax)) // 2)))
-    regs.vstart = min(regs.vstart, regs.vstop)
+    regs.vstart = min(regs.vstart, regs.vstop) if regs.rampmode & 3 == 1 else 0
+    regs.astart = min(regs.astart, regs.amax)
     return regs, draw(st.integers(50, 2500)), draw(st.integers(0, 80))
 
 
@@ -1084,3 +1088,121 @@ def test_the_engine_jumps_segments_instead_of_walking_clocks() -> None:
             moves += 1
     assert moves > 80
     assert literal / moves < 20  # clocks done one by one per move (of ~10^8)
+
+
+# == remembered runs (issue 23: a move costs the same whatever its length, and little again) =====
+
+
+def _motion(chip: TMC4361A) -> tuple:
+    ramp = chip.ramp
+    return (chip.t, ramp.p, ramp.w, ramp.s, ramp.a, ramp.slope, ramp.stage, ramp.q, ramp.goal,
+            ramp.braking, ramp.wait, ramp.no_vstart, ramp.stopping, chip._flags, chip.events,
+            chip._wake)
+
+
+def _twins(regs: Registers, quantum: int) -> tuple[TMC4361A, TMC4361A]:
+    """The same chip twice: one replays runs it has seen, one works every run out."""
+    pair = []
+    for recall in (True, False):
+        chip = TMC4361A(clock_hz=regs.clk_freq, bow_quantum=quantum, recall=recall)
+        for name in RAMP_FIELDS:
+            chip.write(Reg[name.upper()], getattr(regs, name))
+        pair.append(chip)
+    return pair[0], pair[1]
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(regs=ramp_registers((0, 1, 2)), quantum=st.sampled_from([1, 4, 64]),
+       swing=st.tuples(st.sampled_from(["xtarget", "vmax"]), st.integers(-250, 250),
+                       st.integers(-250, 250)),
+       dwell=st.integers(300, 4000), repeats=st.integers(3, 7),
+       slices=st.lists(st.sampled_from([1, 7, 64, 333, 1000, 2500, 10**6]), min_size=1,
+                       max_size=5),
+       budget=st.sampled_from([None, None, 1, 2, 3]))
+def test_remembered_runs_replay_exactly_what_the_engine_works_out(
+        regs: Registers, quantum: int, swing: tuple[str, int, int], dwell: int, repeats: int,
+        slices: list[int], budget: int | None) -> None:
+    """Back-and-forth moves (XTARGET between two positions, or VMAX between two speeds in
+    velocity mode) repeat their runs; the chip that replays them must reach the same clock,
+    motion state, flags and events, and return the same stop, at every call however the
+    caller slices time and whatever work budget it gives (tests/axes/test_tmc4361a.py)."""
+    name, first, second = swing
+    value = (first, second) if name == "xtarget" else (first * 120, second * 120)
+    fast, slow = _twins(regs, quantum)
+    replays = 0
+    replay = fast._replay
+
+    def counted(*args):  # type: ignore[no-untyped-def]
+        nonlocal replays
+        replays += 1
+        replay(*args)
+
+    fast._replay = counted  # type: ignore[method-assign]
+    end = 0
+    turn = 0
+    for _ in range(repeats):
+        for target in value:
+            for chip in (fast, slow):
+                chip.write(Reg[name.upper()], target & MASK32)
+            end += dwell
+            turn += 1
+            while fast.t < end:
+                until = min(fast.t + slices[turn % len(slices)], end)
+                turn += 1
+                stops = [chip.run(until, budget) for chip in (fast, slow)]
+                assert stops[0] == stops[1]
+                assert _motion(fast) == _motion(slow)
+                assert fast.t == slow.t
+                if fast.t == slow.t < until and stops[0] is None and budget is None:
+                    raise AssertionError("a run without budget ended early without a stop")
+    assert fast.read(Reg.XACTUAL) == slow.read(Reg.XACTUAL)
+    del replays  # counted for debugging; the deterministic test below requires replays
+
+
+@pytest.mark.parametrize("rampmode", [5, 6])
+def test_back_and_forth_moves_are_replayed_after_the_first_two(rampmode: int) -> None:
+    """The manual's program on the chip alone (MVP ±512000, here with S-ramps too): from the
+    third move on every move starts from a state seen before and is replayed whole, with
+    the same clocks and states as a chip that works each one out."""
+    registers = dict(rampmode=rampmode, vmax=velocity_register(200_000),
+                     amax=acceleration_register(100_000), dmax=acceleration_register(90_000),
+                     vstop=velocity_register(10), bow1=400_000, bow2=400_000, bow3=300_000,
+                     bow4=350_000, pos_comp=0)
+    fast = chip_with(**registers)
+    slow = chip_with(**registers)
+    slow.recall = False
+    literal = {"fast": 0, "slow": 0}
+    for label, chip in (("fast", fast), ("slow", slow)):
+        tick = chip._tick
+
+        def counted(ctx, tick=tick, label=label):  # type: ignore[no-untyped-def]
+            literal[label] += 1
+            return tick(ctx)
+
+        chip._tick = counted  # type: ignore[method-assign]
+    target = 512_000
+    for move in range(12):
+        for chip in (fast, slow):
+            chip.write(Reg.XTARGET, target & MASK32)
+            assert run_until_stop(chip, 60) is Stop.ARRIVED
+        assert _motion(fast) == _motion(slow)
+        assert signed(fast.read(Reg.XACTUAL)) == target
+        assert fast.read(Reg.EVENTS) == slow.read(Reg.EVENTS)  # read (and cleared) alike
+        if move == 2:
+            first_moves = literal["fast"]
+        target = -target
+    assert literal["fast"] == first_moves  # moves 4..12: nothing worked out again
+    assert literal["slow"] > 3 * first_moves
+
+
+def test_runs_are_not_replayed_where_the_board_or_position_checks_act() -> None:
+    """Switch marks, virtual stops, home checks and an encoder tolerance depend on absolute
+    positions and the world: such chips work every run out."""
+    chip = chip_with(rampmode=5, vmax=velocity_register(100_000), amax=acceleration_register(
+        100_000), dmax=acceleration_register(100_000), xtarget=100_000)
+    assert chip._recall_key() is not None
+    for register, value in ((Reg.ENC_POS_DEV_TOL, 10), (Reg.REFERENCE_CONF,
+                                                          RefConf.VIRTUAL_LEFT_LIMIT_EN)):
+        twin = chip.clone()
+        twin.write(register, value)
+        assert twin._recall_key() is None

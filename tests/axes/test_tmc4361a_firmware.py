@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from axes.chips.tmc4361a import Reg
+from axes.chips.tmc4361a import TMC4361A, Reg
 from axes.chips.tmc4361a.firmware import TMC4361AAxis
 from axes.interface import AxisEventKind
 from axes.world import AxisWorld, Switch
@@ -307,3 +307,54 @@ def test_a_new_target_inside_the_braking_distance_is_reached_with_vstop(s_ramp: 
         target, 1, 0)
     h.advance(1.0)
     assert h.gap(AP.ACTUAL_POSITION) == target
+
+
+# == remembered runs through the firmware (issue 23, item 4) =====================================
+
+
+@pytest.mark.parametrize("s_ramp", [False, True])
+def test_remembered_runs_change_nothing_a_host_sees(s_ramp: bool,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """The manual's program (MVP ±512000) on one axis and a rotation reversed every 7 s on
+    another, through the firmware and its look-ahead: with the chip replaying runs it has
+    seen, every event comes at the same instant and every reading is the same as with a
+    chip that works each run out."""
+    replays = 0
+    replay = TMC4361A._replay
+
+    def counted(chip: TMC4361A, *args) -> None:  # type: ignore[no-untyped-def]
+        nonlocal replays
+        replays += 1
+        replay(chip, *args)
+
+    monkeypatch.setattr(TMC4361A, "_replay", counted)
+
+    def session(recall: bool) -> list[tuple]:
+        monkeypatch.setattr(TMC4361A, "recall", recall)
+        mover, rotor = harness(), harness()
+        for h in (mover, rotor):
+            if s_ramp:
+                rampmode = h.axis.register_access(Reg.RAMPMODE)
+                h.axis.register_access(Reg.RAMPMODE, (rampmode & ~0b11) | 0b10)
+                for reg in (Reg.BOW1, Reg.BOW2, Reg.BOW3, Reg.BOW4):
+                    h.axis.register_access(reg, 400_000)
+            h.sap(AP.MAX_SPEED, 200_000)
+            h.sap(AP.MAX_ACCELERATION, 100_000)
+        seen: list[tuple] = []
+        target, speed = 512_000, 80_000
+        mover.axis.move_to(target)
+        rotor.axis.rotate(speed)
+        for _ in range(40):
+            event = mover.until(AxisEventKind.TARGET_REACHED, timeout_s=60)
+            rotor.advance_to(event.time_ns)
+            if event.time_ns // (7 * NS) != (event.time_ns - 1) // (7 * NS) or len(seen) % 3 == 0:
+                speed = -speed
+                rotor.axis.rotate(speed)
+            seen.append((event.time_ns, mover.gap(AP.ACTUAL_POSITION), rotor.gap(AP.ACTUAL_POSITION),
+                         rotor.gap(AP.ACTUAL_SPEED), rotor.axis.register_access(Reg.EVENTS)))
+            target = -target
+            mover.axis.move_to(target)
+        return seen
+
+    assert session(True) == session(False)
+    assert replays > 40  # the moves (and the rotation's reversals) were replayed

@@ -15,7 +15,7 @@ from collections.abc import Mapping
 
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
-from axes.chips.tmc4361a.registers import MASK32, signed32
+from axes.chips.tmc4361a.registers import MASK32, WRITE_MASKS, signed32
 from axes.core import ChipDriver
 from axes.firmware import AxisFirmware
 from axes.world import AxisWorld
@@ -57,6 +57,10 @@ _FIRMWARE_REF_BITS = (RefConf.STOP_LEFT_EN | RefConf.STOP_RIGHT_EN | RefConf.POL
 _SHADOWED = frozenset({Reg.AMAX, Reg.DMAX, Reg.ASTART, Reg.DFINAL, Reg.DSTOP, Reg.VSTART,
                        Reg.VSTOP, Reg.VBREAK, Reg.TZEROWAIT, Reg.GENERAL_CONF})
 
+#: Registers only a datagram changes (the chip never does): the firmware remembers what it
+#: wrote and answers its own questions from that instead of reading them back.
+_REMEMBERED = frozenset({Reg.RAMPMODE, Reg.VMAX, Reg.XTARGET})
+
 _READ_XACTUAL = datagram(Reg.XACTUAL)
 _READ_STATUS = datagram(Reg.STATUS)
 
@@ -79,6 +83,8 @@ class TMC4361ADriver(ChipDriver):
         self._searching = False
         #: Last value written to each shadowed register (None: unknown, send it).
         self._shadow: dict[int, int] = {}
+        #: The value of each remembered register as the firmware last wrote it.
+        self._known: dict[int, int] = {}
 
     # == chip access ===========================================================================
 
@@ -88,10 +94,20 @@ class TMC4361ADriver(ChipDriver):
             if self._shadow.get(reg) == value:
                 return
             self._shadow[reg] = value
+        elif reg in _REMEMBERED:
+            self._known[reg] = value & WRITE_MASKS.get(reg, MASK32)
         self.chip.spi(datagram(reg, value, write=True))
+
+    def _forget(self) -> None:
+        """A host wrote a register (command 146) or the chip was reset: send and read again."""
+        self._shadow.clear()
+        self._known.clear()
 
     def _read(self, reg: int) -> int:
         """The 32 data bits of a register: the read is answered one datagram later."""
+        known = self._known.get(reg)
+        if known is not None:
+            return known
         frame = datagram(reg)
         self.chip.spi(frame)
         return self.chip.spi(frame) & MASK32
@@ -104,7 +120,7 @@ class TMC4361ADriver(ChipDriver):
         (polarity AP 24/25 and swap AP 14 are applied before the chip, as on the TMC4210
         core); EVENTS is read once to clear the reset event.
         """
-        self._shadow.clear()
+        self._forget()
         self.chip.spi(datagram(Reg.CLK_FREQ, self.chip.clock_hz, write=True))
         self._write_reference_conf()
         self._set_mode(positioning=False)
@@ -123,7 +139,7 @@ class TMC4361ADriver(ChipDriver):
             answer = self._read(address)
         else:
             self.chip.spi(datagram(address, value, write=True))
-            self._shadow.clear()  # the host may have changed what the firmware wrote
+            self._forget()  # the host may have changed what the firmware wrote
             answer = value & MASK32
         self.read_position()
         return to_int32(answer)

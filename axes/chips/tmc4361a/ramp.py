@@ -970,15 +970,17 @@ class Ramp:
                 return False
         return want == self.w and self.a == 0
 
-    def horizon(self, ctx: Context, limit: int, positions: tuple[int, ...] = ()) -> int:
+    def horizon(self, ctx: Context, limit: int, positions: tuple[int, ...] = (),
+                plan: tuple[tuple, tuple[int, int, int] | None] | None = None) -> int:
         """First tick (1..limit) that :meth:`tick` must do; limit + 1 if none.
 
         ``positions``: further unwrapped microstep positions whose arrival the caller wants
-        to handle itself (switch marks, compare positions, virtual stops, ...).
+        to handle itself (switch marks, compare positions, virtual stops, ...).  ``plan``:
+        :meth:`segment_for` of this state and ``ctx``, if the caller has it already.
         """
         if limit < 1:
             return 1
-        action, seg = self.segment_for(ctx)
+        action, seg = self.segment_for(ctx) if plan is None else plan
         kind = action[0]
         if kind == A_IDLE:
             return limit + 1
@@ -1078,11 +1080,13 @@ class Ramp:
             return position * S - self.p if position > self.x else None
         return self.p - ((position + 1) * S - 1) if position < self.x else None
 
-    def advance(self, ctx: Context, k: int) -> None:
-        """Jump ``k`` ticks that :meth:`horizon` found to be plain continuation."""
+    def advance(self, ctx: Context, k: int,
+                plan: tuple[tuple, tuple[int, int, int] | None] | None = None) -> None:
+        """Jump ``k`` ticks that :meth:`horizon` found to be plain continuation (``plan``: as
+        for :meth:`horizon`)."""
         if k <= 0:
             return
-        action, seg = self.segment_for(ctx)
+        action, seg = self.segment_for(ctx) if plan is None else plan
         kind = action[0]
         if kind == A_IDLE:
             return
@@ -1096,4 +1100,5 @@ class Ramp:
 
 
 #: The slots that make up the motion state (what a tick may change).
-_STATE_SLOTS = tuple(name for name in Ramp.__slots__ if name not in ("P", "_distances"))
+MOTION_SLOTS = _STATE_SLOTS = tuple(name for name in Ramp.__slots__
+                                    if name not in ("P", "_distances"))
