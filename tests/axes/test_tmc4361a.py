@@ -30,6 +30,7 @@ from axes.chips.tmc4361a import (
     velocity_pps,
     velocity_register,
 )
+from axes.chips.tmc4361a.ramp import quanta_sums
 from axes.core import Stop
 from tests.axes.reference_tmc4361a import ReferenceRamp, Registers
 
@@ -1206,3 +1207,17 @@ def test_runs_are_not_replayed_where_the_board_or_position_checks_act() -> None:
         twin = chip.clone()
         twin.write(register, value)
         assert twin._recall_key() is None
+
+
+@settings(max_examples=300, deadline=None)
+@given(q0=st.integers(0, 500), ticks=st.integers(0, 400), quantum=st.sampled_from([1, 2, 3, 8, 64]))
+def test_quanta_sums_in_closed_form_match_the_sums_they_stand_for(q0: int, ticks: int,
+                                                                 quantum: int) -> None:
+    """The engine's bow-phase jumps rest on three sums over the quantum grid; the closed
+    forms must equal the sums taken term by term."""
+    counts = [0] * (ticks + 1)
+    for k in range(1, ticks + 1):  # c_k: quantum ticks (phase counter % quantum == 0) in 1..k
+        counts[k] = counts[k - 1] + ((q0 + k - 1) % quantum == 0)
+    expected = (counts[ticks], sum(counts[1:]),
+                sum((ticks - k + 1) * counts[k] for k in range(1, ticks + 1)))
+    assert quanta_sums(q0, ticks, quantum) == expected

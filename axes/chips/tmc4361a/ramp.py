@@ -191,32 +191,26 @@ A_IDLE, A_WAIT, A_STOP, A_NORAMP, A_START, A_SPEED, A_FALL, A_POSITION = range(8
 # == closed forms ==============================================================================
 
 
-def _g1(n: int, quantum: int) -> int:
-    """Sum of floor(k / quantum) for k in 0..n-1."""
-    m, r = divmod(n, quantum)
-    return quantum * m * (m - 1) // 2 + m * r
-
-
-def _g2(n: int, quantum: int) -> int:
-    """Sum of k * floor(k / quantum) for k in 0..n-1."""
-    m, r = divmod(n, quantum)
-    q2 = quantum * quantum
-    full = q2 * (m - 1) * m * (2 * m - 1) // 6 + quantum * (quantum - 1) // 2 * m * (m - 1) // 2
-    return full + m * (r * m * quantum + r * (r - 1) // 2)
-
-
 def quanta_sums(q0: int, i: int, quantum: int) -> tuple[int, int, int]:
     """For ticks 1..i of a bow phase whose next tick has phase counter ``q0``:
 
     (c_i, sum of c_k, sum of (i - k + 1) * c_k), where c_k counts the quantum ticks among
     ticks 1..k (a quantum falls on every tick whose phase counter is a multiple of quantum).
+
+    The quanta fall on ticks k_j = k_1 + j * quantum; quantum j adds 1 to every c_k with
+    k >= k_j, so the sums are sums over j of M - j * quantum and of its triangle numbers
+    (M = i - k_1 + 1): closed forms in small integers.
     """
-    base = (q0 - 1) // quantum
-    c_i = (q0 + i - 1) // quantum - base
-    g1 = _g1(q0 + i, quantum) - _g1(q0, quantum)
-    s1 = g1 - i * base
-    s2 = (i + q0) * g1 - (_g2(q0 + i, quantum) - _g2(q0, quantum)) - base * i * (i + 1) // 2
-    return c_i, s1, s2
+    first = -q0 % quantum + 1  # k_1
+    if i < first:
+        return 0, 0, 0
+    n = (i - first) // quantum + 1
+    M = i - first + 1
+    pairs = n * (n - 1)
+    s1 = n * M - quantum * pairs // 2
+    s2 = (6 * n * M * (M + 1) - 3 * quantum * (2 * M + 1) * pairs
+          + quantum * quantum * pairs * (2 * n - 1)) // 12
+    return n, s1, s2
 
 
 def first_nonneg(margin, limit: int) -> int:
