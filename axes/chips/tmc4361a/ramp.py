@@ -931,6 +931,16 @@ class Ramp:
                 return 1
             return min(max(1, (rem0 - d) // self.w + 1), limit + 1)
 
+        if self.P.profile == 1:  # the trapezoid's braking distance depends on |v| alone
+            state_after = self._state_after
+            braking = self._trapezoid_braking
+
+            def brakes_at(i: int) -> int:
+                w, _, dist = state_after(seg, i)
+                return braking(w) - rem0 + dist - 1
+
+            return first_nonneg(brakes_at, limit)
+
         def brakes(i: int) -> int:
             twin = self.copy()
             dist = twin._advance_segment(i, seg)
