@@ -943,8 +943,11 @@ def test_targets_moved_inside_the_braking_distance_match_the_reference_and_arriv
 
     Except with BOW2 = BOW4 (S-ramps): the U-turn passes through 0 and carries its
     deceleration into the way back (docs/tmc4361a.md, "BOW2 = BOW4"), so with soft bows a
-    target a few steps behind is passed again, in a cycle that need not settle; there only
-    the agreement with the reference is required.
+    target a few steps behind is passed again, in a cycle that need not settle; and S-ramps
+    with the datasheet's 64-clock quantum at these tests' 500 Hz, where a start a step or
+    two from the target cannot brake in time and does not begin (as in
+    test_a_move_of_a_step_or_two_ends_on_the_target_in_bounded_time).  There only the
+    agreement with the reference is required.
     """
     regs, when, ahead = case
     chip, ref = _pair(regs, quantum)
@@ -956,7 +959,7 @@ def test_targets_moved_inside_the_braking_distance_match_the_reference_and_arriv
     _run_both(chip, ref, when + 40_000, seen)
     assert [t for t, stop in seen if stop is Stop.ARRIVED] == ref.arrivals
     assert [t for t, stop in seen if stop is Stop.STOPPED] == ref.stops
-    if regs.rampmode & 3 == 2 and regs.bow2 == regs.bow4:
+    if regs.rampmode & 3 == 2 and (regs.bow2 == regs.bow4 or quantum == 64):
         return
     assert ref.x == target and ref.w == 0 and ref.arrivals
     assert chip.motor_position == target and chip.ramp.w == 0
