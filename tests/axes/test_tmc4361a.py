@@ -915,17 +915,20 @@ def close_targets(draw: st.DrawFn) -> tuple[Registers, int, int]:
     VSTART stays at or below VSTOP, as the datasheet asks (§6.3.9, "Set VSTART < VSTOP"):
     a start at a VSTART the ramp cannot brake within the target step overshoots by design
     and may turn back and forth around a close target for ever.  So does an S-ramp that
-    starts at full acceleration (any VSTART > 0 skips B1, §6.4; or an ASTART above AMAX):
-    taking the acceleration back with a soft bow carries the motor far past a target a few
-    steps away, so S-ramps here start with B1 (VSTART 0, ASTART <= AMAX).
+    starts with an acceleration (any VSTART > 0 skips B1, §6.4; an ASTART > 0 starts B1
+    part-way): taking the acceleration back with a soft bow carries the motor past a target
+    a step or a few away, and again on the way back, so S-ramps here start with the whole
+    B1 (VSTART = ASTART = 0).
     """
     regs = draw(ramp_registers((1, 2)))
     regs.rampmode = 4 | (regs.rampmode & 3)
     regs.xtarget = draw(st.sampled_from([400, -400])) & MASK32
     if draw(st.integers(0, 3)):
         regs.vstop = draw(st.integers(1, max(1, abs(signed(regs.vmax)) // 2)))
-    regs.vstart = min(regs.vstart, regs.vstop) if regs.rampmode & 3 == 1 else 0
-    regs.astart = min(regs.astart, regs.amax)
+    if regs.rampmode & 3 == 1:
+        regs.vstart = min(regs.vstart, regs.vstop)
+    else:
+        regs.vstart = regs.astart = 0
     return regs, draw(st.integers(50, 2500)), draw(st.integers(0, 80))
 
 
