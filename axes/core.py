@@ -109,6 +109,12 @@ class ChipModel(ABC):
     def set_pins(self, left: bool, right: bool, home: bool) -> None:
         """Drive the switch inputs (electrical levels); edges act at once."""
 
+    def steps_reach_motor(self) -> bool:
+        """Whether every step the position counter counts moves the motor (then the counter
+        and :attr:`motor_position` change together, and a mark at a motor position is a mark
+        at a counter value).  A chip whose step output can be switched off says so."""
+        return True
+
 
 class MotorDriverLink(ABC):
     """The firmware's routines for a modelled motor driver IC (the TMC262 on the TMC429

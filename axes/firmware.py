@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
-from axes.interface import Axis, AxisEvent, AxisEventKind, AxisStatus
+from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld, LoadZone, Switch
@@ -51,7 +51,12 @@ FIRMWARE_DEFAULTS: dict[int, int] = {
     AP.STALLGUARD_FILTER: 0, AP.STALLGUARD_THRESHOLD: 0, AP.SMARTENERGY_CURRENT_MINIMUM: 0,
     AP.SMARTENERGY_CURRENT_DOWN_STEP: 0, AP.SMARTENERGY_HYSTERESIS: 0,
     AP.SMARTENERGY_CURRENT_UP_STEP: 0, AP.SMARTENERGY_HYSTERESIS_START: 0,
+    AP.RIGHT_DISABLE: 0, AP.LEFT_DISABLE: 0, AP.RAMP_WAIT: 0,
 }
+#: The TMC4361 modules' limit switch settings (bit 0 enabled, bit 1 inverted) -> the
+#: disable and polarity parameters the firmware acts on.
+_LIMIT_SWITCH_BITS = {AP.RIGHT_LIMIT_SWITCH: (AP.RIGHT_DISABLE, AP.RIGHT_POLARITY),
+                      AP.LEFT_LIMIT_SWITCH: (AP.LEFT_DISABLE, AP.LEFT_POLARITY)}
 #: An encoder prescaler's (AP 210 on modules without AP 202) unit: AP 209 = counts * p / 512;
 #: its low five bits select special encoder functions (not modelled).
 PRESCALER_UNIT = 512
@@ -72,16 +77,27 @@ _REQUIRED_PARAMETERS = frozenset({AP.POWER_DOWN_DELAY, AP.MAX_CURRENT, AP.STANDB
 _RAMP_PARAMETERS = frozenset({AP.MAX_SPEED, AP.MAX_ACCELERATION, AP.A1, AP.V1,
                               AP.MAX_DECELERATION, AP.D1, AP.VSTART, AP.VSTOP, AP.RAMP_WAIT,
                               AP.UNIT_MODE, AP.MINIMUM_SPEED, AP.PULSE_DIVISOR,
-                              AP.RAMP_DIVISOR})
+                              AP.RAMP_DIVISOR, AP.RAMP_TYPE, AP.BOW1, AP.BOW2, AP.BOW3, AP.BOW4,
+                              AP.STOP_DECELERATION})
 #: Parameters whose value depends on the motion (read from the chip at the present time).
 _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_SPEED,
                               AP.POSITION_REACHED, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
                               AP.HOME_SWITCH, AP.LOAD, AP.ERROR_FLAGS, AP.ENCODER_POSITION,
                               AP.SMARTENERGY_ACTUAL_CURRENT, AP.MEASURED_SPEED,
-                              AP.DRIVER_ERROR_FLAGS})
+                              AP.DRIVER_ERROR_FLAGS, AP.ABSOLUTE_ENCODER})
+#: Parameters whose write is an action even with the value they have (a move, a position or
+#: encoder set, a rotation, a ramp-mode stop): the others change nothing when written unchanged.
+_ACTION_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.TARGET_SPEED,
+                                AP.ENCODER_POSITION, AP.RAMP_MODE})
+#: Live parameters that change only at the chip's notable instants (switch edges are marks):
+#: steady between two events even while the axis moves.
+_LEVEL_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
+                               AP.HOME_SWITCH, AP.ERROR_FLAGS})
 #: Parameters whose writes re-plan the stop switches.
 _STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, AP.SOFT_STOP_FLAG,
-                              AP.REFERENCE_SWITCH_TOLERANCE})
+                              AP.REFERENCE_SWITCH_TOLERANCE, AP.VIRTUAL_STOP_LEFT,
+                              AP.VIRTUAL_STOP_RIGHT, AP.VIRTUAL_STOP_ENABLE,
+                              AP.VIRTUAL_STOP_MODE})
 
 
 @dataclass(slots=True)
@@ -100,22 +116,35 @@ class AxisFirmware(Axis):
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec], world: AxisWorld | None,
                  make_driver: DriverFactory) -> None:
         self.index = index
-        missing = sorted(_REQUIRED_PARAMETERS - parameters.keys())
+        #: The module's parameter numbers the firmware knows by another key (the TMCM-1111's
+        #: numbering, ParamSpec.firmware_number); get/set_parameter translate them.
+        self._keys: dict[int, int] = {n: spec.firmware_number for n, spec in parameters.items()
+                                      if spec.firmware_number is not None}
+        known = {self._keys.get(n, n) for n in parameters}
+        missing = sorted(_REQUIRED_PARAMETERS - known)
         if missing:
             raise ValueError(f"a TMCL firmware axis needs a TMCL module's axis parameters "
                              f"(missing {missing}); is the chip core right for the module type?")
         self.board = AxisBoard(world)
-        self._params = {**FIRMWARE_DEFAULTS, **{n: spec.default for n, spec in parameters.items()}}
+        self._params = {**FIRMWARE_DEFAULTS,
+                        **{self._keys.get(n, n): spec.default for n, spec in parameters.items()}}
+        for bits in _LIMIT_SWITCH_BITS.keys() & known:
+            self._derive_limit_switch(bits)
+        self._input_stage_from_parameters()
         self.driver = make_driver(self._params, self.board)
         #: The modelled motor driver IC the chip driver reaches (the TMC262 of the TMC429
         #: modules): stallGuard2, coolStep and the current act on it.  Without one, they come
         #: from axes/stallguard.py (docs/motion.md, "stallGuard2 and coolStep").
         self.motor_driver: MotorDriverLink | None = self.driver.motor_driver
         #: Chip-specific parameters the driver reads from its chip (e.g. AP 135, AP 138).
-        self._chip_live: frozenset[int] = frozenset(
-            self.driver.live_parameters & parameters.keys())
+        self._chip_live: frozenset[int] = frozenset(self.driver.live_parameters & known)
         #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
-        self._encoder_prescaler = AP.FULLSTEPS not in parameters
+        self._encoder_prescaler = AP.FULLSTEPS not in known
+        #: AP 212 counts microsteps with a prescaler (the TMC429 modules) and on the TMC4361
+        #: modules (whose own numbering has a DSTOP; the chip compares ENC_POS_DEV, in
+        #: microsteps); else encoder counts (the TMCM-6212).
+        self._deviation_in_microsteps = (self._encoder_prescaler
+                                         or AP.STOP_DECELERATION in known)
         #: How far the look-ahead runs the chip; a driver may ask for another horizon.
         self._lookahead_ns: int = self.driver.lookahead_ns
         self._now_ns = 0
@@ -123,6 +152,8 @@ class AxisFirmware(Axis):
         #: The chip's next notable instant (None: nothing ahead), once computed since the last
         #: change (``_lookahead_known``).
         self._lookahead_cache: _Lookahead | None = None
+        #: The last crossing found: (the look-ahead it holds for, values, time).
+        self._crossing: tuple[_Lookahead, tuple[int, ...], int] | None = None
         self._lookahead_known = False
         self._target = 0  # AP 0, 32 bit
         self._positioning = False
@@ -318,14 +349,27 @@ class AxisFirmware(Axis):
             if self._rfs is None:
                 self._emit(AxisEventKind.TARGET_REACHED)
 
-    def rotate(self, velocity: int) -> None:
+    def _rotating_at(self, velocity: int) -> bool:
+        """Already doing what ROR ``velocity`` asks, with nothing for it to reset (the
+        firmware's own records: a raw register write is noticed at the next real command)."""
+        return (self._velocity_command == velocity and self._params[AP.TARGET_SPEED] == velocity
+                and not self._positioning and self._rfs is None and self._errors == 0
+                and self._standstill_since is None)
+
+    def rotate(self, velocity: int) -> bool:
+        if self._rotating_at(velocity):
+            return False
         self._command()
         self._abort_search()
         self._velocity_command = self._params[AP.TARGET_SPEED] = velocity
         self._start_velocity(velocity)
         self._after_command()
+        return True
 
-    def stop(self) -> None:
+    def stop(self) -> bool:
+        if (self._velocity_command == 0 and self._params[AP.TARGET_SPEED] == 0
+                and not self._positioning and self._rfs is None and self._errors == 0):
+            return False  # already stopping (or stopped) in velocity mode: nothing to change
         self._command()
         self._abort_search()
         self._velocity_command = self._params[AP.TARGET_SPEED] = 0
@@ -334,6 +378,7 @@ class AxisFirmware(Axis):
         self._awaiting_arrival = False
         self._errors = 0
         self._after_command()
+        return True
 
     def emergency_stop(self) -> None:
         self._command()
@@ -538,12 +583,25 @@ class AxisFirmware(Axis):
             return
         self._coolstep.update(self._params, self._mechanical(), speed, self._load())
 
+    def _mechanical_per_count(self) -> float:
+        """World units (1/256 of a full step) per encoder count: the world's encoder, or the
+        module's own where the world names none."""
+        world = self.board.world
+        counts = world.encoder_counts_per_rev or self.builtin_encoder_counts
+        return world.motor_fullsteps_per_rev * 256 / counts
+
     def _encoder_counts(self) -> int:
         world = self.board.world
         mech = self._mechanical()
         seen = (mech - self._encoder_mech_base) * (1.0 - world.encoder_slip)
-        per_count = world.motor_fullsteps_per_rev * 256 / world.encoder_counts_per_rev
-        return self._encoder_offset + int(seen // per_count)
+        return self._encoder_offset + int(seen // self._mechanical_per_count())
+
+    def _absolute_encoder(self) -> int:
+        """AP 215 (sensOstep modules): the rotor's angle within one turn, in encoder counts
+        (0..counts per revolution - 1), whatever AP 209 was set to."""
+        world = self.board.world
+        counts = world.encoder_counts_per_rev or self.builtin_encoder_counts
+        return int(self._mechanical() // self._mechanical_per_count()) % counts
 
     def _counts_per_microstep(self) -> float:
         """Encoder counts per unit of AP 209: AP 210 counts per revolution of AP 202 full
@@ -569,14 +627,14 @@ class AxisFirmware(Axis):
         self._encoder_mech_base = self._mechanical()
 
     def _deviation(self) -> float:
-        """|AP 1 - AP 209| in the unit of AP 212: encoder counts, or with a prescaler (the
-        TMC429 modules) microsteps."""
+        """|AP 1 - AP 209| in the unit of AP 212: encoder counts, or microsteps (the TMC429
+        and TMC4361 modules)."""
         gap = abs(self._position - self._encoder_position())
-        return gap if self._encoder_prescaler else gap * self._counts_per_microstep()
+        return gap if self._deviation_in_microsteps else gap * self._counts_per_microstep()
 
     def _deviation_limit_steps(self, limit: int) -> float:
         """AP 212 in microsteps of AP 1."""
-        return limit if self._encoder_prescaler else limit / self._counts_per_microstep()
+        return limit if self._deviation_in_microsteps else limit / self._counts_per_microstep()
 
     def _check_deviation(self) -> None:
         limit = self._params[AP.MAX_DEVIATION]
@@ -598,7 +656,7 @@ class AxisFirmware(Axis):
         slip = 1.0 if self.board.stuck else world.encoder_slip  # stuck: the encoder sees nothing
         if not limit or not ratio or slip <= 0:
             return None
-        per_count = world.motor_fullsteps_per_rev * 256 / world.encoder_counts_per_rev
+        per_count = self._mechanical_per_count()
         encoder_per_step = (1.0 - slip) * self.board.scale / per_count / ratio
         rate = direction * (1.0 - encoder_per_step)  # change of AP1 - AP209 per step
         if rate == 0:
@@ -661,6 +719,8 @@ class AxisFirmware(Axis):
         self._awaiting_arrival = False
 
     def get_parameter(self, number: int) -> int:
+        if self._keys:
+            number = self._keys.get(number, number)
         if number == AP.ACTUAL_POSITION:  # first: what a program polls most
             self._sync()
             return self.driver.position
@@ -692,9 +752,71 @@ class AxisFirmware(Axis):
             return abs(self._actual_speed())
         if number == AP.DRIVER_ERROR_FLAGS and self.motor_driver is not None:
             return self.motor_driver.flags()
+        if number == AP.ABSOLUTE_ENCODER:
+            return self._absolute_encoder()
         return self._params[number]
 
-    def set_parameter(self, number: int, value: int) -> None:
+    # == what stays as it is (the interpreter's loop skipping, docs/scheduling.md) ================
+
+    def steady_until(self, number: int) -> int:
+        if self._keys:
+            number = self._keys.get(number, number)
+        if number not in _LIVE_PARAMETERS and number not in self._chip_live:
+            return FOREVER  # a setting: only a command changes it
+        if number == AP.ERROR_FLAGS and self._errors:
+            return 0  # reading clears the flags
+        ahead = self._lookahead()
+        if ahead is None:
+            return FOREVER  # at rest: what it reads changes only at an event or a command
+        if number in _LEVEL_PARAMETERS:
+            return FOREVER  # switch levels and flags change only at the chip's notable instants
+        if number == AP.POSITION_REACHED:
+            return self._first_time_at_position((self._target,), ahead)
+        return 0  # a moving quantity
+
+    def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
+        if self._keys:
+            number = self._keys.get(number, number)
+        if number != AP.ACTUAL_POSITION:
+            return 0
+        ahead = self._lookahead()
+        return FOREVER if ahead is None else self._first_time_at_position(values, ahead)
+
+    def _first_time_at_position(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
+        """The first time AP 1 equals one of ``values``, or the chip's next notable instant
+        if it does not before: a copy of the chip runs with a mark at each value's motor
+        position (AP 1 and the motor position move together, step by step).  Kept while the
+        look-ahead it was found for holds."""
+        cached = self._crossing
+        if cached is not None and cached[0] is ahead and cached[1] == values:
+            return cached[2]
+        self._sync()
+        if not self.chip.steps_reach_motor():
+            return 0  # AP 1 counts steps that do not move the motor: no marks to set
+        here = self.driver.position
+        marks = [self.chip.motor_position + to_int32(value - here) for value in values]
+        if self.chip.motor_position in marks:
+            return 0
+        twin = self.chip.clone()
+        board = self.board
+        saved = board.firmware_marks
+        board.firmware_marks = saved + marks
+        until = twin.ticks_at(ahead.time_ns)
+        try:  # it stops early at a mark (or, conservatively, at anything else)
+            twin.run(until, LOOKAHEAD_BUDGET)
+        finally:
+            board.firmware_marks = saved
+        result = twin.ns_at(twin.t) if twin.t < until else ahead.time_ns
+        self._crossing = (ahead, values, result)
+        return result
+
+    def set_parameter(self, number: int, value: int) -> bool:
+        if self._keys:
+            number = self._keys.get(number, number)
+        if number == AP.TARGET_SPEED and self._rotating_at(value):
+            return False
+        if number not in _ACTION_PARAMETERS and self._params.get(number) == value:
+            return False  # a setting written with the value it has: as on the chip, no change
         self._command()
         if number == AP.TARGET_POSITION:
             self._abort_search()
@@ -712,8 +834,21 @@ class AxisFirmware(Axis):
             self._params[number] = value
             self._parameter_side_effects(number)
         self._after_command()
+        return True
+
+    def _derive_limit_switch(self, number: int) -> None:
+        """A TMC4361 module's limit switch setting (bit 0 enabled, bit 1 inverted) as the
+        disable and polarity parameters the firmware acts on."""
+        disable, polarity = _LIMIT_SWITCH_BITS[number]
+        bits = self._params[number]
+        self._params[disable] = int(not bits & 1)
+        self._params[polarity] = bits >> 1 & 1
 
     def _parameter_side_effects(self, number: int) -> None:
+        if number in _LIMIT_SWITCH_BITS:
+            self._derive_limit_switch(number)
+            self.driver.configure_stops(searching=self._rfs is not None)
+            number = _LIMIT_SWITCH_BITS[number][1]  # and the polarity, below
         if self.motor_driver is not None and number in self.motor_driver.parameters:
             self.motor_driver.configure(number)
         if number in _RAMP_PARAMETERS:
@@ -724,9 +859,7 @@ class AxisFirmware(Axis):
         elif number == AP.RAMP_MODE:
             self._ramp_mode_written()
         elif number in (AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY):
-            self.board.swap = bool(self._params[AP.SWAP_SWITCHES])
-            self.board.invert_left = bool(self._params[AP.LEFT_POLARITY])
-            self.board.invert_right = bool(self._params[AP.RIGHT_POLARITY])
+            self._input_stage_from_parameters()
             self._pins_changed()
         elif number == AP.MICROSTEPS:
             self._rebase_encoder()
@@ -736,6 +869,12 @@ class AxisFirmware(Axis):
             self._current_changed()
             if self._standby:
                 self._emit(AxisEventKind.CURRENT_CHANGED, False)
+
+    def _input_stage_from_parameters(self) -> None:
+        """The module's input stage: switches swapped and inverted as the parameters say."""
+        self.board.swap = bool(self._params[AP.SWAP_SWITCHES])
+        self.board.invert_left = bool(self._params[AP.LEFT_POLARITY])
+        self.board.invert_right = bool(self._params[AP.RIGHT_POLARITY])
 
     def _ramp_mode_written(self) -> None:
         """AP 138 (TMC429 modules): 2 (velocity) stops a move on a ramp, as MST does; 0/1
@@ -781,8 +920,8 @@ class AxisFirmware(Axis):
     def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
         self._command()
         self.board.world.load_zones = list(zones)
-        if free_load is not None:
-            self.board.world.free_load = free_load
+        if free_load is not None:  # a value of its own: blocked if it is 0 (axes/world.py)
+            self.board.world.free_load, self.board.world.free_blocked = free_load, None
         self.board.world_changed()
         self._check_stall()
         self._after_command()

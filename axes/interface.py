@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import TYPE_CHECKING
 
+from axes.world import DEFAULT_ENCODER_COUNTS_PER_REV
 from tmcl_spec.parameters import ParamSpec
 
 if TYPE_CHECKING:
@@ -71,6 +72,10 @@ class AxisStatus:
     mechanical_position: int = 0
 
 
+#: A time no simulation reaches: "steady until something intervenes".
+FOREVER = 1 << 62
+
+
 class AxisControl(ABC):
     """One axis as the TMCL firmware sees it: commands in, axis parameters in and out, time."""
 
@@ -85,12 +90,15 @@ class AxisControl(ABC):
         """Earliest future time at which something observable happens by itself, if any."""
 
     @abstractmethod
-    def rotate(self, velocity: int) -> None:
-        """ROR/ROL: velocity mode with a signed target velocity (pps)."""
+    def rotate(self, velocity: int) -> bool:
+        """ROR/ROL: velocity mode with a signed target velocity (pps).  Returns whether anything
+        changed: False when the axis already does exactly that (a program's loop that writes
+        the same speed every pass changes nothing, docs/scheduling.md)."""
 
     @abstractmethod
-    def stop(self) -> None:
-        """MST: velocity mode, target velocity 0 (a ramped stop)."""
+    def stop(self) -> bool:
+        """MST: velocity mode, target velocity 0 (a ramped stop).  Returns whether anything
+        changed (False: already stopping in velocity mode, nothing to clear)."""
 
     @abstractmethod
     def move_to(self, target: int) -> None:
@@ -105,8 +113,9 @@ class AxisControl(ABC):
         """GAP: the value of an axis parameter (already validated against the table)."""
 
     @abstractmethod
-    def set_parameter(self, number: int, value: int) -> None:
-        """SAP: write an axis parameter; raise ValueError if the firmware refuses the value."""
+    def set_parameter(self, number: int, value: int) -> bool:
+        """SAP: write an axis parameter; raise ValueError if the firmware refuses the value.
+        Returns whether anything changed (False: a setting written with the value it has)."""
 
     @abstractmethod
     def reference_search(self, action: int) -> int:
@@ -115,6 +124,23 @@ class AxisControl(ABC):
     @abstractmethod
     def register_access(self, address: int, value: int | None = None) -> int:
         """Commands 146/147: one raw datagram to the chip (None reads); the chip's answer."""
+
+    def steady_until(self, number: int) -> int:
+        """How long GAP ``number`` keeps answering what it answers now, if no command, world
+        change or event of this axis intervenes: the answer holds for every time before the
+        returned one (:data:`FOREVER`: until something intervenes; the present time or less:
+        it may change at any moment).  Reading it changes nothing before then either.
+
+        The interpreter skips the passes of a loop that only re-reads steady values
+        (docs/scheduling.md); a core that cannot tell answers 0 and is stepped."""
+        return 0
+
+    def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
+        """The first time GAP ``number`` answers one of ``values`` (a value that moves by single
+        steps, such as the actual position), or a time before which it surely does not; 0 when
+        the core cannot tell.  A loop comparing a moving position with a threshold jumps to
+        the pass where the comparison flips with it."""
+        return 0
 
     def reset_board(self) -> None:
         """Command 143 type 0 of the evaluation system: the board is detected again and its
@@ -125,6 +151,11 @@ class AxisControl(ABC):
 class AxisRig(ABC):
     """One axis as the rig around it sees it: the world (world file, run-time API), faults of
     the mechanics and the wiring (tmcl_server/faults.py), and telemetry."""
+
+    #: Counts per motor revolution of the encoder behind AP 209 where the world names none:
+    #: the module's own (``ModuleType.encoder_counts_per_rev``: the sensOstep's 1024), set by
+    #: the module after it builds its axes.
+    builtin_encoder_counts: int = DEFAULT_ENCODER_COUNTS_PER_REV
 
     @property
     @abstractmethod

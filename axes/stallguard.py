@@ -6,7 +6,13 @@ raises or lowers the motor current to keep that reading between two thresholds. 
 
 * The world's load value (``axes.world``, 0..1023) is the reading at threshold 0, unfiltered.
   AP 174 (threshold, -64..63) shifts it by :data:`THRESHOLD_STEP` per unit, clamped to
-  0..1023: a lower value is more sensitive (reads 0, a stall, at a lighter load).
+  0..1023: a lower value is more sensitive (reads 0, a stall, at a lighter load), a higher
+  one needs more torque.
+* A blocked motor (a hard stop, a load beyond the motor's torque: the world's
+  ``blocked``, or a load of 0) is past the point where the reading reaches 0: its load value
+  is ``axes.world.BLOCKED_LOAD`` (-512), so it reads 0 at every threshold up to
+  :data:`BLOCKED_STALL_THRESHOLD` (the positive thresholds users tune stall on it) and only
+  an implausibly insensitive threshold reads above 0 there.
 * AP 173 = 1 (filter): the reading is the mean over the last :data:`FILTER_FULL_STEPS` full
   steps travelled, and the driver measures once per four full steps instead of every one.
 * coolStep (AP 172 > 0, moving at or above AP 182, and below AP 22 if that is set) regulates
@@ -24,12 +30,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 
-from axes.world import LOAD_MAX
+from axes.world import BLOCKED_LOAD, LOAD_MAX
 from tmcl_spec.parameters import AP
 
 #: Change of the reading per unit of AP 174 [MODEL]: the threshold's range -64..63 then
 #: spans the whole 0..1023 scale, as on the TMC2130/5130 drivers.
 THRESHOLD_STEP = 16
+#: The highest threshold at which a blocked motor still reads 0 (a stall) [MODEL].
+BLOCKED_STALL_THRESHOLD = -BLOCKED_LOAD // THRESHOLD_STEP
 #: World units (1/256 microsteps) per full step of the motor.
 FULL_STEP = 256
 #: The filtered reading (AP 173 = 1) is measured once per this many full steps.
@@ -45,7 +53,8 @@ CURRENT_SCALE_SHIFT = 3
 
 
 def reading(load: int, threshold: int) -> int:
-    """AP 206 unfiltered: the world's load value shifted by the threshold (AP 174)."""
+    """AP 206 unfiltered: the world's load value shifted by the threshold (AP 174), on the
+    driver's scale 0..1023 (a blocked motor's load value lies below it)."""
     return max(0, min(LOAD_MAX, load + THRESHOLD_STEP * threshold))
 
 

@@ -23,9 +23,17 @@ INFINITY = float("inf")
 DEFAULT_SIDES = {"left": "below", "right": "above", "home": "centre"}
 DEFAULT_LOAD = 500
 LOAD_MAX = 1023
+#: The load value of a blocked motor (a hard stop, a load beyond the motor's torque): its
+#: stallGuard2 reading at threshold 0 would lie this far below the scale's 0, where the
+#: driver's reading stops.  A threshold (AP 174) raises every reading by 16 per unit, so a
+#: blocked motor reads 0, a stall, at every threshold up to 32 and a partial load keeps its
+#: own reading [MODEL] (docs/motion.md, "stallGuard2 and coolStep").
+BLOCKED_LOAD = -512
 ANALOG_MAX = 65535
 #: Highest supply voltage a world may set (the module is specified for 10..35 V).
 SUPPLY_VOLTAGE_MAX = 100.0
+#: Encoder counts per motor revolution where neither the world nor the module type says.
+DEFAULT_ENCODER_COUNTS_PER_REV = 51200
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,16 +81,32 @@ class Switch:
         return out
 
 
+def is_blocked(load: int, blocked: bool | None) -> bool:
+    """Whether a load is a blocked motor: as the world says, or (not said) a load value of 0,
+    the stall itself (what a load of 0 always meant in a world file)."""
+    return load == 0 if blocked is None else blocked
+
+
 @dataclass(frozen=True, slots=True)
 class LoadZone:
-    """A stretch [low, high] where the stallGuard2 load value reads ``load`` (0 = stall)."""
+    """A stretch [low, high] where the stallGuard2 load value reads ``load`` at threshold 0.
+
+    ``blocked``: the motor is blocked there (a hard stop, a load beyond its torque), as
+    opposed to a partial load; None: blocked if ``load`` is 0.
+    """
 
     low: int
     high: int
     load: int
+    blocked: bool | None = None
 
     def edges(self) -> list[int]:
         return [self.low, self.high + 1]
+
+    @property
+    def value(self) -> int:
+        """The load value stallGuard2 works from: ``load``, or BLOCKED_LOAD if blocked."""
+        return BLOCKED_LOAD if is_blocked(self.load, self.blocked) else self.load
 
 
 @dataclass(slots=True)
@@ -94,7 +118,9 @@ class AxisWorld:
     free_load: int = DEFAULT_LOAD
     #: Fraction of the motor's motion that the encoder does not see (lost steps), 0..1.
     encoder_slip: float = 0.0
-    encoder_counts_per_rev: int = 51200
+    #: None: the module's own encoder (``Axis.builtin_encoder_counts``: the sensOstep's 1024
+    #: on the TMCM-1140/1160/1161), else DEFAULT_ENCODER_COUNTS_PER_REV.
+    encoder_counts_per_rev: int | None = None
     motor_fullsteps_per_rev: int = 200
     #: Faults of the mechanics and wiring (tmcl_server/faults.py, docs/faults.md); they belong
     #: to the world, so a module restart keeps them.  The motor stops following its steps:
@@ -103,6 +129,8 @@ class AxisWorld:
     stuck_load: int | None = None
     #: Broken switches: name -> the electrical level the input is stuck at, wherever the axis is.
     broken_switches: dict[str, bool] = field(default_factory=dict)
+    #: Whether the motor is blocked outside the load zones (None: if ``free_load`` is 0).
+    free_blocked: bool | None = None
 
     def level(self, name: str, position: int) -> bool:
         broken = self.broken_switches.get(name)
@@ -112,12 +140,14 @@ class AxisWorld:
         return switch.level(position) if switch is not None else False
 
     def load_at(self, position: int) -> int:
+        """The load value at ``position`` (the stallGuard2 reading at threshold 0), or
+        :data:`BLOCKED_LOAD` where the motor is blocked (a stuck motor's load 0 is one)."""
         if self.stuck and self.stuck_load is not None:
-            return self.stuck_load
+            return BLOCKED_LOAD if self.stuck_load == 0 else self.stuck_load
         for zone in self.load_zones:
             if zone.low <= position <= zone.high:
-                return zone.load
-        return self.free_load
+                return zone.value
+        return BLOCKED_LOAD if is_blocked(self.free_load, self.free_blocked) else self.free_load
 
     def edges(self) -> list[int]:
         """Every position where a switch level or the load value changes (sorted)."""
@@ -162,14 +192,15 @@ class AxisWorld:
             low, high = _integer(zone["from"], (*at, "from")), _integer(zone["to"], (*at, "to"))
             if high < low:
                 raise WorldError(f"{_name(at)}: 'to' ({high}) lies below 'from' ({low})", at)
-            zones.append(LoadZone(low, high, _integer(zone.get("load", 0), (*at, "load"),
-                                                      0, LOAD_MAX)))
-        return cls(switches, zones,
-                   _integer(data.get("load", DEFAULT_LOAD), (*where, "load"), 0, LOAD_MAX),
+            load, blocked = _load(zone, at, 0)
+            zones.append(LoadZone(low, high, load, blocked))
+        free_load, free_blocked = _load(data, where, DEFAULT_LOAD)
+        return cls(switches, zones, free_load,
                    _number(data.get("encoder_slip", 0.0), (*where, "encoder_slip"), 0.0, 1.0),
-                   _integer(data.get("encoder_resolution", 51200),
-                            (*where, "encoder_resolution"), 1),
-                   _integer(data.get("motor_fullsteps", 200), (*where, "motor_fullsteps"), 1))
+                   None if data.get("encoder_resolution") is None else
+                   _integer(data["encoder_resolution"], (*where, "encoder_resolution"), 1),
+                   _integer(data.get("motor_fullsteps", 200), (*where, "motor_fullsteps"), 1),
+                   free_blocked=free_blocked)
 
 
 @dataclass(slots=True)
@@ -271,10 +302,10 @@ def load_world(path: str | Path, number_of_axes: int | None = None,
 KeyPath = tuple[str | int, ...]
 
 _TOP_KEYS = frozenset({"axis", "inputs", "chip", "supply"})
-_AXIS_KEYS = frozenset({"index", *SWITCH_NAMES, "load", "load_zone", "encoder_slip",
+_AXIS_KEYS = frozenset({"index", *SWITCH_NAMES, "load", "blocked", "load_zone", "encoder_slip",
                         "encoder_resolution", "motor_fullsteps"})
 _SWITCH_KEYS = frozenset({"position", "width", "side", "normally_closed"})
-_ZONE_KEYS = frozenset({"from", "to", "load"})
+_ZONE_KEYS = frozenset({"from", "to", "load", "blocked"})
 _INPUT_KEYS = frozenset({"analog", "digital"})
 _CHIP_KEYS = frozenset({"clock_hz", "core"})
 _SUPPLY_KEYS = frozenset({"voltage"})
@@ -330,6 +361,17 @@ def _integer(value: Any, where: KeyPath, lo: int | None = None, hi: int | None =
         span = f"{'' if lo is None else lo}..{'' if hi is None else hi}"
         raise WorldError(f"{what or _name(where)} {value} outside {span}", where)
     return value
+
+
+def _load(table: dict[str, Any], where: KeyPath, default: int) -> tuple[int, bool | None]:
+    """``load`` and ``blocked`` of an axis or a load zone: a blocked motor has no load value
+    of its own (``blocked = true`` with a ``load`` other than 0 is refused)."""
+    blocked = _boolean(table["blocked"], (*where, "blocked")) if "blocked" in table else None
+    load = _integer(table.get("load", 0 if blocked else default), (*where, "load"), 0, LOAD_MAX)
+    if blocked and load:
+        raise WorldError(f"{_name(where)}: a blocked motor has no load value (load = {load}); "
+                         "drop 'load' or set blocked = false", (*where, "load"))
+    return load, blocked
 
 
 def _number(value: Any, where: KeyPath, lo: float, hi: float) -> float:

@@ -1,98 +1,98 @@
 """Assembler for TMCL source (``.tmc``) as the TMCL-IDE writes it.
 
-One instruction per line; ``Label:`` (optionally followed by an instruction on the same
-line); ``Name = expression`` constants; ``#include file``; ``//`` comments.  Mnemonics,
-symbolic operands (ABS, TICKS, ADD, GE, ETO, ...) and symbol names are case-insensitive.
-Operands are integer expressions over numbers (decimal, ``0x``/``$`` hex, ``0b``/``%``
-binary), constants and labels, parsed with Python's ``ast`` and evaluated with 32-bit
-two's-complement wrap.  Errors carry file, line and column.
+One instruction per line in the syntax of :mod:`interpreter.syntax` (shared with ``tmcl
+send``); ``Label:`` (optionally followed by an instruction on the same line); ``Name =
+expression`` constants; ``#include file``; ``//`` comments.  Mnemonics, symbolic operands
+(ABS, TICKS, ADD, GE, ETO, ...) and symbol names are case-insensitive.  Operand values are
+checked against their field (0..255, 32 bits, program addresses).
+
+Every error of a source is reported in one run, in source order, as ``file:line:column:
+message`` (one :class:`AssemblyError` carrying them all).  Reaching a limit stops the
+assembly with that one error: include depth (:data:`MAX_INCLUDE_DEPTH`), files included
+(:data:`MAX_INCLUDES`), source read in total (:data:`MAX_SOURCE_BYTES`,
+:data:`MAX_SOURCE_LINES`), constants resolved through forward references
+(:data:`MAX_FORWARD_DEPTH`), and the expression limits of :mod:`interpreter.syntax`.
+
+``#include`` finds files next to the including file, in the folders given (``-I``) and in
+the shipped include folder, and only inside the source's folder tree, those folders and the
+shipped one (after following links): a source cannot make the assembler read, or quote in
+an error, a file from elsewhere (docs/interpreter.md).
 """
 
 from __future__ import annotations
 
-import ast
-import operator
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 from interpreter.isa import PROGRAM_MEMORY_SIZE, Instruction
-from tmcl_spec.commands import CALC_MAX_OPERATION, OPERANDS, CalcOp, Field, Opcode
+from interpreter.syntax import (
+    MNEMONICS,
+    NAME_EXCERPT,
+    AssemblyError,
+    LimitError,
+    Location,
+    Node,
+    Operand,
+    Token,
+    columns,
+    encode,
+    evaluate,
+    excerpt,
+    names_in,
+    parse_expression,
+    split_operands,
+    tokenize,
+)
+from tmcl_spec.commands import Field, Opcode
+
+__all__ = ["INCLUDE_DIR", "AssemblyError", "LimitError", "Location", "Program", "SourceLine",
+           "assemble", "assemble_file", "include_constants"]
 
 #: The include files shipped with the package (TMCLParam.tmc, Interrupts.inc).
 INCLUDE_DIR = Path(__file__).with_name("include")
 
-_MNEMONICS = {op.name: op for op in OPERANDS}
+#: Includes nested at most this deep.
+MAX_INCLUDE_DEPTH = 16
+#: Include files read in one assembly at most (each time it is included counts).
+MAX_INCLUDES = 256
+#: Source read in one assembly at most, includes counted each time they are read.
+MAX_SOURCE_BYTES = 2 << 20
+MAX_SOURCE_LINES = 20_000
+#: Tokens (numbers, names, operators) in all operands and constants of one assembly at most.
+MAX_SOURCE_TOKENS = 200_000
+#: A constant may use constants defined after it, through at most this many such steps.
+MAX_FORWARD_DEPTH = 64
+#: Errors reported at most; the rest are counted.
+MAX_ERRORS = 100
+
 _LABEL = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)\s*:(?!=)")
 _CONSTANT = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)\s*=(?!=)\s*")
 _WORD = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
 _INCLUDE = re.compile(r"\s*#\s*include\b\s*", re.IGNORECASE)
-_HEX_DOLLAR = re.compile(r"\$([0-9A-Fa-f]+)")
-_BIN_PERCENT = re.compile(r"(?<![\w)])%([01]+)")
-
-_BINARY_OPERATORS: dict[type[ast.operator], Callable[[int, int], int]] = {
-    ast.Add: operator.add,
-    ast.Sub: operator.sub,
-    ast.Mult: operator.mul,
-    ast.FloorDiv: lambda a, b: int(a / b),
-    ast.Div: lambda a, b: int(a / b),
-    ast.Mod: lambda a, b: a - b * int(a / b),
-    ast.BitAnd: operator.and_,
-    ast.BitOr: operator.or_,
-    ast.BitXor: operator.xor,
-    ast.LShift: operator.lshift,
-    ast.RShift: operator.rshift,
-}
-_UNARY_OPERATORS: dict[type[ast.unaryop], Callable[[int], int]] = {
-    ast.USub: operator.neg,
-    ast.UAdd: operator.pos,
-    ast.Invert: operator.invert,
-}
-
-
-@dataclass(frozen=True, slots=True)
-class Location:
-    file: str
-    line: int
-    column: int = 1
-
-    def __str__(self) -> str:
-        return f"{self.file}:{self.line}:{self.column}"
-
-
-class AssemblyError(Exception):
-    """A source error, printed as ``file:line:col: message`` like a compiler does."""
-
-    def __init__(self, location: Location, message: str) -> None:
-        super().__init__(f"{location}: {message}")
-        self.location = location
-        self.message = message
-
-
-@dataclass(slots=True)
-class _Operand:
-    text: str
-    location: Location
 
 
 @dataclass(slots=True)
 class _Statement:
     opcode: Opcode
-    operands: list[_Operand]
+    operands: list[Operand]
     location: Location
     source: str
 
 
 @dataclass(slots=True)
 class _Symbol:
-    """A label (address known) or a constant (expression evaluated on first use)."""
+    """A label (address known) or a constant (expression evaluated in pass 2)."""
 
     name: str
     location: Location
     value: int | None = None
-    expression: _Operand | None = None
-    resolving: bool = False
+    expression: Node | None = None
+    #: A constant whose own line is wrong: its uses report nothing more.
+    broken: bool = False
+    state: int = 0  # constants: 0 not yet, 1 being resolved, 2 done
 
 
 @dataclass
@@ -126,23 +126,46 @@ class Program:
         return "\n".join(out) + ("\n" if out else "")
 
 
+class _Silent(Exception):
+    """An operand uses a constant already reported as wrong: nothing more to say."""
+
+
 class _Assembler:
-    def __init__(self, include_path: Sequence[Path]) -> None:
-        self.include_path = list(include_path)
+    def __init__(self, include_path: Sequence[Path], root: Path | None) -> None:
+        self.include_path = [p.resolve() for p in include_path]
+        #: Folders (with their subfolders) includes may come from.
+        self.allowed = ([root.resolve()] if root is not None else []) + self.include_path
         self.symbols: dict[str, _Symbol] = {}
         self.statements: list[_Statement] = []
+        self.errors: list[AssemblyError] = []
         self.including: list[Path] = []
+        self.includes = 0
+        self.bytes_read = 0
+        self.lines_read = 0
+        self.tokens_read = 0
+        #: Where the first command beyond program memory is written.
+        self.too_long: Location | None = None
 
     # -- pass 1: lines, labels, constants ------------------------------------------------------
 
     def read(self, text: str, filename: str, directory: Path | None) -> None:
+        self.bytes_read += len(text)
         for number, raw in enumerate(text.splitlines(), 1):
-            line = raw.split("//", 1)[0].rstrip()
-            self._line(line, raw, filename, number, directory)
+            self.lines_read += 1
+            location = Location(filename, number, 1, self.lines_read)
+            if self.lines_read > MAX_SOURCE_LINES or self.bytes_read > MAX_SOURCE_BYTES:
+                raise LimitError(location, f"source too long (more than {MAX_SOURCE_LINES} lines or "
+                                 f"{MAX_SOURCE_BYTES >> 20} MiB in all, includes counted each time)")
+            try:
+                self._line(raw.split("//", 1)[0].rstrip(), raw, location, directory)
+            except LimitError:
+                raise
+            except AssemblyError as exc:
+                self.errors.extend(exc.errors)
 
-    def _line(self, line: str, raw: str, filename: str, number: int, directory: Path | None) -> None:
+    def _line(self, line: str, raw: str, where: Location, directory: Path | None) -> None:
         def at(column: int) -> Location:
-            return Location(filename, number, column + 1)
+            return where.at_column(column + 1)
 
         include = _INCLUDE.match(line)
         if include:
@@ -154,187 +177,221 @@ class _Assembler:
             label = _LABEL.match(line, pos)
             if not label:
                 break
-            self._define(label.group(1), at(label.start(1)), value=len(self.statements))
+            try:
+                self._define(_Symbol(label.group(1), at(label.start(1)), value=len(self.statements)))
+            except AssemblyError as exc:  # reported; the rest of the line may have more to say
+                self.errors.append(exc)
             pos = label.end()
         constant = _CONSTANT.match(line, pos)
         if constant:
-            expression = line[constant.end():]
-            if not expression.strip():
-                raise AssemblyError(at(constant.end()), f"missing value for {constant.group(1)}")
-            self._define(constant.group(1), at(constant.start(1)),
-                         expression=_Operand(expression, at(constant.end())))
+            symbol = _Symbol(constant.group(1), at(constant.start(1)), broken=True)
+            self._define(symbol)
+            if not line[constant.end():].strip():
+                raise AssemblyError(at(constant.end()), f"missing value for {symbol.name}")
+            tokens = self._count(tokenize(line, constant.end(), at), symbol.location)
+            for token in tokens:
+                if token.text == ",":
+                    raise AssemblyError(at(token.column), "a constant has one value: unexpected ','")
+            symbol.expression = parse_expression(tokens, at, len(line))
+            symbol.broken = False
             return
         word = _WORD.match(line, pos)
         if not word:
             if line[pos:].strip():
                 column = pos + len(line[pos:]) - len(line[pos:].lstrip())
-                raise AssemblyError(at(column), f"cannot parse {line[pos:].strip()!r}")
+                raise AssemblyError(at(column), f"cannot parse {excerpt(line[pos:])}")
             return
         mnemonic = word.group(1)
-        opcode = _MNEMONICS.get(mnemonic.upper())
+        opcode = MNEMONICS.get(mnemonic.upper())
         if opcode is None:
-            raise AssemblyError(at(word.start(1)), f"unknown mnemonic {mnemonic!r}")
-        operands: list[_Operand] = []
-        rest = line[word.end():]
-        if rest.strip():
-            offset = word.end()
-            for piece in rest.split(","):
-                stripped = piece.strip()
-                column = offset + len(piece) - len(piece.lstrip())
-                operands.append(_Operand(stripped, at(column)))
-                offset += len(piece) + 1
+            raise AssemblyError(at(word.start(1)), f"unknown mnemonic {excerpt(mnemonic)}")
+        operands = split_operands(line, word.end(), at, self._count)
+        if len(self.statements) == PROGRAM_MEMORY_SIZE:  # checked, not kept: it cannot be stored
+            if self.too_long is None:
+                self.too_long = at(word.start(1))
+            return
         self.statements.append(_Statement(opcode, operands, at(word.start(1)), raw))
+
+    def _count(self, tokens: list[Token], where: Location) -> list[Token]:
+        self.tokens_read += len(tokens)
+        if self.tokens_read > MAX_SOURCE_TOKENS:
+            raise LimitError(where, f"source too long (more than {MAX_SOURCE_TOKENS} tokens in all)")
+        return tokens
 
     def _include(self, name: str, location: Location, directory: Path | None) -> None:
         if not name:
             raise AssemblyError(location, "#include needs a file name")
-        path = self._find(name, directory)
-        if path is None:
-            raise AssemblyError(location, f"include file {name!r} not found")
+        if len(self.including) >= MAX_INCLUDE_DEPTH:
+            raise LimitError(location, f"includes nested deeper than {MAX_INCLUDE_DEPTH} files")
+        path = self._find(name, directory, location)
         if path in self.including:
-            raise AssemblyError(location, f"{name!r} includes itself")
+            raise AssemblyError(location, f"{excerpt(name, NAME_EXCERPT)} includes itself")
+        self.includes += 1
+        if self.includes > MAX_INCLUDES:
+            raise LimitError(location, f"more than {MAX_INCLUDES} include files read in all")
+        budget = MAX_SOURCE_BYTES - self.bytes_read
+        try:
+            with path.open("rb") as stream:
+                data = stream.read(budget + 1)
+        except OSError as exc:
+            raise AssemblyError(location, f"include file {excerpt(name, NAME_EXCERPT)} cannot be read "
+                                f"({exc.strerror or exc})") from None
         self.including.append(path)
         try:
-            self.read(path.read_text(encoding="latin-1"), str(path), path.parent)
+            self.read(data.decode("latin-1"), str(path), path.parent)
         finally:
             self.including.pop()
 
-    def _find(self, name: str, directory: Path | None) -> Path | None:
-        """Look next to the including file, then on the include path; case-insensitively,
-        because TMCL projects come from Windows."""
-        candidate = Path(name)
-        if candidate.is_absolute():
-            return candidate if candidate.is_file() else None
+    def _find(self, name: str, directory: Path | None, location: Location) -> Path:
+        """Next to the including file, then on the include path; case-insensitively, because
+        TMCL projects come from Windows; only inside the allowed folders."""
+        outside = False
         for folder in ([directory] if directory else []) + self.include_path:
             exact = folder / name
-            if exact.is_file():
-                return exact.resolve()
-            if folder.is_dir():
-                for entry in folder.iterdir():
-                    if entry.name.lower() == candidate.name.lower() and entry.is_file():
-                        return entry.resolve()
-        return None
+            candidates = [exact]
+            parent = exact.parent
+            if not exact.is_file() and parent.is_dir() and self._inside(parent.resolve()):
+                candidates += [entry for entry in parent.iterdir()
+                               if entry.name.lower() == exact.name.lower()]
+            for candidate in candidates:
+                if not candidate.is_file():
+                    continue
+                resolved = candidate.resolve()
+                if self._inside(resolved):
+                    return resolved
+                outside = True
+        if outside or Path(name).is_absolute() or ".." in Path(name).parts:
+            raise AssemblyError(location, f"include file {excerpt(name, NAME_EXCERPT)} is outside the "
+                                "source's folder, the -I folders and the shipped include folder")
+        raise AssemblyError(location, f"include file {excerpt(name, NAME_EXCERPT)} not found")
 
-    def _define(self, name: str, location: Location, value: int | None = None,
-                expression: _Operand | None = None) -> None:
-        key = name.lower()
+    def _inside(self, path: Path) -> bool:
+        return any(path.is_relative_to(folder) for folder in self.allowed)
+
+    def _define(self, symbol: _Symbol) -> None:
+        key = symbol.name.lower()
         previous = self.symbols.get(key)
         if previous is not None:
-            kind = "label" if value is not None else "constant"
-            raise AssemblyError(location, f"duplicate {kind} {name!r} (first defined at {previous.location})")
-        self.symbols[key] = _Symbol(name, location, value, expression)
+            kind = "label" if symbol.value is not None else "constant"
+            raise AssemblyError(symbol.location, f"duplicate {kind} {excerpt(symbol.name)} "
+                                f"(first defined at {previous.location})")
+        self.symbols[key] = symbol
 
-    # -- pass 2: operands ----------------------------------------------------------------------
+    # -- pass 2: constants, then operands ------------------------------------------------------
 
     def resolve(self, name: str, location: Location) -> int:
         symbol = self.symbols.get(name.lower())
         if symbol is None:
-            raise AssemblyError(location, f"undefined symbol {name!r}")
+            raise AssemblyError(location, f"undefined symbol {excerpt(name, NAME_EXCERPT)}")
+        if symbol.broken:
+            raise _Silent
         if symbol.value is None:
-            assert symbol.expression is not None
-            if symbol.resolving:
-                raise AssemblyError(symbol.location, f"constant {symbol.name!r} depends on itself")
-            symbol.resolving = True
-            symbol.value = self.evaluate(symbol.expression)
-            symbol.resolving = False
+            self._constant(symbol)
+            if symbol.broken:
+                raise _Silent
+        assert symbol.value is not None
         return symbol.value
 
-    def evaluate(self, operand: _Operand) -> int:
-        text = _BIN_PERCENT.sub(r"0b\1", _HEX_DOLLAR.sub(r"0x\1", operand.text))
-        try:
-            tree = ast.parse(text.strip(), mode="eval")
-        except SyntaxError:
-            raise AssemblyError(operand.location, f"bad expression {operand.text!r}") from None
-        return self._eval(tree.body, operand)
+    def _constant(self, first: _Symbol) -> None:
+        """Evaluate a constant, the constants it uses first, without recursion: a long chain
+        costs a list, not the Python stack."""
+        stack = [first]
+        while stack:
+            symbol = stack[-1]
+            assert symbol.expression is not None
+            symbol.state = 1
+            waiting = None
+            for use in names_in(symbol.expression):
+                other = self.symbols.get(use.name.lower())
+                if other is None or other.value is not None or other.broken:
+                    continue
+                if other.state == 1:
+                    self._fail(stack, other, AssemblyError(
+                        other.location, f"constant {excerpt(other.name)} depends on itself"))
+                    return
+                waiting = other
+                break
+            if waiting is not None:
+                if len(stack) >= MAX_FORWARD_DEPTH:
+                    raise LimitError(first.location, f"constant {excerpt(first.name)} needs a chain "
+                                     f"of more than {MAX_FORWARD_DEPTH} constants defined after it")
+                stack.append(waiting)
+                continue
+            try:
+                symbol.value = evaluate(symbol.expression, self.resolve, columns(symbol.location))
+            except _Silent:
+                symbol.broken = True
+            except LimitError:
+                raise
+            except AssemblyError as exc:
+                symbol.broken = True
+                self.errors.extend(exc.errors)
+            symbol.state = 2
+            stack.pop()
 
-    def _eval(self, node: ast.expr, operand: _Operand) -> int:
-        if isinstance(node, ast.Constant) and type(node.value) is int:
-            return node.value
-        if isinstance(node, ast.Name):
-            loc = operand.location
-            return self.resolve(node.id, Location(loc.file, loc.line, loc.column + node.col_offset))
-        if isinstance(node, ast.BinOp) and type(node.op) in _BINARY_OPERATORS:
-            left, right = self._eval(node.left, operand), self._eval(node.right, operand)
-            if isinstance(node.op, ast.Div | ast.FloorDiv | ast.Mod) and right == 0:
-                raise AssemblyError(operand.location, "division by zero in expression")
-            return _BINARY_OPERATORS[type(node.op)](left, right)
-        if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY_OPERATORS:
-            return _UNARY_OPERATORS[type(node.op)](self._eval(node.operand, operand))
-        raise AssemblyError(operand.location, f"bad expression {operand.text!r}")
+    def _fail(self, stack: list[_Symbol], culprit: _Symbol, error: AssemblyError) -> None:
+        self.errors.append(error)
+        for symbol in stack:
+            symbol.broken, symbol.state = True, 2
 
-    def operand(self, statement: _Statement, spec: Field, operand: _Operand) -> int:
-        if not operand.text:
-            raise AssemblyError(operand.location, "empty operand")
-        if spec.symbols is not None:
-            allowed = list(spec.symbols)
-            if statement.opcode == Opcode.CALC:
-                allowed = [op for op in CalcOp if op <= CALC_MAX_OPERATION]
-            names = {member.name: member.value for member in allowed}
-            symbolic = names.get(operand.text.upper())
-            if symbolic is not None:
-                return symbolic
-            choices = "/".join(names)
-            if operand.text.upper() in spec.symbols.__members__:
-                raise AssemblyError(operand.location,
-                                    f"{operand.text} is not allowed in {statement.opcode.name} "
-                                    f"(expected {choices})")
-            value = self.evaluate(operand)
-            if value not in names.values():
-                raise AssemblyError(operand.location,
-                                    f"operand {operand.text!r} out of range for "
-                                    f"{statement.opcode.name} (expected {choices})")
-            return value
-        value = self.evaluate(operand)
-        if spec.slot != "value":
-            if not 0 <= value <= 255:
-                raise AssemblyError(operand.location,
-                                    f"operand {operand.text!r} = {value} out of range 0..255")
-            return value
-        if spec.address and not 0 <= value < PROGRAM_MEMORY_SIZE:
-            raise AssemblyError(operand.location,
-                                f"address {operand.text!r} = {value} outside program memory "
-                                f"0..{PROGRAM_MEMORY_SIZE - 1}")
-        if not -(2**31) <= value <= 2**32 - 1:
-            raise AssemblyError(operand.location,
-                                f"operand {operand.text!r} = {value} does not fit 32 bits")
-        return value - 2**32 if value >= 2**31 else value
+    def _field_resolver(self, name: str, location: Location, spec: Field, done: dict[str, int]) -> int:
+        return self.resolve(name, location)
 
     def build(self) -> Program:
+        for symbol in list(self.symbols.values()):  # in definition order: chains resolve backwards
+            if symbol.expression is not None and symbol.value is None and not symbol.broken:
+                self._constant(symbol)
         instructions: list[Instruction] = []
         lines: list[SourceLine] = []
         for address, statement in enumerate(self.statements):
-            specs = OPERANDS[statement.opcode]
-            if len(statement.operands) != len(specs):
-                raise AssemblyError(statement.location,
-                                    f"{statement.opcode.name} takes {len(specs)} operand(s), "
-                                    f"got {len(statement.operands)}")
-            fields = {"type": 0, "motor": 0, "value": 0}
-            for spec, operand in zip(specs, statement.operands, strict=True):
-                fields[spec.slot] = self.operand(statement, spec, operand)
-            ins = Instruction(int(statement.opcode), fields["type"], fields["motor"], fields["value"])
+            try:
+                ins = encode(statement.opcode, statement.operands, statement.location,
+                             self._field_resolver)
+            except _Silent:
+                continue
+            except LimitError:
+                raise
+            except AssemblyError as exc:
+                self.errors.extend(e for e in exc.errors)
+                continue
             instructions.append(ins)
             lines.append(SourceLine(address, ins, statement.location, statement.source))
-        if len(instructions) > PROGRAM_MEMORY_SIZE:
-            raise AssemblyError(self.statements[PROGRAM_MEMORY_SIZE].location,
-                                f"program longer than {PROGRAM_MEMORY_SIZE} commands")
+        if self.too_long is not None:
+            self.errors.append(AssemblyError(self.too_long,
+                                             f"program longer than {PROGRAM_MEMORY_SIZE} commands"))
+        if self.errors:
+            raise _report(self.errors)
         labels: dict[str, int] = {}
         constants: dict[str, int] = {}
         for symbol in self.symbols.values():
-            if symbol.expression is None:
-                assert symbol.value is not None
-                labels[symbol.name] = symbol.value
-            else:
-                constants[symbol.name] = self.resolve(symbol.name, symbol.location)
+            assert symbol.value is not None
+            (labels if symbol.expression is None else constants)[symbol.name] = symbol.value
         return Program(instructions, labels, constants, lines)
+
+
+def _report(errors: list[AssemblyError]) -> AssemblyError:
+    """All errors in source order, at most :data:`MAX_ERRORS` of them."""
+    report = AssemblyError.of(errors)
+    if len(report.errors) > MAX_ERRORS:
+        shown = report.errors[:MAX_ERRORS]
+        last = shown[-1].location
+        shown.append(AssemblyError(last, f"{len(report.errors) - MAX_ERRORS} more errors not shown"))
+        report = AssemblyError(shown[0].location, shown[0].message, shown)
+    return report
 
 
 def assemble(text: str, filename: str = "<source>", include_path: Sequence[str | Path] = (),
              directory: str | Path | None = None, append_stop: bool = False) -> Program:
-    """Assemble TMCL source; ``#include`` looks in ``directory``, ``include_path`` and the
-    shipped include files.  ``append_stop`` adds a STOP unless the program ends with one."""
-    assembler = _Assembler([Path(p) for p in include_path] + [INCLUDE_DIR])
-    assembler.read(text, filename, Path(directory) if directory is not None else None)
-    program = assembler.build()
+    """Assemble TMCL source; ``#include`` looks in ``directory`` (the source's folder, whose
+    tree includes may come from), ``include_path`` and the shipped include files.
+    ``append_stop`` adds a STOP unless the program ends with one."""
+    folder = Path(directory) if directory is not None else None
+    assembler = _Assembler([Path(p) for p in include_path] + [INCLUDE_DIR], folder)
+    try:
+        assembler.read(text, filename, folder)
+        program = assembler.build()
+    except LimitError as exc:
+        raise LimitError(exc.location, exc.message) from None  # alone: the rest is noise
     if append_stop and (not program.instructions or program.instructions[-1].opcode != Opcode.STOP):
         program.instructions.append(Instruction(int(Opcode.STOP)))
     return program
@@ -343,5 +400,23 @@ def assemble(text: str, filename: str = "<source>", include_path: Sequence[str |
 def assemble_file(path: str | Path, include_path: Sequence[str | Path] = (),
                   append_stop: bool = False) -> Program:
     source = Path(path)
-    return assemble(source.read_text(encoding="latin-1"), str(source), include_path,
-                    source.parent, append_stop)
+    with source.open("rb") as stream:
+        data = stream.read(MAX_SOURCE_BYTES + 1)
+    if len(data) > MAX_SOURCE_BYTES:
+        raise LimitError(Location(str(source), 1), f"source longer than {MAX_SOURCE_BYTES >> 20} MiB")
+    return assemble(data.decode("latin-1"), str(source), include_path, source.parent, append_stop)
+
+
+@lru_cache(maxsize=1)
+def include_constants() -> dict[str, int]:
+    """Every constant of the shipped include files (``APMaxPositioningSpeed``, ``TI_TIMER0``,
+    ...), by lower-case name: the names ``tmcl send`` accepts besides the parameter tables'."""
+    constants: dict[str, int] = {}
+    for path in sorted(p for p in INCLUDE_DIR.iterdir() if p.suffix.lower() in (".tmc", ".inc")):
+        try:
+            found = assemble(f"#include {path.name}").constants
+        except AssemblyError:  # a broken shipped file must not take tmcl send down
+            continue
+        for name, value in found.items():
+            constants.setdefault(name.lower(), value)
+    return constants

@@ -3,6 +3,9 @@
     tmcl-asm assemble prog.tmc -o prog.bin [--listing prog.lst] [-I DIR] [--append-stop]
     tmcl-asm disassemble prog.bin [-o prog.tmc] [--listing]
     tmcl-asm list prog.tmc
+
+Every error of a source is printed, one ``file:line:column: message`` line each, in source
+order; the exit status is then 1.
 """
 
 from __future__ import annotations
@@ -10,15 +13,23 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 from interpreter.assembler import AssemblyError, assemble_file
 from interpreter.disassembler import disassemble, listing
 from interpreter.isa import decode_program
-from tmcl_spec.package import add_version_option
+from tmcl_spec.package import add_version_option, safe_console
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """Usage errors in one line, not the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tmcl-asm", description="TMCL assembler and disassembler "
+    parser = _OneLineParser(prog="tmcl-asm", description="TMCL assembler and disassembler "
                                      "for the TMCM-6212 (TMCL-IDE source and binary formats).")
     add_version_option(parser)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -42,13 +53,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    safe_console()
     args = build_parser().parse_args(argv)
     try:
         if args.command == "disassemble":
             instructions = decode_program(args.binary.read_bytes())
             text = listing(instructions) if args.listing else disassemble(instructions)
             if args.output:
-                args.output.write_text(text)
+                args.output.write_text(text, encoding="utf-8")
             else:
                 sys.stdout.write(text)
             return 0
@@ -66,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     output = args.output or args.source.with_suffix(".bin")
     output.write_bytes(program.binary())
     if args.listing:
-        args.listing.write_text(program.listing())
+        args.listing.write_text(program.listing(), encoding="utf-8")
     print(f"{args.source}: {len(program.instructions)} commands -> {output}")
     return 0
 

@@ -54,4 +54,11 @@ def decode_program(data: bytes) -> list[Instruction]:
     """A .bin file (no header, 8 bytes per command) as instructions."""
     if len(data) % RECORD_LENGTH:
         raise ValueError(f"binary program length {len(data)} is not a multiple of {RECORD_LENGTH}")
-    return [Instruction.decode(data[i:i + RECORD_LENGTH]) for i in range(0, len(data), RECORD_LENGTH)]
+    program = []
+    for index, offset in enumerate(range(0, len(data), RECORD_LENGTH)):
+        try:
+            program.append(Instruction.decode(data[offset:offset + RECORD_LENGTH]))
+        except ValueError as exc:
+            last = offset + RECORD_LENGTH - 1
+            raise ValueError(f"record {index} (bytes {offset}..{last}): {exc}") from None
+    return program

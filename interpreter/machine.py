@@ -35,6 +35,14 @@ from tmcl_spec.parameters import AP
 INSTRUCTION_NS = 10_000
 #: A running program asks to be run at least this often (how far it may lag a real clock).
 SLICE_NS = 10_000_000
+#: A loop is analysed after this many backward jumps; while it cannot be skipped, the wait
+#: doubles up to LOOP_BACKOFF_MAX (docs/scheduling.md, "Loops that change nothing").
+LOOP_PROBE_AFTER = 2
+LOOP_BACKOFF_MAX = 1024
+#: A pass longer than this many instructions is not analysed.
+MAX_PASS = 256
+#: "Steady until something intervenes" (axes.interface.FOREVER's value).
+FOREVER = 1 << 62
 
 _MASK = 0xFFFF_FFFF
 _SIGN = 0x8000_0000
@@ -45,7 +53,7 @@ _CALCX, _CSUB, _RSUB = Opcode.CALCX.value, Opcode.CSUB.value, Opcode.RSUB.value
 _STOP, _WAIT = Opcode.STOP.value, Opcode.WAIT.value
 _AAP, _AGP, _ACO = Opcode.AAP.value, Opcode.AGP.value, Opcode.ACO.value
 _SAP, _SGP, _SCO = Opcode.SAP.value, Opcode.SGP.value, Opcode.SCO.value
-_GCO, _RFS = Opcode.GCO.value, Opcode.RFS.value
+_GCO, _RFS, _GAP = Opcode.GCO.value, Opcode.RFS.value, Opcode.GAP.value
 _RFS_STATUS = RfsType.STATUS.value
 
 #: Commands that, in a program, load the value they read into the accumulator.
@@ -126,6 +134,23 @@ class ModulePort(Protocol):
         (with ``pc``) or ``interrupt_taken`` (with ``vector`` and ``address``)."""
         ...
 
+    def probe(self, time_ns: int, opcode: int, type_: int, motor: int,
+              value: int) -> tuple[int, int, bool, int]:
+        """:meth:`execute` for a loop being analysed: (status, value, changed, steady_until).
+
+        ``changed``: the command changed the module (a write of a new value, a move, a store);
+        a refused command and a write of what already is change nothing.  ``steady_until``
+        (for an unchanged command): executed again at any time before it, with nothing
+        intervening, the command answers the same and changes nothing (FOREVER: until
+        something intervenes; the present or less: no such promise)."""
+        ...
+
+    def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
+                      values: tuple[int, ...]) -> int:
+        """For a read that is not steady (a moving position): the first time it answers one
+        of ``values``, or a time before which it surely does not (0: cannot tell)."""
+        ...
+
 
 @dataclass(slots=True)
 class Wait:
@@ -151,6 +176,18 @@ class Context(NamedTuple):
 class _Timer:
     period_ns: int
     next_ns: int
+
+
+@dataclass(slots=True)
+class _Call:
+    """One module command of a pass being analysed."""
+
+    time_ns: int
+    status: int
+    value: int
+    changed: bool
+    steady_until: int
+    request: tuple[int, int, int, int]  # opcode, type, motor, value sent
 
 
 class Interpreter:
@@ -182,6 +219,23 @@ class Interpreter:
         #: (PC, executed) when the program was last continued: the breakpoint it continued
         #: from is not stopped at again before an instruction has run.
         self._resumed_at: tuple[int, int] | None = None
+        #: Skip the passes of loops that change nothing (docs/scheduling.md); False: step every
+        #: instruction (the reference the skipping is checked against).
+        self.skip_loops = True
+        #: How often a running program asks to be run (SLICE_NS; a virtual clock asks less).
+        self.slice_ns = SLICE_NS
+        #: Whether the caller must run the program at each timer's instant.  A real clock's
+        #: server must (the handler runs on time); on a virtual clock the timers fire inside
+        #: :meth:`run_until` at their instants anyway, so the caller need not stop there.
+        self.wake_for_timers = True
+        #: Passes of loops skipped so far (tests, benchmarks).
+        self.loops_skipped = 0
+        self._probe_calls: list[_Call] | None = None
+        self._loop_wait = LOOP_PROBE_AFTER  # backward jumps until the next analysis
+        self._loop_backoff = 1
+        #: Loop head -> (registers and memory revision, pass ns, pass instructions) of loops
+        #: that touch nothing but registers: skipped again without an analysis.
+        self._idle_loops: dict[int, tuple[tuple[object, ...], int, int]] = {}
         self.power_up(0)
 
     def power_up(self, now_ns: int) -> None:
@@ -316,8 +370,12 @@ class Interpreter:
                 timer.next_ns += missed * timer.period_ns
 
     def _next_timer_ns(self) -> int | None:
-        times = [t.next_ns for n, t in self._timers.items() if self.enabled >> interrupts.timer(n) & 1]
-        return min(times) if times else None
+        enabled = self.enabled
+        due = None
+        for number, timer in self._timers.items():
+            if enabled >> (interrupts.TIMER_BASE + number) & 1 and (due is None or timer.next_ns < due):
+                due = timer.next_ns
+        return due
 
     def _dispatchable(self) -> int:
         """Pending interrupts that may be taken now (bit mask)."""
@@ -352,10 +410,11 @@ class Interpreter:
             return None
         candidates: list[int] = []
         if self.wait is None or self._dispatchable():
-            candidates.append((max(self.time_ns, now_ns) // SLICE_NS + 1) * SLICE_NS)
+            slice_ns = self.slice_ns
+            candidates.append((max(self.time_ns, now_ns) // slice_ns + 1) * slice_ns)
         elif self.wait.deadline_ns is not None:
             candidates.append(self.wait.deadline_ns)
-        if self.globally_enabled:
+        if self.globally_enabled and self.wake_for_timers:
             timer = self._next_timer_ns()
             if timer is not None:
                 candidates.append(timer)
@@ -413,6 +472,8 @@ class Interpreter:
                 self.time_ns = limit  # still waiting when the next timer fires
                 continue
             outcome = self._execute_checked(limit) if self.breakpoints else self._execute(limit)
+            if outcome == _LOOP:
+                outcome = self._loop(limit)
             if outcome == _YIELD:
                 return True
             if outcome == _STOPPED:
@@ -486,6 +547,9 @@ class Interpreter:
         not_module = _NOT_MODULE
         n = 0
         outcome = _CONTINUE
+        # Backward jumps count down to a loop analysis (never while one runs, or breakpoints).
+        watch = self.skip_loops and self._probe_calls is None and not self.breakpoints
+        loops = self._loop_wait
         while n < count:
             op, ty, motor, va = code[pc]
             if op == _CALC:
@@ -521,9 +585,27 @@ class Interpreter:
                     taken = cmp_ <= 0
                 else:
                     taken = bool(self.errors & _JC_ERROR_BIT.get(ty, 0))
-                pc = (va if 0 <= va < end else end) if taken else pc + 1
+                if not taken:
+                    pc += 1
+                elif va <= pc and watch and va >= 0:
+                    pc = va
+                    loops -= 1
+                    if loops <= 0:
+                        n += 1
+                        outcome = _LOOP
+                        break
+                else:
+                    pc = va if 0 <= va < end else end
             elif op == _JA:
-                pc = va if 0 <= va < end else end
+                if va <= pc and watch and va >= 0:
+                    pc = va
+                    loops -= 1
+                    if loops <= 0:
+                        n += 1
+                        outcome = _LOOP
+                        break
+                else:
+                    pc = va if 0 <= va < end else end
             else:
                 self.pc, self.accumulator = pc, acc
                 self.zero_source, self.compare_source = zero, cmp_
@@ -539,6 +621,7 @@ class Interpreter:
             n += 1
         self.pc, self.accumulator = pc, acc
         self.zero_source, self.compare_source = zero, cmp_
+        self._loop_wait = loops
         self.executed += n
         self.time_ns += n * cost
         if self._hold_ns:
@@ -642,7 +725,9 @@ class Interpreter:
         self.saved = None
         (self.pc, self.accumulator, self.x, self.zero_source, self.compare_source,
          self.wait) = saved
-        return _INTERRUPTS
+        if self.wait is not None or (self.globally_enabled and self.pending & self.enabled):
+            return _INTERRUPTS  # a WAIT to resume, or the next interrupt to take
+        return _CONTINUE  # back where it was interrupted, nothing else to do: go on
 
     def _cle(self, ty: int, motor: int, va: int) -> int:
         self.clear_error_flags(ty)
@@ -682,6 +767,8 @@ class Interpreter:
     # -- commands that go to the module --------------------------------------------------------
 
     def _module_command(self, op: int, ty: int, motor: int, va: int, t: int) -> int:
+        if self._probe_calls is not None:
+            return self._probed_command(op, ty, motor, va, t, self._probe_calls)
         if op == _AGP:
             _, _, replan = self.port.execute(t, _SGP, ty, motor, self.accumulator)
         elif op == _AAP:
@@ -700,12 +787,226 @@ class Interpreter:
         return _YIELD if replan or self._hold_ns else _CONTINUE
 
 
+    def _probed_command(self, op: int, ty: int, motor: int, va: int, t: int,
+                        calls: list[_Call]) -> int:
+        """:meth:`_module_command` while a pass is analysed: each command is recorded with
+        whether it changed the module and how long its answer stays the same."""
+        if op == _AGP:
+            request = (_SGP, ty, motor, self.accumulator)
+        elif op == _AAP:
+            request = (_SAP, ty, motor, self.accumulator)
+        elif op == _ACO:
+            if motor == MOTOR_ALL:
+                self.pc += 1
+                return _CONTINUE
+            request = (_SCO, ty, motor, self.accumulator)
+        else:
+            request = (op, ty, motor, va)
+        status, value, changed, steady = self.port.probe(t, *request)
+        calls.append(_Call(t, status, value, changed, steady, request))
+        if (op not in (_AGP, _AAP, _ACO) and status == STATUS_OK and (
+                (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
+                or (op == _RFS and ty == _RFS_STATUS))):
+            self.accumulator = self.zero_source = wrap32(value)
+        self.pc += 1
+        return _YIELD if changed or self._hold_ns else _CONTINUE
+
+    # == loops that change nothing (docs/scheduling.md) =========================================
+
+    def _registers(self) -> tuple[object, ...]:
+        """What a pass may read of the program's state (besides the module)."""
+        return (self.pc, self.accumulator, self.x, self.zero_source, self.compare_source,
+                self.errors, tuple(self.stack), self.saved, self.memory_revision)
+
+    def _loop(self, limit: int) -> int:
+        """A backward jump brought the program to a loop head: skip the passes that would do
+        exactly what the last one did (or analyse one pass to learn whether they would)."""
+        idle = self._idle_loops.get(self.pc)
+        if idle is not None and idle[0] == self._registers():
+            self._skip(idle[1], idle[2], limit, ())
+            return _CONTINUE
+        return self._probe(limit)
+
+    def _give_up(self) -> None:
+        """This loop cannot be skipped now: analyse again later, less often each time."""
+        self._loop_wait = self._loop_backoff
+        self._loop_backoff = min(self._loop_backoff * 2, LOOP_BACKOFF_MAX)
+
+    def _probe(self, limit: int) -> int:
+        """Run one pass instruction by instruction, recording what it asks the module, then
+        skip the passes after it that are certain to do the same (exactly as stepping)."""
+        head, start, executed = self.pc, self.time_ns, self.executed
+        before = self._registers()
+        if self.pending and self._dispatchable():
+            self._give_up()
+            return _CONTINUE
+        calls: list[_Call] = []
+        path: list[int] = []
+        waited = False
+        self._probe_calls = calls
+        try:
+            while True:
+                if self.time_ns >= limit or len(path) >= MAX_PASS:
+                    self._give_up()
+                    return _CONTINUE
+                path.append(self.pc)
+                outcome = self._execute(self.time_ns + 1)
+                if outcome == _WAITING:
+                    wait = self.wait
+                    assert wait is not None
+                    if wait.condition != WaitCondition.TICKS or not self._resume_wait(limit):
+                        self._give_up()
+                        return _CONTINUE  # the wait goes on: the caller waits
+                    waited = True
+                elif outcome != _CONTINUE:
+                    self._give_up()
+                    return outcome
+                if self.pc == head:
+                    break
+        finally:
+            self._probe_calls = None
+        if any(call.changed for call in calls):
+            self._give_up()
+            return _CONTINUE
+        period, length = self.time_ns - start, self.executed - executed
+        after = self._registers()
+        steady = all(call.steady_until > call.time_ns for call in calls)
+        if steady and after == before:  # the pass changed nothing: the next ones do the same
+            if not calls and not waited:
+                self._idle_loops[head] = (before, period, length)
+            horizons = tuple((call.time_ns - start, call.steady_until) for call in calls)
+            skipped = self._skip(period, length, limit, horizons, start)
+        else:
+            skipped = self._skip_to_flip(path, calls, before, after, start, period, length, limit)
+        if skipped:
+            self._loop_backoff = 1
+            self._loop_wait = 1 if steady and after == before else 2
+        else:
+            self._give_up()
+        return _CONTINUE
+
+    def _skip(self, period: int, length: int, limit: int,
+              horizons: tuple[tuple[int, int], ...], start: int | None = None,
+              real_passes: int = 0) -> int:
+        """Skip the whole passes after the one that began at ``start`` (default: now) whose
+        every module command (offset in the pass, steady until) still answers the same,
+        keeping ``real_passes`` whole passes before ``limit`` to be stepped; returns how many."""
+        if start is None:
+            start = self.time_ns - period
+        passes = (limit - start) // period - 1 - real_passes
+        for offset, steady_until in horizons:
+            passes = min(passes, -(-(steady_until - start - offset) // period) - 1)
+        if passes <= 0:
+            return 0
+        self.time_ns = start + (passes + 1) * period
+        self.executed += passes * length
+        self.loops_skipped += passes
+        return passes
+
+    def _skip_to_flip(self, path: list[int], calls: list[_Call], before: tuple[object, ...],
+                      after: tuple[object, ...], start: int, period: int, length: int,
+                      limit: int) -> int:
+        """A pass that reads moving values (positions) and only compares them: skip to the pass
+        where a comparison could flip, the first time a value reaches one of its boundaries."""
+        moving = [index for index, call in enumerate(calls) if call.steady_until <= call.time_ns]
+        if any(calls[i].status != STATUS_OK or calls[i].request[0] != _GAP for i in moving):
+            return 0
+        boundaries = _boundaries(self.code, path, calls, set(moving), before, after)
+        if boundaries is None:
+            return 0
+        horizons = []
+        for index, call in enumerate(calls):
+            horizon = call.steady_until
+            if index in boundaries:
+                values = boundaries[index]
+                if call.value in values:
+                    return 0
+                opcode, type_, motor, _ = call.request
+                horizon = self.port.first_time_at(call.time_ns, opcode, type_, motor, values) \
+                    if values else FOREVER
+            horizons.append((call.time_ns - start, horizon))
+        return self._skip(period, length, limit, tuple(horizons), start, real_passes=1)
+
+
+#: Registers of the pass analysis (the indices in Interpreter._registers()).
+_ACC, _X, _ZERO, _CMP, _ERRORS, _STACK = 1, 2, 3, 4, 5, 6
+
+
+def _boundaries(code: list[Instruction], path: list[int], calls: list[_Call], moving: set[int],
+                before: tuple[object, ...],
+                after: tuple[object, ...]) -> dict[int, tuple[int, ...]] | None:
+    """For each moving read (an index of ``calls``), the values at which the pass's branches
+    could decide otherwise, if the pass depends on the moving reads only through COMP and JC
+    and leaves every register it reads before writing as it found it; None if the pass is not
+    of that shape."""
+    symbolic: dict[int, tuple[int, int]] = {}  # register -> (read, offset): read's value + offset
+    written: set[int] = set()
+    first_read: set[int] = set()
+    boundaries: dict[int, set[int]] = {index: set() for index in moving}
+    pending = iter(enumerate(calls))
+
+    def reads(register: int) -> None:
+        if register not in written:
+            first_read.add(register)
+
+    def writes(register: int, source: tuple[int, int] | None = None) -> None:
+        written.add(register)
+        if source is None:
+            symbolic.pop(register, None)
+        else:
+            symbolic[register] = source
+
+    for pc in path:
+        op, ty, motor, va = code[pc]
+        if op == _CALC:
+            if ty != CalcOp.LOAD:
+                reads(_ACC)
+                if _ACC in symbolic:
+                    return None
+            writes(_ACC)
+            writes(_ZERO)
+        elif op == _COMP:
+            reads(_ACC)
+            source = symbolic.get(_ACC)
+            compared = None if source is None else (source[0], source[1] - va)
+            writes(_CMP, compared)
+            writes(_ZERO, compared)
+        elif op == _JC:
+            register = _ZERO if ty <= 1 else _CMP if ty <= 7 else _ERRORS
+            reads(register)
+            if register in symbolic:
+                index, offset = symbolic[register]
+                boundaries[index].add(-offset)
+        elif op in (_JA, _WAIT):
+            continue
+        elif op in (_AAP, _AGP, _ACO):
+            reads(_ACC)
+            if _ACC in symbolic:
+                return None
+            if not (op == _ACO and motor == MOTOR_ALL):
+                next(pending)
+        elif op in _NOT_MODULE:
+            return None  # CALCX, subroutines, interrupts, error flags: not analysed
+        else:
+            index, call = next(pending)
+            if call.status == STATUS_OK and (
+                    (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
+                    or (op == _RFS and ty == _RFS_STATUS)):
+                source = (index, 0) if index in moving else None
+                writes(_ACC, source)
+                writes(_ZERO, source)
+    if any(before[register] != after[register] for register in first_read):
+        return None
+    return {index: tuple(sorted(values)) for index, values in boundaries.items()}
+
+
 # Outcomes of _execute / _execute_other.
 _CONTINUE = 0  # keep going
 _YIELD = 1  # a module command may have moved an event: let the caller re-plan
 _STOPPED = 2  # STOP or end of program
 _WAITING = 3  # a WAIT is in progress
 _INTERRUPTS = 4  # interrupt state changed: check for a dispatch before the next instruction
+_LOOP = 5  # a backward jump reached a loop head: see whether its passes can be skipped
 
 _INTERNAL: dict[int, Callable[[Interpreter, int, int, int], int]] = {
     Opcode.CALCX: Interpreter._calcx,

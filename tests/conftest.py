@@ -9,6 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from tests.helpers.requirements import MISSING_MARK
 from tmcl_server.clock import VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212
@@ -61,6 +62,12 @@ class Bench:
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--soak", action="store_true", default=False,
                      help="also run the long soak/fuzz tests (marked @pytest.mark.soak)")
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A program the test needs is missing and TMCL_SIM_REQUIRE_ALL=1 (tests/helpers/requirements.py)."""
+    for mark in item.iter_markers(MISSING_MARK):
+        pytest.fail(mark.args[0], pytrace=False)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
 import subprocess
 import sys
 import tomllib
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scripts" / "example_pytrinamic.py"
@@ -14,7 +18,7 @@ EXAMPLE = ROOT / "scripts" / "example_pytrinamic.py"
 
 def extras_installed_by_serve_script() -> list[str]:
     script = (ROOT / "scripts" / "serve.sh").read_text()
-    match = re.search(r"pip install .*-e '\.\[([\w,]+)\]'", script)
+    match = re.search(r'^SERVE_EXTRAS="([\w,]+)"$', script, re.M)
     assert match, "serve.sh must install the project with the extras the examples need"
     return match.group(1).split(",")
 
@@ -40,3 +44,36 @@ def test_without_pytrinamic_the_example_says_how_to_get_it():
     done = subprocess.run([sys.executable, "-c", hide], capture_output=True, text=True, timeout=60)
     assert done.returncode == 1
     assert "needs pytrinamic" in done.stderr and "'.[examples]'" in done.stderr
+
+
+def test_serve_installs_what_the_readme_uses():
+    """plot (tmcl plot), http (--http), tools (tmcl --connection) and pytrinamic."""
+    assert {"examples", "plot", "http", "tools"} <= set(extras_installed_by_serve_script())
+
+
+def readme_block(first_line: str) -> str:
+    text = (ROOT / "README.md").read_text()
+    start = text.index(f"```sh\n{first_line}") + len("```sh\n")
+    return text[start:text.index("```", start)]
+
+
+@pytest.mark.skipif(not (ROOT / ".venv" / "bin" / "activate").exists(),
+                    reason="the block uses the .venv that scripts/serve.sh or test.sh makes")
+def test_record_and_plot_block_runs_when_pasted_as_one(tmp_path):
+    """The README's block, run as pasted: it waits for its server and writes nothing into the
+    checkout (the recording and the picture go to a temporary folder)."""
+    block = readme_block("source .venv/bin/activate")
+    before = git_status()
+    done = subprocess.run(["bash", "-c", block], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "TMPDIR": str(tmp_path)})
+    assert done.returncode == 0, done.stdout + done.stderr
+    (picture,) = re.findall(r"^(\S+run\.png): 2 axes \(axis 0, axis 1\)$", done.stdout, re.M)
+    assert Path(picture).is_file() and Path(picture).is_relative_to(tmp_path)
+    assert git_status() == before
+
+
+def git_status() -> str:
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("git is needed to see that no tracked file changed")
+    return subprocess.run(["git", "status", "--porcelain"], cwd=ROOT, capture_output=True,
+                          text=True, check=True).stdout

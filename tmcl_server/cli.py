@@ -13,12 +13,13 @@ from typing import NoReturn
 
 from axes.cores import CHIP_CORES
 from tmcl_server.loops import LOOPS, new_event_loop
+from tmcl_server.observe import DEFAULT_RECORD_MAX, DEFAULT_TRACE_MAX
 from tmcl_server.platform import add_stop_handlers, dump_stacks_on_signal
 from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
 from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES, module_type
-from tmcl_spec.package import add_version_option
+from tmcl_spec.package import add_version_option, doc, docs_location, safe_console
 
 log = logging.getLogger("tmcl_server")
 
@@ -32,6 +33,23 @@ class UsageError(SystemExit):
 
     def __str__(self) -> str:
         return self.message
+
+
+class _HelpFormatter(argparse.HelpFormatter):
+    """Lines wrap at spaces only: a path to a documentation page stays whole."""
+
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        import textwrap
+
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False,
+                             break_long_words=False)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        import textwrap
+
+        return textwrap.fill(" ".join(text.split()), width, initial_indent=indent,
+                             subsequent_indent=indent, break_on_hyphens=False,
+                             break_long_words=False)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -58,6 +76,31 @@ def positive(text: str) -> float:
     return value
 
 
+_SIZE_UNITS = {"": 1, "k": 1024, "m": 1024 ** 2, "g": 1024 ** 3}
+
+
+def size(text: str) -> int:
+    """Bytes: ``500000``, ``100k``, ``100M``, ``2G`` (binary units; ``0``: no limit)."""
+    body = text.strip().lower().removesuffix("b").removesuffix("i")
+    unit = body[-1:] if body[-1:] in _SIZE_UNITS else ""
+    number = body[:-1] if unit else body
+    try:
+        value = float(number)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size (e.g. 100M, 500k, 0)") from None
+    if not math.isfinite(value) or value < 0 or value * _SIZE_UNITS[unit] > 2 ** 62:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size (e.g. 100M, 500k, 0)")
+    bytes_ = int(value * _SIZE_UNITS[unit])
+    if 0 < bytes_ < 4096:
+        raise argparse.ArgumentTypeError(f"{text!r}: a file limit below 4k holds next to nothing "
+                                         "(0 means no limit)")
+    return bytes_
+
+
+def _megabytes(count: int) -> str:
+    return f"{count // (1024 * 1024)}M"
+
+
 def non_negative(text: str) -> float:
     """A finite number >= 0 (a duration)."""
     value = _number(text)
@@ -68,8 +111,9 @@ def non_negative(text: str) -> float:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
-        prog="tmcl-server",
-        description="Simulated TRINAMIC TMCL modules (by default TMCM-6212, firmware V1.05).")
+        prog="tmcl-server", formatter_class=_HelpFormatter,
+        description="Simulated TRINAMIC TMCL modules (by default TMCM-6212, firmware V1.05).",
+        epilog=f"Documentation: {docs_location()}")
     who = parser.add_mutually_exclusive_group()
     who.add_argument("--modules", type=int, metavar="N",
                      help="host N modules with addresses (and CAN ids) 1..N (default 1)")
@@ -81,8 +125,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "mode=usb")
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
     parser.add_argument("--max-connections", type=_positive_int, default=256, metavar="N",
-                        help="clients each TCP endpoint serves at once; more are accepted and "
-                             "closed at once (default 256)")
+                        help="clients each TCP endpoint serves at once; a new one past it "
+                             "closes the client silent longest (default 256)")
     parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
                         help="open a virtual serial port and link PATH to it (repeatable); "
                              "mode usb answers any address like the module's USB port, rs485 "
@@ -90,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--serial", action="append", metavar="DEVICE[:BAUD][,mode=usb|rs485]",
                         default=[], help="serve on an existing serial port through pyserial "
                                          "(repeatable; mode as for --pty)")
-    can = parser.add_argument_group("CAN (see docs/can.md)")
+    can = parser.add_argument_group(f"CAN (see {doc('can.md')})")
     can.add_argument("--can", action="append", metavar="INTERFACE:CHANNEL[:BITRATE]", default=[],
                      help="join the simulated CAN bus to a python-can bus, e.g. socketcan:can0, "
                           "virtual:NAME (repeatable)")
@@ -108,6 +152,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "TMCL_MQTT_USERNAME/TMCL_MQTT_PASSWORD)")
     parser.add_argument("--mqtt-rate", type=positive, default=10.0, metavar="HZ",
                         help="at most this many state messages per module and second (default 10)")
+    parser.add_argument("--mqtt-faults", action="store_true",
+                        help="let MQTT clients inject faults (sim/fault, sim/power_cycle); off by "
+                             "default: every client of the broker could silence the module")
     parser.add_argument("--state-dir", metavar="DIR",
                         help="keep each module's EEPROM in DIR/module-<address>/ "
                              "(default: nothing persists)")
@@ -118,23 +165,33 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--axis-core", choices=sorted(CHIP_CORES),
                         help="the motion-controller chip the axes run on (default: the module "
                              "type's own)")
+    parser.add_argument("--step-every-instruction", action="store_true",
+                        help="execute every TMCL program instruction, even in loops that change "
+                             "nothing (the reference the default skipping is checked against; "
+                             "same results, slower)")
     parser.add_argument("--world", metavar="FILE",
                         help="TOML file placing switches, load zones, encoder slip and inputs "
-                             "(docs/world.md); default: free axes, open switches")
+                             f"({doc('world.md')}); default: free axes, open switches")
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
     parser.add_argument("--loop", choices=LOOPS, default="auto",
                         help="event loop: uvloop (the fast extra) or asyncio's; default auto: "
                              "uvloop if installed")
-    watch = parser.add_argument_group("watching (see README: trace, recorder)")
+    watch = parser.add_argument_group(f"watching (see {doc('observe.md')})")
     watch.add_argument("--trace", nargs="?", const="-", metavar="FILE",
                        help="log every request, reply, event and dropped frame, decoded "
                             "(to stderr, or to FILE)")
     watch.add_argument("--trace-format", choices=["text", "jsonl"], default="text",
                        help="trace lines as text (default) or one JSON object each")
+    watch.add_argument("--trace-max", type=size, default=DEFAULT_TRACE_MAX, metavar="SIZE",
+                       help="past this size the trace file becomes FILE.1 and a new one starts "
+                            f"(default {_megabytes(DEFAULT_TRACE_MAX)}; 0: no limit)")
     watch.add_argument("--record", metavar="FILE",
                        help="record position, velocity, acceleration, current, switches and "
                             "events of the axes to FILE (.csv or .jsonl)")
+    watch.add_argument("--record-max", type=size, default=DEFAULT_RECORD_MAX, metavar="SIZE",
+                       help="past this size the record file becomes FILE.1 and a new one starts "
+                            f"(default {_megabytes(DEFAULT_RECORD_MAX)}; 0: no limit)")
     watch.add_argument("--record-resolution", type=positive, default=0.01, metavar="SECONDS",
                        help="simulated time between two samples (default 0.01)")
     watch.add_argument("--record-axes", metavar="LIST",
@@ -142,8 +199,12 @@ def build_parser() -> argparse.ArgumentParser:
     watch.add_argument("--http", action="append", metavar="[HOST:]PORT", default=[],
                        help="serve the live dashboard (axes, I/O, parameters, program debugger, "
                             "wire) to a browser; host 127.0.0.1 unless given; needs the extra "
-                            "tmcl-sim[http] (docs/dashboard.md)")
-    faults = parser.add_argument_group("faults and wire timing (see docs/faults.md)")
+                            f"tmcl-sim[http] ({doc('dashboard.md')}); beyond loopback it needs the "
+                            "token it prints")
+    watch.add_argument("--http-allow-origin", action="append", metavar="ORIGIN", default=[],
+                       help="let pages from ORIGIN (e.g. http://lab-pc:9000, or * for any) "
+                            "drive the dashboard; by default only its own page may (repeatable)")
+    faults = parser.add_argument_group(f"faults and wire timing (see {doc('faults.md')})")
     faults.add_argument("--fault", action="append", metavar="SPEC", default=[],
                         help="inject a fault, e.g. noreply:opcode=GAP,rate=0.1,seed=7 or "
                              "delay:ms=50 or stuck:axis=0 (repeatable)")
@@ -265,18 +326,34 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
         if importlib.util.find_spec("aiohttp") is None:
             raise UsageError("argument --http: needs aiohttp: pip install 'tmcl-sim[http]'")
         endpoints["http"] = args.http
+        from tmcl_server.dashboard.guard import AccessPolicy
+
+        try:
+            AccessPolicy("127.0.0.1", args.http_allow_origin)
+        except ValueError as exc:
+            raise UsageError(f"argument --http-allow-origin: {exc}") from None
     try:
         can_bus_name = (check_bus_name(args.can_bus) if args.can_bus is not None
                         else DEFAULT_BUS_NAME)
     except ValueError as exc:
         raise UsageError(f"argument --can-bus: {exc}") from None
-    from tmcl_server.faults import FaultSpecError, load_fault_file, parse_fault
+    from tmcl_server.faults import MAX_FAULTS, FaultSpecError, load_fault_file, parse_fault
 
+    faults = []
     try:
-        faults = [spec for path in args.faults for spec in load_fault_file(path)]
-        faults += [parse_fault(text) for text in args.fault]
-    except FaultSpecError as exc:
-        raise UsageError(f"fault: {exc}") from None
+        for path in args.faults:
+            faults += load_fault_file(path)
+    except FaultSpecError as exc:  # names the file and the line
+        raise UsageError(f"argument --faults: {exc}") from None
+    for text in args.fault:
+        try:
+            faults.append(parse_fault(text))
+        except FaultSpecError as exc:
+            shown = text if len(text) <= 60 else f"{text[:60]}..."
+            raise UsageError(f"argument --fault {shown}: {exc}") from None
+    if len(faults) > MAX_FAULTS:
+        raise UsageError(f"argument --fault/--faults: {len(faults)} faults, at most {MAX_FAULTS} "
+                         "at once")
     record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock=args.clock, speed=args.speed, ready_file=args.ready_file,
@@ -286,7 +363,10 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         trace_format=args.trace_format, record=args.record,
                         record_resolution=args.record_resolution, record_axes=record_axes,
                         faults=faults, wire_timing=args.wire_timing,
-                        processing_time=args.processing_time, max_connections=args.max_connections)
+                        processing_time=args.processing_time, max_connections=args.max_connections,
+                        skip_loops=not args.step_every_instruction,
+                        trace_max=args.trace_max, record_max=args.record_max,
+                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults)
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given
@@ -309,6 +389,8 @@ def _start_error(exc: Exception) -> StartError:
     where = f"argument {option}: " if option and not text.startswith(option.split()[0]) else ""
     from tmcl_server.transports.pty import LinkInUseError
 
+    if isinstance(exc, ImportError):  # a library that cannot load here (pyserial without fcntl)
+        return StartError(f"{where}this Python cannot load a module it needs: {text}", 1)
     refused = isinstance(exc, LinkInUseError) or (isinstance(exc, OSError)
                                                   and exc.errno in _REFUSED)
     return StartError(f"{where}{text}", 1 if refused else 2)
@@ -345,6 +427,7 @@ async def run(config: ServerConfig) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Exit status 0 after a clean stop, 2 for a bad command-line value (one line on standard
     error, as argparse), 1 when the surroundings refuse (a port in use) or serving fails."""
+    safe_console()
     try:
         args = build_parser().parse_args(argv)
         logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
@@ -361,6 +444,10 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"tmcl-server: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        # Ctrl-C where the loop cannot watch signals (Windows): asyncio.Runner cancelled the
+        # server, which closed its endpoints and flushed the EEPROM on the way out (run()).
+        return 0
     return 0
 
 

@@ -13,6 +13,7 @@ import json
 import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from tmcl_server.protocol import FRAME_LENGTH, Reply, Request, checksum
@@ -173,6 +174,8 @@ def describe_reply(reply: Reply, request: Request | None = None) -> str:
 
 def describe_outcome(status: int, opcode: int, type_: int, value: int) -> str:
     """A reply's status, and its value when the command reads one (``type_`` is the request's)."""
+    if status == Status.TARGET_REACHED_EVENT and opcode != Opcode.TARGET_REACHED_EVENT:
+        return f"→ {status} DELAYED = {to_int32(value)}"  # the evaluation firmware's "not yet"
     text = f"→ {status} {status_name(status)}"
     if status == Status.TARGET_REACHED_EVENT:
         return f"{text} axes {_axes(value)}"
@@ -234,50 +237,261 @@ class Decoded:
         return json.dumps(body)
 
 
-_CANDUMP = re.compile(r"^\s*\S+\s+([0-9A-Fa-f]{3,8})\s+\[(\d+)\]\s*((?:[0-9A-Fa-f]{2}\s*)*)")
-_CANDUMP_LOG = re.compile(r"(?:^|\s)\S+\s+([0-9A-Fa-f]{3,8})#([0-9A-Fa-f]*)\s*$")
+class CaptureError(ValueError):
+    """A capture that cannot be read; the message is one line and names the place."""
+
+
+#: candump's default format, with or without its timestamp: ``can0  001   [7]  06 04 ...``
+_CANDUMP = re.compile(r"^\s*(?:\(\S+\)\s+)?\S+\s+([0-9A-Fa-f]{3,8})\s+\[(\d+)\]\s*((?:[0-9A-Fa-f]{2}\s*)*)")
+#: candump -L and python-can's .log: ``(1700000000.000000) can0 001#0604...`` (python-can
+#: appends `` T``/`` R``; ``##`` is CAN FD with a flags digit, ``#R`` a remote frame).
+_CANDUMP_LOG = re.compile(
+    r"(?:^|\s)\S+\s+([0-9A-Fa-f]{3,8})#(#[0-9A-Fa-f]|R)?([0-9A-Fa-f]*)(?:\s+[A-Z])?\s*$")
+#: python-can's Printer (``python -m can.logger`` on a terminal, its ``.txt`` files).
+_PRINTER = re.compile(r"^\s*Timestamp:\s*\S+\s+ID:\s*([0-9A-Fa-f]+)\s+(.*?)\bDL:\s*(\d+)\s*"
+                      r"((?:[0-9A-Fa-f]{2}\s)*(?:[0-9A-Fa-f]{2})?)")
+#: Offset-addressed dumps, one line each: hexdump -C (``|ascii|``), od -t x1 [z] (``>ascii<``),
+#: xxd (``offset: 0106 0400 ...  ascii``), hexdump / od -x (little-endian 16-bit words).
+_HEXDUMP_C = re.compile(r"^([0-9A-Fa-f]{6,16})\s\s((?:[0-9A-Fa-f]{2}\s{1,2}){1,32})\s*\|")
+_OD_BYTES = re.compile(r"^([0-9A-Fa-f]{6,16})((?:\s[0-9A-Fa-f]{2}){1,32})\s*(?:>.*)?$")
+_XXD = re.compile(r"^([0-9A-Fa-f]{6,16}):\s(.*)$")
+_WORDS = re.compile(r"^([0-9A-Fa-f]{6,16})((?:\s+[0-9A-Fa-f]{4}){1,16})\s*$")
+_OFFSET_ONLY = re.compile(r"^([0-9A-Fa-f]{6,16})\s*$")
+_XXD_I_LENGTH = re.compile(r"^\s*unsigned\s+int\s+\w+\s*=\s*\d+\s*;")
 _HEX_PAIR = re.compile(r"[0-9A-Fa-f]{2}")
 _HEX_RUN = re.compile(r"(?:[0-9A-Fa-f]{2})+")
+#: A ``*`` line (a dump's repeated lines left out) may stand for at most this many bytes.
+MAX_SQUEEZED = 1 << 20
+#: Longest line a capture may have (characters).
+MAX_LINE = 1 << 20
+#: File name endings python-can's ``can.LogReader`` reads (also with ``.gz``).
+CAN_LOG_SUFFIXES = (".asc", ".blf", ".csv", ".db", ".log", ".mf4", ".trc")
+
+
+def _hex_words(line: str) -> bytes:
+    """Bytes from free-form hex: ``01 06 04 ...``, ``0x01,0x06``, ``010604...``, log prefixes.
+
+    When a line has two-digit tokens, only those count (timestamps and labels of hand-made
+    logs are skipped); otherwise runs of hex digits are split into bytes.
+    """
+    tokens = [t.removeprefix("0x").removeprefix("0X") for t in re.split(r"[\s,;{}]+", line.strip()) if t]
+    pairs = [t for t in tokens if _HEX_PAIR.fullmatch(t)]
+    chosen = pairs if pairs else [t for t in tokens if _HEX_RUN.fullmatch(t)]
+    return b"".join(bytes.fromhex(token) for token in chosen)
+
+
+def _can_line(line: str) -> tuple[bool, Frame | None]:
+    """Whether the line is a CAN log line, and its frame (None: a remote or error frame)."""
+    match = _CANDUMP.match(line)
+    if match:
+        return True, Frame(bytes.fromhex("".join(match.group(3).split()))[:int(match.group(2))],
+                           int(match.group(1), 16))
+    match = _PRINTER.match(line)
+    if match:
+        flags = match.group(2).split()
+        if "R" in flags or "E" in flags:
+            return True, None
+        return True, Frame(bytes.fromhex("".join(match.group(4).split()))[:int(match.group(3))],
+                           int(match.group(1), 16))
+    match = _CANDUMP_LOG.search(line)
+    if match:
+        if match.group(2) == "R":
+            return True, None
+        return True, Frame(bytes.fromhex(match.group(3)), int(match.group(1), 16))
+    return False, None
+
+
+def _dump_line(line: str) -> tuple[str, bytes] | None:
+    """(offset, bytes) of a line of hexdump -C, od, xxd or hexdump, or None."""
+    match = _HEXDUMP_C.match(line)
+    if match:
+        return match.group(1), bytes.fromhex("".join(match.group(2).split()))
+    match = _OD_BYTES.match(line)
+    if match:
+        return match.group(1), bytes.fromhex("".join(match.group(2).split()))
+    match = _XXD.match(line)
+    if match:
+        area = match.group(2).split("  ", 1)[0].split()
+        if area and all(_HEX_RUN.fullmatch(group) for group in area):
+            return match.group(1), bytes.fromhex("".join(area))
+        return None
+    match = _WORDS.match(line)
+    if match:  # 16-bit words in the machine's (little-endian) order
+        words = match.group(2).split()
+        return match.group(1), b"".join(bytes.fromhex(w)[::-1] for w in words)
+    return None
+
+
+class CaptureReader:
+    """Lines of a capture in, frames out as soon as they are whole (memory stays bounded).
+
+    Serial bytes (hex in any usual spelling, or a dump with offsets) form one stream cut into
+    9-byte frames; CAN log lines are frames with their ids.  Offset dumps are read by their
+    offsets: a ``*`` line stands for repeats of the line before it, and the closing offset
+    line gives the length (``hexdump`` without ``-C`` shows an odd last byte as a whole word),
+    so a whole dump never ends in an invented torn frame.
+    """
+
+    def __init__(self) -> None:
+        self.line_number = 0
+        self._stream = bytearray()
+        #: The last dump line, kept until the next line says how much of it (and what after
+        #: a ``*``) belongs to the data.
+        self._held: tuple[str, bytes] | None = None
+        self._squeezed = False
+        self._base: int | None = None
+        self._in_dump = False
+
+    def feed(self, line: str) -> Iterator[Frame]:
+        self.line_number += 1
+        if len(line) > MAX_LINE:
+            raise CaptureError(f"line {self.line_number} is longer than {MAX_LINE} characters: not a dump")
+        is_can, frame = _can_line(line)
+        if is_can:
+            if frame is not None:
+                yield frame
+            return
+        stripped = line.strip()
+        if stripped == "*" and self._in_dump:
+            self._squeezed = True
+            return
+        dump = _dump_line(line)
+        if dump is not None:
+            self._dump_data(*dump)
+        else:
+            end = _OFFSET_ONLY.match(stripped) if self._in_dump else None
+            if end is not None:
+                self._dump_end(end.group(1))
+            elif not _XXD_I_LENGTH.match(line):
+                self._release()
+                self._stream += _hex_words(line.split("//")[0].split("#")[0])
+        yield from self._frames()
+
+    def finish(self) -> Iterator[Frame]:
+        """The end of the input: what is held goes out, and any rest (a real torn frame)."""
+        self._release()
+        yield from self._frames()
+        if self._stream:
+            yield Frame(bytes(self._stream))
+            self._stream.clear()
+
+    def _frames(self) -> Iterator[Frame]:
+        stream = self._stream
+        while len(stream) >= FRAME_LENGTH:
+            yield Frame(bytes(stream[:FRAME_LENGTH]))
+            del stream[:FRAME_LENGTH]
+
+    def _release(self) -> None:
+        if self._held is not None:
+            self._stream += self._held[1]
+            self._held = None
+        self._squeezed = False
+        self._in_dump = False
+
+    def _offset(self, text: str) -> int:
+        return int(text, self._base or 16)
+
+    def _dump_data(self, offset: str, data: bytes) -> None:
+        held = self._held
+        if held is not None:
+            self._choose_base(held, offset)
+            gap = self._offset(offset) - self._offset(held[0]) - len(held[1])
+            self._stream += held[1]
+            if self._squeezed and gap > 0:
+                self._repeat(held[1], gap)
+        self._held = (offset, data)
+        self._squeezed = False
+        self._in_dump = True
+
+    def _dump_end(self, offset: str) -> None:
+        held = self._held
+        if held is not None:
+            self._choose_base(held, offset)
+            length = self._offset(offset) - self._offset(held[0])
+            data = held[1]
+            if self._squeezed and length > len(data):
+                self._stream += data
+                self._repeat(data, length - len(data))
+            else:
+                self._stream += data[:max(length, 0)] if 0 <= length < len(data) else data
+            self._held = None
+        self._squeezed = False
+        self._in_dump = False
+        self._base = None
+
+    def _choose_base(self, held: tuple[str, bytes], offset: str) -> None:
+        """Offsets are hex (hexdump, xxd, od -A x), octal (od's default) or decimal (od -A d):
+        the base in which consecutive offsets step by the lines' lengths."""
+        if self._base is not None:
+            return
+        size = len(held[1])
+        for base in (16, 8, 10):
+            try:
+                step = int(offset, base) - int(held[0], base)
+            except ValueError:
+                continue
+            if step == size or (self._squeezed and size and step > size and step % size == 0):
+                self._base = base
+                return
+
+    def _repeat(self, pattern: bytes, count: int) -> None:
+        if count > MAX_SQUEEZED:
+            raise CaptureError(f"line {self.line_number}: a '*' stands for {count} bytes "
+                               f"(more than {MAX_SQUEEZED})")
+        if pattern:
+            self._stream += (pattern * (count // len(pattern) + 1))[:count]
+            # frames are taken out after each line, so at most MAX_SQUEEZED bytes wait here
+
+
+def read_capture(lines: Iterable[str]) -> Iterator[Frame]:
+    """Frames from the lines of a capture, as they come."""
+    reader = CaptureReader()
+    for line in lines:
+        yield from reader.feed(line)
+    yield from reader.finish()
 
 
 def parse_hex(text: str) -> bytes:
-    """Bytes from hex text: ``01 06 04 ...``, ``0x01,0x06``, ``010604...``.
-
-    When a line has two-digit tokens, only those count (offsets and timestamps of hexdump-like
-    logs are skipped); otherwise runs of hex digits are split into bytes.
-    """
-    out = bytearray()
-    for line in text.splitlines():
-        tokens = [t.removeprefix("0x").removeprefix("0X")
-                  for t in re.split(r"[\s,;]+", line.strip()) if t]
-        pairs = [t for t in tokens if _HEX_PAIR.fullmatch(t)]
-        chosen = pairs if pairs else [t for t in tokens if _HEX_RUN.fullmatch(t)]
-        for token in chosen:
-            out += bytes.fromhex(token)
-    return bytes(out)
+    """The serial bytes of a hex text or dump (``01 06 04 ...``, ``0x01,0x06``, ``hexdump -C``)."""
+    return b"".join(frame.data for frame in read_capture(text.splitlines()) if frame.can_id is None)
 
 
 def parse_capture(text: str) -> list[Frame]:
-    """Frames from a capture: candump lines (``can0 001 [7] 06 ..`` or ``can0 001#06..``) and
-    hex dumps (a serial byte stream, cut into frames in order)."""
-    frames: list[Frame] = []
-    stream: list[str] = []
-    for line in text.splitlines():
-        match = _CANDUMP.match(line)
-        if match:
-            frames.append(Frame(bytes.fromhex("".join(match.group(3).split()))[:int(match.group(2))],
-                                int(match.group(1), 16)))
-            continue
-        match = _CANDUMP_LOG.search(line)
-        if match:
-            frames.append(Frame(bytes.fromhex(match.group(2)), int(match.group(1), 16)))
-            continue
-        line = line.split("//")[0].split("#")[0]
-        if line.strip():
-            stream.append(line)
-    if stream:
-        frames.insert(0, Frame(parse_hex("\n".join(stream))))
-    return frames
+    """Frames from a capture pasted as text (see :class:`CaptureReader`)."""
+    return list(read_capture(text.splitlines()))
+
+
+def is_can_log(path: str | Path) -> bool:
+    """Whether python-can reads this file by its name (``.asc``, ``.blf``, ``.trc.gz``, ...)."""
+    suffixes = [s.lower() for s in Path(path).suffixes]
+    if suffixes and suffixes[-1] == ".gz":
+        suffixes.pop()
+    return bool(suffixes) and suffixes[-1] in CAN_LOG_SUFFIXES
+
+
+def read_can_log(path: str | Path) -> Iterator[Frame]:
+    """The data frames of a CAN log, read by python-can's ``can.LogReader`` (imported here,
+    only when a log is read): ``.asc``, ``.blf``, ``.csv``, ``.db``, ``.log``, ``.trc``, ``.mf4``
+    (with asammdf), and what ``python -m can.logger`` writes."""
+    import can
+
+    try:
+        reader = can.LogReader(str(path))
+    except (OSError, ValueError, ImportError) as exc:
+        raise CaptureError(f"{path}: python-can cannot open it: {exc}") from None
+    count = 0
+    try:
+        with reader:
+            for message in reader:
+                count += 1
+                if message.is_error_frame or message.is_remote_frame:
+                    continue
+                yield Frame(bytes(message.data), message.arbitration_id)
+    except CaptureError:
+        raise
+    except Exception as exc:  # the readers raise what their parsers raise
+        raise CaptureError(f"{path}: python-can cannot read message {count + 1}: "
+                           f"{type(exc).__name__}: {exc}") from None
 
 
 class Conversation:
@@ -404,4 +618,4 @@ def _request_fields(request: Request) -> dict[str, Any]:
 
 def decode_text(text: str, words: Vocabulary | None = None, replies_only: bool = False) -> list[Decoded]:
     """Everything in a pasted dump or capture file, decoded in order."""
-    return list(Conversation(words, replies_only).decode(parse_capture(text)))
+    return list(Conversation(words, replies_only).decode(read_capture(text.splitlines())))

@@ -31,11 +31,13 @@ class ReplySink(Protocol):
 
 
 class CommandError(Exception):
-    """A handler refuses a command; the reply carries ``status`` (Table 4)."""
+    """A handler refuses a command; the reply carries ``status`` (Table 4) and ``value``
+    (None: the request's value, as every TMCL firmware answers a refused command)."""
 
-    def __init__(self, status: Status) -> None:
+    def __init__(self, status: Status, value: int | None = None) -> None:
         super().__init__(status.name)
         self.status = int(status)
+        self.value = value
 
 
 #: Handler result: send nothing at all (command 137 restarts the module).

@@ -2,9 +2,12 @@
 
 Every store is written atomically (write a temporary file, fsync, rename over the old file,
 fsync the directory), so a crash at any instant leaves either the old or the new state on disk.
-A store from a host command is on disk before the reply; stores a TMCL program makes in a loop
-are coalesced when a server lends a timer (:meth:`Eeprom.coalesce`): at most one file write per
-:data:`FLUSH_INTERVAL_S` (docs/eeprom.md, "Write time and coalescing").
+A store from a host command is in the file before the reply; stores a TMCL program makes in a
+loop are coalesced when a server lends a timer (:meth:`Eeprom.coalesce`): at most one file write
+per :data:`FLUSH_INTERVAL_S` (docs/eeprom.md, "Write time and coalescing").  On a server the two
+fsyncs run in a thread of their own (:class:`_Syncer`) right after the rename: the event loop,
+and every other host, never waits for the disk (an fsync took 20 ms here, over 100 ms on a
+loaded disk: the stalls of the million-frame fuzz).
 A file that cannot be read is never overwritten: the module runs on factory defaults with
 persistence switched off and says so (docs/eeprom.md).
 """
@@ -15,6 +18,7 @@ import contextlib
 import json
 import logging
 import os
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -36,6 +40,66 @@ SECTIONS = ("globals", "user_variables", "coordinates", "axis_parameters", "prog
 WRITE_TIME_NS = 5_000_000
 #: While coalescing, stores within this many seconds of the last file write share one write.
 FLUSH_INTERVAL_S = 0.1
+
+
+class _Syncer:
+    """Makes renamed files durable (fsync the file, then its directory) in a daemon thread of
+    its own, so the thread that wrote them goes on at once.  Requests for one path coalesce;
+    :meth:`wait` blocks until everything asked for is synced (a server's shutdown)."""
+
+    def __init__(self) -> None:
+        self._pending: dict[Path, None] = {}
+        self._busy = 0
+        self._condition = threading.Condition()
+        self._thread: threading.Thread | None = None
+        #: Paths whose last sync failed (logged once until one succeeds).
+        self._failing: set[Path] = set()
+
+    def request(self, path: Path) -> None:
+        with self._condition:
+            self._pending[path] = None
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="eeprom-sync", daemon=True)
+                self._thread.start()
+            self._condition.notify()
+
+    def wait(self, timeout: float = 30.0) -> bool:
+        with self._condition:
+            return self._condition.wait_for(lambda: not self._pending and not self._busy, timeout)
+
+    def _run(self) -> None:
+        while True:
+            with self._condition:
+                self._condition.wait_for(lambda: bool(self._pending))
+                path = next(iter(self._pending))
+                del self._pending[path]
+                self._busy += 1
+            try:
+                self._sync(path)
+            finally:
+                with self._condition:
+                    self._busy -= 1
+                    self._condition.notify_all()
+
+    def _sync(self, path: Path) -> None:
+        try:
+            fd = os.open(path, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            fsync_directory(path.parent)
+        except OSError as exc:
+            if path not in self._failing:
+                self._failing.add(path)
+                log.error("EEPROM file %s: cannot make the write durable (%s); it is in the "
+                          "file, a power loss may lose it", path, exc)
+            return
+        self._failing.discard(path)
+
+
+#: The one syncer every module's EEPROM on a server shares.
+SYNCER = _Syncer()
 
 
 class EepromCorrupt(RuntimeError):
@@ -161,16 +225,21 @@ class Eeprom:
 
         fd, tmp = tempfile.mkstemp(prefix=TEMPORARY_PREFIX, suffix=TEMPORARY_SUFFIX,
                                    dir=directory)
+        in_background = self._schedule is not None  # a server: the loop must not wait
         try:
             with os.fdopen(fd, "wb") as f:
                 f.write(payload)
                 f.flush()
-                os.fsync(f.fileno())
+                if not in_background:
+                    os.fsync(f.fileno())
             os.replace(tmp, self.path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
-        fsync_directory(directory)
+        if in_background:
+            SYNCER.request(self.path)
+        else:
+            fsync_directory(directory)
 
     # -- write scheduling ---------------------------------------------------------------------
 
@@ -208,6 +277,10 @@ class Eeprom:
         """Write a coalesced store now (the timer, and shutdown)."""
         if self._dirty:
             self._write_now()
+
+    def wait_durable(self, timeout: float = 30.0) -> bool:
+        """Block until what was written is synced to disk (a server's shutdown)."""
+        return SYNCER.wait(timeout)
 
     def _flush_later(self) -> None:
         """The timer's flush: no command waits for it, so a failure is only logged (by

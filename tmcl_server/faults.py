@@ -33,6 +33,7 @@ from __future__ import annotations
 import difflib
 import json
 import random
+import stat
 import weakref
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
@@ -60,6 +61,15 @@ HISTORY = 10_000
 DEFAULT_SAG_VOLTS = 9.0
 #: What the trace calls an endpoint nobody named.
 UNNAMED = "-"
+#: Bounds on what a fault spec may ask (docs/faults.md, "Limits"): faults installed at once
+#: (a file holds at most as many), a spec's length and one value's, a fault file's size ...
+MAX_FAULTS = 256
+MAX_SPEC_CHARS = 1024
+MAX_VALUE_CHARS = 256
+MAX_FAULT_FILE = 256 * 1024
+#: ... and how long a reply may be held back: a delay, and a torn reply's pauses.
+MAX_DELAY_MS = 10_000.0
+MAX_PAUSE_MS = 1_000.0
 
 
 class FaultSpecError(ValueError):
@@ -67,6 +77,13 @@ class FaultSpecError(ValueError):
 
 
 # == values =====================================================================================
+
+
+def _shown(text: str, width: int = 40) -> str:
+    """A value as an error message quotes it: long ones cut, with their length."""
+    if len(text) <= width:
+        return repr(text)
+    return f"{text[:width]!r}... ({len(text):,} characters)"
 
 
 def _alternatives(text: str) -> list[str]:
@@ -77,7 +94,7 @@ def _integer(text: str, what: str, lo: int, hi: int) -> int:
     try:
         value = int(text, 0)
     except ValueError:
-        raise FaultSpecError(f"{what} must be an integer, got {text!r}") from None
+        raise FaultSpecError(f"{what} must be an integer, got {_shown(text)}") from None
     if not lo <= value <= hi:
         raise FaultSpecError(f"{what} must be {lo}..{hi}, got {value}")
     return value
@@ -87,7 +104,7 @@ def _number(text: str, what: str, lo: float, hi: float) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise FaultSpecError(f"{what} must be a number, got {text!r}") from None
+        raise FaultSpecError(f"{what} must be a number, got {_shown(text)}") from None
     if not lo <= value <= hi:
         raise FaultSpecError(f"{what} must be {lo:g}..{hi:g}, got {value:g}")
     return value
@@ -111,7 +128,7 @@ def _opcodes(text: str) -> frozenset[int]:
         except KeyError:
             hint = difflib.get_close_matches(part.upper(), Opcode.__members__, n=1)
             guess = f" (did you mean {hint[0]}?)" if hint else ""
-            raise FaultSpecError(f"unknown opcode {part!r}{guess}") from None
+            raise FaultSpecError(f"unknown opcode {_shown(part)}{guess}") from None
     return frozenset(found)
 
 
@@ -123,7 +140,7 @@ def _types(text: str) -> frozenset[int]:
     for part in _alternatives(text):
         number = next((n for n in (t.number(part) for t in tables) if n is not None), None)
         if number is None:
-            raise FaultSpecError(f"type must be a number or a parameter name, got {part!r}")
+            raise FaultSpecError(f"type must be a number or a parameter name, got {_shown(part)}")
         found.add(_integer(str(number), "type", 0, 255))
     return frozenset(found)
 
@@ -131,10 +148,10 @@ def _types(text: str) -> frozenset[int]:
 def _milliseconds(text: str) -> tuple[float, float]:
     """``100`` or ``20..80`` (a range: each injection draws a value from it)."""
     low, sep, high = text.partition("..")
-    lo = _number(low, "ms", 0.0, 3_600_000.0)
-    hi = _number(high, "ms", 0.0, 3_600_000.0) if sep else lo
+    lo = _number(low, "ms", 0.0, MAX_DELAY_MS)
+    hi = _number(high, "ms", 0.0, MAX_DELAY_MS) if sep else lo
     if hi < lo:
-        raise FaultSpecError(f"ms range {text!r} runs backwards")
+        raise FaultSpecError(f"ms range {_shown(text)} runs backwards")
     return lo, hi
 
 
@@ -145,14 +162,14 @@ def _status(text: str) -> int:
         return int(Status[text.strip().upper()])
     except KeyError:
         raise FaultSpecError(f"status must be a number or one of {', '.join(Status.__members__)}, "
-                             f"got {text!r}") from None
+                             f"got {_shown(text)}") from None
 
 
 def _hex(text: str) -> bytes:
     try:
         data = bytes.fromhex(text.replace(":", " "))
     except ValueError:
-        raise FaultSpecError(f"data must be hex bytes, got {text!r}") from None
+        raise FaultSpecError(f"data must be hex bytes, got {_shown(text)}") from None
     if not 1 <= len(data) <= 64:
         raise FaultSpecError("data must be 1..64 bytes")
     return data
@@ -164,7 +181,7 @@ def _choice(what: str, choices: Iterable[str]) -> Callable[[str], str]:
     def parse(text: str) -> str:
         value = text.strip().lower()
         if value not in options:
-            raise FaultSpecError(f"{what} must be one of {', '.join(options)}, got {text!r}")
+            raise FaultSpecError(f"{what} must be one of {', '.join(options)}, got {_shown(text)}")
         return value
     return parse
 
@@ -203,7 +220,7 @@ KINDS: dict[str, FaultKind] = {kind.name: kind for kind in (
         "status": Param(_status, int(Status.INVALID_VALUE), help="a number or a Status name")}),
     FaultKind("tear", REPLY, "the reply arrives in pieces with pauses between them", {
         "pieces": Param(lambda t: _integer(t, "pieces", 2, 9), 3, help="2..9"),
-        "pause_ms": Param(lambda t: _number(t, "pause_ms", 0.0, 60_000.0), 2.0,
+        "pause_ms": Param(lambda t: _number(t, "pause_ms", 0.0, MAX_PAUSE_MS), 2.0,
                           help="milliseconds between two pieces")}),
     FaultKind("garbage", REPLY, "extra bytes arrive before the reply", {
         "bytes": Param(lambda t: _integer(t, "bytes", 1, 64), 3, help="random bytes, 1..64"),
@@ -286,9 +303,9 @@ def _normalise_kind(text: str) -> FaultKind:
     name = text.strip().lower().replace("-", "_")
     kind = KINDS.get(name) or KINDS.get(name.replace("_", ""))
     if kind is None:
-        hint = difflib.get_close_matches(name, KINDS, n=1)
+        hint = difflib.get_close_matches(name[:MAX_VALUE_CHARS], KINDS, n=1)
         guess = f"; did you mean {hint[0]!r}?" if hint else ""
-        raise FaultSpecError(f"unknown fault {text!r}{guess} (known: {', '.join(KINDS)})")
+        raise FaultSpecError(f"unknown fault {_shown(text)}{guess} (known: {', '.join(KINDS)})")
     return kind
 
 
@@ -310,6 +327,13 @@ def make_spec(kind_name: str, items: Iterable[tuple[str, Any]]) -> FaultSpec:
     for raw_key, raw_value in items:
         key = str(raw_key).strip().lower()
         text = _value_text(raw_value).strip()
+        if len(key) > MAX_VALUE_CHARS:
+            raise FaultSpecError(f"{kind.name}: unknown key {_shown(key)}")
+        if not text:
+            raise FaultSpecError(f"{kind.name}: {key}= has no value (leave the key out instead)")
+        if len(text) > MAX_VALUE_CHARS:
+            raise FaultSpecError(f"{kind.name}: {key}= is {len(text):,} characters long "
+                                 f"(at most {MAX_VALUE_CHARS})")
         if key in kind.params:
             params[key] = kind.params[key].parse(text)
         elif key in COMMON_KEYS:
@@ -318,7 +342,8 @@ def make_spec(kind_name: str, items: Iterable[tuple[str, Any]]) -> FaultSpec:
             known = [*kind.params, *COMMON_KEYS]
             hint = difflib.get_close_matches(key, known, n=1)
             guess = f"; did you mean {hint[0]!r}?" if hint else ""
-            raise FaultSpecError(f"{kind.name}: unknown key {key!r}{guess} (known: {', '.join(known)})")
+            raise FaultSpecError(f"{kind.name}: unknown key {_shown(key)}{guess} "
+                                 f"(known: {', '.join(known)})")
         written.append(f"{key}={text}")
     for name, param in kind.params.items():
         if name not in params:
@@ -330,12 +355,19 @@ def make_spec(kind_name: str, items: Iterable[tuple[str, Any]]) -> FaultSpec:
 
 def _split(text: str) -> tuple[str, list[tuple[str, str]]]:
     head, _, tail = text.strip().partition(":")
+    if len(head) > MAX_VALUE_CHARS:
+        raise FaultSpecError(f"unknown fault {_shown(head)}")
     items = []
     for item in (part for part in tail.split(",") if part.strip()):
         key, sep, value = item.partition("=")
         if not sep:
-            raise FaultSpecError(f"{text!r}: expected KEY=VALUE, got {item!r}")
+            raise FaultSpecError(f"{_shown(text)}: expected KEY=VALUE, got {_shown(item)}")
+        if len(value.strip()) > MAX_VALUE_CHARS:  # named here, before the whole spec's bound
+            raise FaultSpecError(f"{head.strip()[:20]}: {key.strip()[:20]}= is "
+                                 f"{len(value.strip()):,} characters long (at most {MAX_VALUE_CHARS})")
         items.append((key, value))
+    if len(text) > MAX_SPEC_CHARS:
+        raise FaultSpecError(f"a fault spec of {len(text):,} characters (at most {MAX_SPEC_CHARS:,})")
     return head, items
 
 
@@ -348,6 +380,9 @@ def fault_from_mapping(table: Mapping[str, Any]) -> FaultSpec:
     """A TOML/JSON table: ``{"kind": "noreply", "opcode": "GAP", "rate": 0.1}``."""
     if "kind" not in table:
         raise FaultSpecError(f"a fault table needs a 'kind' (one of {', '.join(KINDS)})")
+    if len(table) > len(COMMON_KEYS) + 8:
+        raise FaultSpecError(f"a fault table with {len(table)} keys (a fault has at most "
+                             f"{len(COMMON_KEYS) + 4})")
     return make_spec(str(table["kind"]), ((k, v) for k, v in table.items() if k != "kind"))
 
 
@@ -363,10 +398,23 @@ def fault_spec(fault: FaultSpec | str | Mapping[str, Any], **params: Any) -> Fau
 
 def load_fault_file(path: str | Path) -> list[FaultSpec]:
     """Faults from a file: TOML (``[[fault]]`` tables) or JSON (a list of tables, or
-    ``{"fault": [...]}``); a plain text file holds one spec per line (``#`` comments)."""
+    ``{"fault": [...]}``); a plain text file holds one spec per line (``#`` comments).  The file
+    must be a regular file of at most MAX_FAULT_FILE bytes holding at most MAX_FAULTS faults
+    (a FIFO or a device is refused before it is opened); a UTF-8 byte order mark is skipped; an
+    error names the line (text) or the fault's place in the list (TOML, JSON)."""
     source = Path(path)
     try:
-        text = source.read_text(encoding="utf-8")
+        info = source.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise FaultSpecError(f"fault file {path}: not a regular file")
+        if info.st_size > MAX_FAULT_FILE:
+            raise FaultSpecError(f"fault file {path}: {info.st_size:,} bytes (at most "
+                                 f"{MAX_FAULT_FILE:,})")
+        with open(source, "rb") as stream:
+            raw = stream.read(MAX_FAULT_FILE + 1)
+        if len(raw) > MAX_FAULT_FILE:  # it grew since
+            raise FaultSpecError(f"fault file {path}: more than {MAX_FAULT_FILE:,} bytes")
+        text = raw.decode("utf-8-sig")
     except OSError as exc:
         raise FaultSpecError(f"fault file {path}: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
@@ -380,20 +428,46 @@ def load_fault_file(path: str | Path) -> list[FaultSpec]:
         elif source.suffix == ".json":
             data = json.loads(text)
         else:
-            return [parse_fault(line.split("#")[0]) for line in text.splitlines()
-                    if line.split("#")[0].strip()]
+            return _faults_of_lines(text)
         if isinstance(data, dict):
             unknown = set(data) - {"fault", "faults"}
             if unknown:
-                raise FaultSpecError(f"unknown top-level key(s) {sorted(unknown)}: use [[fault]]")
+                raise FaultSpecError(f"unknown top-level key(s) {sorted(unknown)[:5]}: use [[fault]]")
             data = data.get("fault", data.get("faults", []))
         if not isinstance(data, list) or not all(isinstance(t, dict) for t in data):
             raise FaultSpecError("expected a list of fault tables")
-        return [fault_from_mapping(table) for table in data]
+        _check_count(len(data))
+        specs = []
+        for number, table in enumerate(data, 1):
+            try:
+                specs.append(fault_from_mapping(table))
+            except FaultSpecError as exc:
+                raise FaultSpecError(f"fault {number}: {exc}") from None
+        return specs
     except (ValueError, TypeError) as exc:  # tomllib and json errors are ValueErrors
         raise FaultSpecError(f"fault file {path}: {exc}") from exc
     except RecursionError:  # JSON nested deeper than the parser goes
         raise FaultSpecError(f"fault file {path}: nested too deeply") from None
+
+
+def _faults_of_lines(text: str) -> list[FaultSpec]:
+    """One spec a line, ``#`` comments: an error names its line."""
+    specs: list[FaultSpec] = []
+    for number, line in enumerate(text.splitlines(), 1):
+        spec = line.split("#")[0]
+        if not spec.strip():
+            continue
+        _check_count(len(specs) + 1)
+        try:
+            specs.append(parse_fault(spec))
+        except FaultSpecError as exc:
+            raise FaultSpecError(f"line {number}: {exc}") from None
+    return specs
+
+
+def _check_count(count: int) -> None:
+    if count > MAX_FAULTS:
+        raise FaultSpecError(f"more than {MAX_FAULTS} faults (the most installed at once)")
 
 
 # == what the wire carries ======================================================================
@@ -508,6 +582,9 @@ class FaultInjector:
     def add(self, fault: FaultSpec | str | Mapping[str, Any], **params: Any) -> ActiveFault:
         """Install a fault; a state fault (or a reset) without request keys acts at once."""
         spec = fault_spec(fault, **params)
+        if len(self.faults) >= MAX_FAULTS:
+            raise FaultSpecError(f"{MAX_FAULTS} faults are installed (the most at once): remove "
+                                 "some first")
         self._check(spec)
         active = ActiveFault(self._next_id, spec)
         self._next_id += 1

@@ -15,8 +15,8 @@ from collections.abc import Callable
 #: At most one record per call site in this many seconds (after the first).
 REPEAT_INTERVAL_S = 5.0
 
-#: The loggers of modules that log what the wire drives (transports, the axes' speed limits).
-WIRE_LOGGERS = (
+#: The loggers of our modules that log what the wire drives (transports, the axes' speed limits).
+OWN_WIRE_LOGGERS = (
     "tmcl_server.transports.base",
     "tmcl_server.transports.tcp",
     "tmcl_server.transports.pty",
@@ -30,8 +30,13 @@ WIRE_LOGGERS = (
     "tmcl_server.simulation",
     "tmcl_server.dashboard.web",
     "axes.chips.tmc42x.firmware",
-    "asyncio",  # the loop's own reports: "socket.accept() out of system resource", ...
 )
+#: Libraries' loggers a host can make talk: the loop's own reports ("socket.accept() out of
+#: system resource", ...) and aiohttp's about a request or WebSocket message it could not handle
+#: (aiohttp/log.py names them).
+LIBRARY_LOGGERS = ("asyncio", "aiohttp.server", "aiohttp.web", "aiohttp.websocket")
+#: Every logger the filter goes on.
+WIRE_LOGGERS: tuple[str, ...] = (*OWN_WIRE_LOGGERS, *LIBRARY_LOGGERS)
 
 
 class RepeatFilter(logging.Filter):

@@ -1,12 +1,19 @@
 """What a server attaches to watch its simulation: the trace (``--trace``) and the recorder
-(``--record``), opened from the server's configuration and closed with it."""
+(``--record``), opened from the server's configuration and closed with it.
+
+Each writes through a :class:`~tmcl_server.sidechannel.RotatingFile`: past ``--trace-max`` /
+``--record-max`` bytes the file becomes ``FILE.1`` and a new one starts; a write that fails
+(a full disk) stops that observer with one warning, and the modules go on answering."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import sys
-from typing import TYPE_CHECKING, Protocol, TextIO
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
+
+from tmcl_server.sidechannel import RotatingFile, SideChannel
 
 if TYPE_CHECKING:
     from tmcl_server.record import Recorder
@@ -18,6 +25,11 @@ if TYPE_CHECKING:
 RECORD_WAKE_S = 0.1
 #: ``--trace`` without a file name.
 STDERR = "-"
+#: A trace or record file is rotated past this many bytes (``--trace-max``, ``--record-max``):
+#: a flooded trace writes up to about 60 MB a minute, a recording about 5 MB; with the one
+#: rotated file kept, each takes at most twice this on disk.
+DEFAULT_TRACE_MAX = 100 * 1024 * 1024
+DEFAULT_RECORD_MAX = 100 * 1024 * 1024
 
 
 class ObserverSettings(Protocol):
@@ -30,6 +42,9 @@ class ObserverSettings(Protocol):
     record: str | None
     record_resolution: float
     record_axes: list[int] | None
+    #: Rotate the trace or record file past this many bytes (0: never).
+    trace_max: int
+    record_max: int
 
 
 class Observers:
@@ -40,25 +55,33 @@ class Observers:
         self.config = config
         self.tracer: Tracer | None = None
         self.recorder: Recorder | None = None
-        self._files: list[TextIO] = []
+        #: The trace's and the recorder's channels: stopped by their first failed write.
+        self.trace_channel = SideChannel("the trace (--trace)", self._stop_tracer)
+        self.record_channel = SideChannel("the recorder (--record)", self._stop_recorder)
+        self._files: list[RotatingFile] = []
         self._wake: asyncio.Task[None] | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
 
     def start(self, loop: asyncio.AbstractEventLoop | None = None) -> None:
         config = self.config
+        self._loop = loop
         try:
             if config.trace is not None:
                 from tmcl_server.trace import Tracer
 
-                stream = sys.stderr if config.trace == STDERR else self._open(config.trace)
-                self.tracer = Tracer(stream, config.trace_format).attach(self.simulation, loop)
+                if config.trace == STDERR:
+                    stream = RotatingFile(None, self.trace_channel, stream=sys.stderr)
+                else:
+                    stream = self._open(config.trace, self.trace_channel, config.trace_max)
+                self.tracer = Tracer(stream, config.trace_format).attach(self.simulation, loop)  # type: ignore[arg-type]
             if config.record is not None:
                 self._start_recorder(config.record, loop)
         except BaseException:
             self.close()
             raise
 
-    def _open(self, path: str) -> TextIO:
-        stream = open(path, "w", encoding="utf-8", newline="")  # noqa: SIM115 (closed in close())
+    def _open(self, path: str, channel: SideChannel, max_bytes: int) -> RotatingFile:
+        stream = RotatingFile(path, channel, max_bytes)
         self._files.append(stream)
         return stream
 
@@ -66,32 +89,72 @@ class Observers:
         from tmcl_server.record import Recorder, RecordWriter, file_format
 
         fmt = file_format(path)
-        writer = RecordWriter(self._open(path), fmt)
+        stream = self._open(path, self.record_channel, self.config.record_max)
+        writer = RecordWriter(stream, fmt)  # type: ignore[arg-type]
+        stream.header = writer.header
+        channel = self.record_channel
         self.recorder = Recorder(self.simulation, self.config.record_resolution,
-                                 axes=self.config.record_axes, on_sample=writer.sample,
-                                 on_mark=writer.mark, keep=False).start()
+                                 axes=self.config.record_axes,
+                                 on_sample=channel.guard(writer.sample, f"writing {path}"),
+                                 on_mark=channel.guard(writer.mark, f"writing {path}"),
+                                 keep=False).start()
         if loop is not None and not self.simulation.clock.virtual:
-            self._wake = loop.create_task(self._keep_recording(writer.stream), name="recorder")
+            self._wake = loop.create_task(self._keep_recording(stream), name="recorder")
 
-    async def _keep_recording(self, stream: TextIO) -> None:
+    async def _keep_recording(self, stream: RotatingFile) -> None:
         period = max(RECORD_WAKE_S, self.config.record_resolution)
-        while True:
+        while self.recorder is not None:
             await asyncio.sleep(period)
             while self.recorder is not None and self.simulation.run_due(0):
                 await asyncio.sleep(0)  # the recorder is behind: catch up in turns
             stream.flush()
+
+    # -- a channel that failed stops (after the request in progress: not from inside it) ------
+
+    def _stop_recorder(self) -> None:
+        self._later(self._detach_recorder)
+
+    def _stop_tracer(self) -> None:
+        self._later(self._detach_tracer)
+
+    def _later(self, action: Callable[[], None]) -> None:
+        if self._loop is not None and not self._loop.is_closed():
+            self._loop.call_soon(action)
+        else:
+            action()
+
+    def _detach_recorder(self) -> None:
+        if self._wake is not None:
+            self._wake.cancel()
+            self._wake = None
+        recorder, self.recorder = self.recorder, None
+        if recorder is not None:
+            with contextlib.suppress(Exception):  # its last samples go nowhere now
+                recorder.stop()
+
+    def _detach_tracer(self) -> None:
+        tracer, self.tracer = self.tracer, None
+        if tracer is None:
+            return
+        if tracer.listeners:  # the dashboard still reads it: keep it, without a file
+            tracer.stream = None
+            return
+        with contextlib.suppress(Exception):
+            tracer.detach()
 
     def close(self) -> None:
         if self._wake is not None:
             self._wake.cancel()
             self._wake = None
         if self.recorder is not None:
-            self.recorder.stop()
+            with contextlib.suppress(Exception):
+                self.recorder.stop()
             self.recorder = None
         if self.tracer is not None:
-            self.tracer.detach()
+            with contextlib.suppress(Exception):
+                self.tracer.detach()
             self.tracer = None
         for stream in self._files:
-            with contextlib.suppress(OSError):
-                stream.close()
+            stream.flush()
+            stream.close()
         self._files.clear()

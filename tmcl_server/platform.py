@@ -5,6 +5,10 @@ Linux and macOS but not (or not the same way) on Windows, where most TMCL-IDE us
 The rest of the server calls these small functions, so supporting another system changes
 this file only.  Nothing here is imported lazily by accident: the POSIX modules are imported
 inside the functions that need them.
+
+Test switch: ``TMCL_SIM_EMULATE_WINDOWS=1`` in the environment (read once, at import) makes
+:data:`POSIX` false on Linux too, so that a test can run the server down its Windows branches
+(tests/tmcl_server/test_windows.py; docs/windows.md says what that emulation covers).
 """
 
 from __future__ import annotations
@@ -16,13 +20,23 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from tmcl_spec.package import doc
+
 if TYPE_CHECKING:
     import asyncio
+    import socket
 
 #: prctl option: the calling thread's timer slack in ns (linux/prctl.h).
 PR_SET_TIMERSLACK = 29
+#: The environment variable that makes this module take its Windows branches on any system.
+EMULATE_WINDOWS = "TMCL_SIM_EMULATE_WINDOWS"
 #: Whether this is a POSIX system (pseudo-terminals, fcntl, termios, signal handlers).
-POSIX = os.name == "posix"
+POSIX = os.name == "posix" and os.environ.get(EMULATE_WINDOWS, "") in ("", "0")
+
+
+def _windows_alternatives() -> str:
+    """What to use instead of the POSIX-only endpoints (said by every refusal)."""
+    return f"on Windows use --serial COMx with a com0com pair, or --tcp (see {doc('windows.md')})"
 
 
 class PlatformUnsupported(RuntimeError):
@@ -36,8 +50,74 @@ def add_stop_handlers(loop: asyncio.AbstractEventLoop, stop: Callable[[], None])
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, stop)
     except (NotImplementedError, AttributeError, RuntimeError, ValueError):
+        _wake_on_signal(loop)
         return False
     return True
+
+
+def _wake_on_signal(loop: asyncio.AbstractEventLoop) -> None:
+    """Let a signal wake a loop that sleeps in select(): Windows does not interrupt select()
+    for Ctrl-C, so Python's handler (asyncio.Runner's, which cancels the main task) would wait
+    for the next timer.  The C-level handler writes a byte to a socket the loop watches."""
+    import socket
+
+    try:
+        receiver, sender = socket.socketpair()
+    except OSError:
+        return
+    receiver.setblocking(False)
+    sender.setblocking(False)
+
+    def drain() -> None:
+        with contextlib.suppress(OSError):
+            receiver.recv(4096)
+
+    try:
+        loop.add_reader(receiver.fileno(), drain)
+        signal.set_wakeup_fd(sender.fileno(), warn_on_full_buffer=False)
+    except (NotImplementedError, OSError, RuntimeError, ValueError):
+        # a loop that watches no sockets (Windows' proactor sets its own wake-up socket),
+        # or not the main thread: Python's handler runs at the loop's next turn
+        with contextlib.suppress(NotImplementedError, OSError, RuntimeError, ValueError):
+            loop.remove_reader(receiver.fileno())
+        receiver.close()
+        sender.close()
+        return
+    # kept open for as long as the loop lives; closed with it
+    _keep_until_closed(loop, (receiver, sender))
+
+
+def _keep_until_closed(loop: asyncio.AbstractEventLoop,
+                       sockets: tuple[socket.socket, socket.socket]) -> None:
+    """Undo the wake-up when the loop closes (asyncio.Runner closes it on the way out)."""
+    original_close = loop.close
+
+    def close() -> None:
+        with contextlib.suppress(ValueError):
+            signal.set_wakeup_fd(-1)
+        with contextlib.suppress(NotImplementedError, OSError, RuntimeError):
+            loop.remove_reader(sockets[0].fileno())
+        for sock in sockets:
+            sock.close()
+        original_close()
+
+    loop.close = close  # type: ignore[method-assign]
+
+
+def standard_event_loop() -> asyncio.AbstractEventLoop:
+    """asyncio's own loop, one that can watch sockets: on Windows the selector loop, not the
+    default proactor, because aiomqtt (paho) needs ``add_reader`` (docs/windows.md)."""
+    import asyncio
+
+    if POSIX:
+        return asyncio.new_event_loop()
+    return asyncio.SelectorEventLoop()
+
+
+def can_watch_descriptors() -> bool:
+    """Whether the event loop can watch a serial port's descriptor: any descriptor on POSIX;
+    Windows' select() watches sockets only, so a port there is read by a thread."""
+    return POSIX
 
 
 def dump_stacks_on_signal() -> None:
@@ -52,10 +132,15 @@ def dump_stacks_on_signal() -> None:
 
 def fsync_directory(directory: os.PathLike[str] | str) -> None:
     """Make a rename in ``directory`` durable.  POSIX needs the directory itself flushed;
-    Windows cannot open a directory, and its rename (MoveFileEx) is journaled by NTFS."""
+    Windows cannot open a directory, and its rename (MoveFileEx) is journaled by NTFS.  Where
+    the directory cannot be opened (Windows, or no read permission on it) the file's own
+    flush and the rename, both done, stand: the store is in place, so it is not failed."""
     if not POSIX:
         return
-    fd = os.open(directory, os.O_RDONLY)
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
     try:
         os.fsync(fd)
     finally:
@@ -75,12 +160,24 @@ def bytes_waiting(fd: int) -> int:
         return 0
 
 
+def require_pseudo_terminals() -> None:
+    """Raise PlatformUnsupported (one line: what is missing, what to use instead) where this
+    system has no pseudo-terminals: Windows, or a Python without pty, tty and fcntl."""
+    needs = "a pseudo-terminal needs a POSIX system (Linux, macOS)"
+    if not POSIX or not hasattr(os, "openpty"):
+        raise PlatformUnsupported(f"{needs}; {_windows_alternatives()}")
+    try:
+        import fcntl  # noqa: F401  (the link lock)
+        import tty  # noqa: F401
+    except ImportError as exc:
+        raise PlatformUnsupported(f"{needs}, and this Python has no module {exc.name}; "
+                                  f"{_windows_alternatives()}") from None
+
+
 def open_raw_pty() -> tuple[int, int, str]:
     """A new pseudo-terminal in raw mode: (master, slave, the slave's device path); the
     master does not block."""
-    if not POSIX:
-        raise PlatformUnsupported("--pty needs a POSIX system (Linux, macOS); on Windows use "
-                                  "--serial COMx with a com0com pair, or --tcp")
+    require_pseudo_terminals()
     import tty
 
     master, slave = os.openpty()

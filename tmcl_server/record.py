@@ -262,6 +262,10 @@ class RecordWriter:
             self._csv = csv.writer(stream, lineterminator="\n")
             self._csv.writerow(CSV_COLUMNS)
 
+    def header(self) -> str:
+        """What starts a new file (a rotated one): the CSV header line; nothing for JSONL."""
+        return ",".join(CSV_COLUMNS) + "\n" if self._csv is not None else ""
+
     def sample(self, sample: Sample) -> None:
         if self._csv is not None:
             self._csv.writerow((*(getattr(sample, name) for name in SAMPLE_FIELDS), "", ""))
@@ -279,36 +283,55 @@ class RecordWriter:
 
 
 def read_record(path: str | Path) -> tuple[list[Sample], list[Mark]]:
-    """Samples and marks back from a file written by ``--record`` (CSV or JSONL)."""
+    """Samples and marks back from a file written by ``--record`` (CSV or JSONL); ValueError
+    naming the line when one is not a recorder's (a truncated file, another file)."""
     samples: list[Sample] = []
     marks: list[Mark] = []
-    with open(path, newline="") as stream:
-        for row in _rows(stream, file_format(path)):
-            if row.get("event"):
-                axis = row.get("axis")
-                data = row.get("data") or {}
-                marks.append(Mark(float(row["t"]), int(row["module"]),
-                                  None if axis in (None, "") else int(axis), str(row["event"]), data))
-            else:
-                samples.append(Sample(**{name: _number(row[name]) for name in SAMPLE_FIELDS}))
+    with open(path, newline="", encoding="utf-8") as stream:
+        for line, row in _rows(stream, file_format(path)):
+            try:
+                if row.get("event"):
+                    axis = row.get("axis")
+                    data = row.get("data") or {}
+                    marks.append(Mark(float(row["t"]), int(row["module"]),
+                                      None if axis in (None, "") else int(axis), str(row["event"]), data))
+                else:
+                    samples.append(Sample(**{name: _number(row[name]) for name in SAMPLE_FIELDS}))
+            except (TypeError, ValueError, KeyError, AttributeError) as exc:
+                raise ValueError(f"line {line}: {_what_is_wrong(row, exc)}") from None
     return samples, marks
 
 
-def _rows(stream: TextIO, fmt: str) -> Iterator[dict[str, Any]]:
+def _what_is_wrong(row: Any, exc: Exception) -> str:
+    if not isinstance(row, dict):
+        return f"not a recorder row (a JSON {type(row).__name__})"
+    missing = [name for name in SAMPLE_FIELDS if row.get(name) in (None, "")]
+    if missing and not row.get("event"):
+        return f"incomplete row, no {', '.join(missing)} (a truncated file?)"
+    return f"not a recorder row ({type(exc).__name__}: {exc})"
+
+
+def _rows(stream: TextIO, fmt: str) -> Iterator[tuple[int, dict[str, Any]]]:
+    """(line number, row) pairs; JSON that is not an object stays as it is, for the message."""
     if fmt == "csv":
-        for row in csv.DictReader(stream):
+        reader = csv.DictReader(stream)
+        for row in reader:
             detail = row.pop("detail", "") or ""
             parsed: dict[str, Any] = dict(row)
             parsed["data"] = dict(part.split("=", 1) for part in detail.split() if "=" in part)
-            yield parsed
+            yield reader.line_num, parsed
         return
-    for line in stream:
-        if line.strip():
-            body = json.loads(line)
-            if "event" in body:
+    for line, text in enumerate(stream, 1):
+        if text.strip():
+            try:
+                body = json.loads(text)
+            except (ValueError, RecursionError) as exc:
+                why = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
+                raise ValueError(f"line {line}: not JSON ({why})") from None
+            if isinstance(body, dict) and "event" in body:
                 extra = {k: v for k, v in body.items() if k not in ("t", "module", "axis", "event")}
                 body["data"] = extra
-            yield body
+            yield line, body
 
 
 def _number(text: Any) -> Any:

@@ -23,7 +23,7 @@ from tmcl_server.clock import Clock, LockstepClock, RealClock, VirtualClock
 from tmcl_server.eeprom import Eeprom
 from tmcl_server.lograte import limit_repeats
 from tmcl_server.module import TMCLModule
-from tmcl_server.observe import Observers
+from tmcl_server.observe import DEFAULT_RECORD_MAX, DEFAULT_TRACE_MAX, Observers
 from tmcl_server.simulation import PROGRAM_CHUNK_NS, Simulation
 from tmcl_server.transports import transport_class
 from tmcl_server.transports.base import Transport
@@ -89,8 +89,21 @@ class ServerConfig:
     #: processing time between a request and its reply then.
     wire_timing: bool = False
     processing_time: float = 0.0002
-    #: Clients one TCP endpoint serves at once; more are accepted and closed at once.
+    #: Clients one TCP endpoint serves at once; a new one past it closes the one silent
+    #: longest (docs/robustness.md).
     max_connections: int = 256
+    #: Skip the passes of program loops that change nothing (docs/scheduling.md); False: the
+    #: stepping reference, every instruction executed (same results, slower).
+    skip_loops: bool = True
+    #: Trace and record files: rotated to FILE.1 past this many bytes (0: no limit).
+    trace_max: int = DEFAULT_TRACE_MAX
+    record_max: int = DEFAULT_RECORD_MAX
+    #: The dashboard (``--http``): origins besides its own whose pages may drive it ("*": any),
+    #: and the token it requires beyond loopback (None: drawn at start, or TMCL_HTTP_TOKEN).
+    http_allow_origins: list[str] = field(default_factory=list)
+    http_token: str | None = None
+    #: MQTT clients may inject faults (``sim/fault``, ``sim/power_cycle``): off unless asked.
+    mqtt_faults: bool = False
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -117,6 +130,7 @@ def build_simulation(config: ServerConfig) -> Simulation:
                             kind.analog_full_scale, CHIP_CORES) if config.world else World())
         module = TMCLModule(slot, Eeprom(directory), start_ns=clock.now_ns(), world=world,
                             kind=kind, chip_core=config.axis_core)
+        module.program.skip_loops = config.skip_loops
         modules.append(module)
     return Simulation(modules, clock)
 
@@ -133,7 +147,7 @@ def write_atomically(path: str | os.PathLike[str], text: str) -> None:
     import tempfile  # only for the ready file
 
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.parent)
-    with os.fdopen(fd, "w") as f:
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(text)
     os.replace(tmp, target)
 
@@ -196,10 +210,9 @@ class Server:
 
                 FaultInjector.of(self.simulation).add_all(self.config.faults)
             for kind, arguments in self.config.endpoints.items():
-                cls = transport_class(kind)
                 for argument in arguments:
                     try:
-                        transport = cls.build(self, argument)
+                        transport = transport_class(kind).build(self, argument)
                         self.transports.append(transport)
                         started = await transport.start()
                     except Exception as exc:  # the command line can name the endpoint
@@ -231,6 +244,8 @@ class Server:
                 module.eeprom.flush()
             except OSError:
                 log.exception("module %d: writing the EEPROM file failed", module.slot)
+        for module in self.simulation.modules[:1]:  # and every file on disk (one syncer)
+            module.eeprom.wait_durable()
         if self._can_bus is not None and self._can_bus.timing is not None:
             self._can_bus.timing.close()
         self.observers.close()

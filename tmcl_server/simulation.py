@@ -104,6 +104,12 @@ PROGRAM_CHUNK_NS = 500_000
 #: On a real clock the recorder takes at most this many sample instants per turn (a request,
 #: a timer slice): it catches up over several, like a busy program.
 RECORDER_SAMPLES_PER_TURN = 16
+#: On a virtual clock a running program asks to be run this often (its instructions and events
+#: happen at the same instants whatever the turn; a real clock's turns are 10 ms).
+VIRTUAL_PROGRAM_SLICE_NS = 1_000_000_000
+#: On a real clock a busy program runs this much before a request is served: one TMCL
+#: instruction (docs/interpreter.md), as a module's main loop between two host requests.
+REQUEST_TURN_NS = 10_000
 #: On a real clock a program may fall this far behind before the rest is skipped, as on a
 #: CPU too slow for its work.
 MAX_LAG_NS = 50 * NS_PER_MS
@@ -139,6 +145,8 @@ class Simulation:
         self._request_ns = clock.request_ns
         for module in self.modules:
             module.on_address_change = self._forget_addresses
+            if clock.virtual:  # nothing lags a virtual clock: a busy program runs in long turns
+                module.program.on_virtual_clock(VIRTUAL_PROGRAM_SLICE_NS)
             module.advance_to(clock.now_ns())
         self.replan()
 
@@ -209,16 +217,17 @@ class Simulation:
     def sync_module(self, module: TMCLModule) -> None:
         """Bring one module to the clock (before a request to it, or a look at it).
 
-        On a real clock a busy program is not run here: the request is served at the
-        program's present (it is behind the clock by less than the lag bound), the way a
-        module's main loop serves the host between two instructions; the server's timer
-        keeps the program going.
+        On a real clock a busy program runs one instruction's time here and the request is
+        served at the program's present (it is behind the clock by less than the lag bound),
+        the way a module's main loop executes an instruction between two host requests (a host
+        that polls right after command 129 sees the first instruction done); the server's
+        timer keeps the program going.
         """
         index = self._index[module]
         t = self.clock.now_ns()
         if self.recorder is not None:  # it steps its modules to each sample instant up to t
             t = self._record_up_to(t, None if self.clock.virtual else RECORDER_SAMPLES_PER_TURN)
-        self._bring(module, index, t, None if self.clock.virtual else 0)
+        self._bring(module, index, t, None if self.clock.virtual else REQUEST_TURN_NS)
         due = self._due[index]
         if (due is not None and due <= t) or module.program.busy:
             self.replan(module)  # events were handled or a program ran: its plan moved
@@ -384,12 +393,13 @@ class Simulation:
             targets = faults.before(request, interface, targets, sink)
             if not targets:
                 return []
+        for module in targets:  # first, so the tracer stamps the time the request runs at
+            self.sync_module(module)
         tracer = self.tracer
         if tracer is not None:
             sink = tracer.requested(request, interface, targets, sink)
         routed: list[Routed] = []
         for module in targets:
-            self.sync_module(module)
             reply = module.execute(request, interface, sink)
             if reply is not None:
                 routed.append((module, reply))

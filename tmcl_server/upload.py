@@ -20,11 +20,12 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from interpreter.assembler import assemble_file
-from interpreter.isa import Instruction, decode_program
+from interpreter.isa import PROGRAM_MEMORY_SIZE, RECORD_LENGTH, Instruction, decode_program
 from tmcl_server.endpoints import parse_host_port, parse_serial_spec
 from tmcl_server.protocol import FRAME_LENGTH, Request, decode_reply
-from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.commands import OPERANDS, CodeProtection, Opcode, Status
 from tmcl_spec.numbers import to_int32
+from tmcl_spec.parameters import GP
 
 #: (byte 1, byte 2, byte 3, value) of a reply: module, status, opcode, value normally;
 #: opcode, type, motor, value for command 134.
@@ -125,8 +126,23 @@ def _expect(fields: ReplyFields, status: int, what: str) -> None:
 
 def upload(client: Client, instructions: Sequence[Instruction], start: int = 0,
            verify: bool = False, run: bool = False) -> None:
-    """Download ``instructions`` from address ``start``; optionally read back and start."""
-    _expect(client.send(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, start), Status.OK, "enter download mode")
+    """Download ``instructions`` from address ``start``; optionally read back and start.
+
+    The code protection (GP 81) is named when it is in the way: write protection refuses the
+    download, read protection makes a read-back impossible (the memory reads as empty), so
+    ``verify`` is refused before anything is sent.
+    """
+    if verify:
+        _, status, _, protection = client.send(Opcode.GGP, GP.CODE_PROTECTION, 0, 0)
+        if status == Status.OK and protection & CodeProtection.READ:
+            raise UploadError(f"cannot verify: the module's program memory is read-protected "
+                              f"(GP 81 = {protection}), it reads back as empty; upload without "
+                              "--verify, or clear GP 81 (which erases the stored program)")
+    entered = client.send(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, start)
+    if entered[1] == Status.WRITE_PROTECTED:
+        raise UploadError("enter download mode: module answered status 8 (WRITE_PROTECTED): its "
+                          "program memory is write-protected (GP 81 bit 1)")
+    _expect(entered, Status.OK, "enter download mode")
     try:
         for address, ins in enumerate(instructions, start):
             fields = client.send(ins.opcode, ins.type, ins.motor, ins.value)
@@ -144,8 +160,32 @@ def upload(client: Client, instructions: Sequence[Instruction], start: int = 0,
         _expect(client.send(Opcode.RUN_APPLICATION, 1, 0, start), Status.OK, "run application")
 
 
+#: What a program may hold: the TMCL commands (opcodes 1..71 with mnemonics).  A record with
+#: another opcode would not be stored in download mode but executed (137: a factory reset).
+STORABLE_OPCODES = frozenset(int(opcode) for opcode in OPERANDS)
+
+
 def load_program(path: Path, include: Sequence[Path] = ()) -> list[Instruction]:
-    """A ``.bin`` file as is, anything else assembled as TMCL source."""
+    """A ``.bin`` file as is (every record a program command), anything else assembled as
+    TMCL source."""
     if path.suffix.lower() == ".bin":
-        return decode_program(path.read_bytes())
+        with path.open("rb") as stream:  # at most a full program memory and one record more
+            data = stream.read((PROGRAM_MEMORY_SIZE + 1) * RECORD_LENGTH)
+        if len(data) > PROGRAM_MEMORY_SIZE * RECORD_LENGTH:
+            raise ValueError(f"longer than a program memory ({PROGRAM_MEMORY_SIZE} records)")
+        instructions = decode_program(data)
+        check_storable(instructions)
+        return instructions
     return assemble_file(path, include).instructions
+
+
+def check_storable(instructions: Sequence[Instruction]) -> None:
+    """ValueError naming the first record that is not a program command."""
+    for index, ins in enumerate(instructions):
+        if ins.opcode not in STORABLE_OPCODES:
+            try:
+                name = f" ({Opcode(ins.opcode).name})"
+            except ValueError:
+                name = ""
+            raise ValueError(f"record {index} (bytes {index * RECORD_LENGTH}..{index * RECORD_LENGTH + 7}) "
+                             f"holds command {ins.opcode}{name}, not a program command: nothing uploaded")

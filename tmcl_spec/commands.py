@@ -192,6 +192,7 @@ class Status(IntEnum):
     MAX_EXCEEDED = 9
     DOWNLOAD_NOT_POSSIBLE = 10
     TARGET_REACHED_EVENT = 128
+    DELAYED = 128  # the evaluation firmware's REPLY_DELAYED: not finished yet (an alias)
 
 
 class IOBank(IntEnum):
@@ -265,3 +266,53 @@ TYPE_SYMBOLS: dict[int, type[IntEnum]] = {
 
 #: CALC accepts ADD..LOAD only; SWAP exists for CALCX alone.
 CALC_MAX_OPERATION = CalcOp.LOAD
+
+#: The operands as the manual's "Mnemonic:" lines name them (§3.6), in source order; STAP and
+#: RSAP (no section of their own in this manual) follow STGP/RSGP, ACO its siblings.  Messages
+#: and ``--help`` quote them; :data:`OPERANDS` says which field each fills.
+OPERAND_NAMES: dict[Opcode, tuple[str, ...]] = {
+    Opcode.ROR: ("axis", "velocity"),
+    Opcode.ROL: ("axis", "velocity"),
+    Opcode.MST: ("axis",),
+    Opcode.MVP: ("ABS|REL|COORD", "axis", "position|offset|coordinate"),
+    Opcode.SAP: ("parameter number", "axis", "value"),
+    Opcode.GAP: ("parameter number", "axis"),
+    Opcode.STAP: ("parameter number", "axis"),
+    Opcode.RSAP: ("parameter number", "axis"),
+    Opcode.SGP: ("parameter number", "bank", "value"),
+    Opcode.GGP: ("parameter number", "bank"),
+    Opcode.STGP: ("parameter number", "bank"),
+    Opcode.RSGP: ("parameter number", "bank"),
+    Opcode.RFS: ("START|STOP|STATUS", "motor"),
+    Opcode.SIO: ("port number", "bank number", "value"),
+    Opcode.GIO: ("port number", "bank number"),
+    Opcode.CALC: ("operation", "operand"),
+    Opcode.COMP: ("operand",),
+    Opcode.JC: ("condition", "label"),
+    Opcode.JA: ("label",),
+    Opcode.CSUB: ("label",),
+    Opcode.RSUB: (),
+    Opcode.EI: ("interrupt number",),
+    Opcode.DI: ("interrupt number",),
+    Opcode.WAIT: ("condition", "motor number", "ticks"),
+    Opcode.STOP: (),
+    Opcode.SCO: ("coordinate number", "motor number", "position"),
+    Opcode.GCO: ("coordinate number", "motor number"),
+    Opcode.CCO: ("coordinate number", "motor number"),
+    Opcode.CALCX: ("operation",),
+    Opcode.AAP: ("parameter number", "motor number"),
+    Opcode.AGP: ("parameter number", "bank number"),
+    Opcode.CLE: ("flags",),
+    Opcode.VECT: ("interrupt number", "label"),
+    Opcode.RETI: (),
+    Opcode.ACO: ("coordinate number", "motor number"),
+    **{opcode: ("type", "motor/bank", "value") for opcode in (
+        Opcode.UF0, Opcode.UF1, Opcode.UF2, Opcode.UF3,
+        Opcode.UF4, Opcode.UF5, Opcode.UF6, Opcode.UF7)},
+}
+
+
+def mnemonic_syntax(opcode: Opcode) -> str:
+    """The manual's form of a command, e.g. ``ROR <axis>, <velocity>``."""
+    names = OPERAND_NAMES[opcode]
+    return opcode.name + (" " + ", ".join(f"<{name}>" for name in names) if names else "")

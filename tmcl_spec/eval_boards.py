@@ -7,7 +7,9 @@ Landungsbruecke's profile so that ``modules`` needs no import of a profile file.
 from __future__ import annotations
 
 import dataclasses
-from enum import IntEnum
+from enum import IntEnum, IntFlag
+
+from tmcl_spec.commands import Status
 
 
 class BoardId(IntEnum):
@@ -15,6 +17,64 @@ class BoardId(IntEnum):
 
     NONE = 0
     TMC4361A = 11
+
+
+class DetectedBy(IntEnum):
+    """How a channel's board was found (``tmc/BoardAssignment.h``): command 136 type 4."""
+
+    NONE = 0
+    MONOFLOP = 1
+    EEPROM = 2
+
+
+class EvalError(IntFlag):
+    """What a board function of the evaluation firmware returns (TMC-API's ``TMCError`` and
+    the EvalSystem's ``EvalboardErrorBit``); :func:`reply_status` turns it into a status."""
+
+    NONE = 0
+    GENERIC = 0x01
+    FUNCTION = 0x02  # the channel has no such function (a dummy)
+    TYPE = 0x04
+    MOTOR = 0x08
+    VALUE = 0x10
+    NOT_DONE = 0x20
+    CHIP = 0x40
+    NOT_AVAILABLE = 0x80
+
+
+#: ``setTMCLStatus`` (``tmc/TMCL.c``): the first bit present decides, in this order.  A
+#: motor error answers 3, as a type error does (the source's own "todo").
+_STATUS_OF_ERROR = ((EvalError.FUNCTION, Status.INVALID_COMMAND), (EvalError.TYPE, Status.WRONG_TYPE),
+                    (EvalError.MOTOR, Status.WRONG_TYPE), (EvalError.VALUE, Status.INVALID_VALUE),
+                    (EvalError.NOT_DONE, Status.DELAYED), (EvalError.CHIP, Status.EEPROM_LOCKED),
+                    (EvalError.NOT_AVAILABLE, Status.COMMAND_NOT_AVAILABLE))
+
+
+def reply_status(errors: int) -> Status:
+    """The reply status of a board function's error bits (GENERIC alone leaves it OK)."""
+    for bit, status in _STATUS_OF_ERROR:
+        if errors & bit:
+            return status
+    return Status.OK
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalFirmware:
+    """Facts of one TMC-EvalSystem release that commands 136, 157 and GIO report."""
+
+    #: VERSION_PATCH and BUILD_VERSION (the version's digits, ``version.txt`` 3.11.7 -> 3117).
+    patch: int
+    build: int
+    #: GetInfo 30: the short git hash of the release (& 0x0FFFFFFF) | dirty << 28.
+    git_info: int
+    #: GetInfo 3: GETINFO_RELEASE_TYPE (0 public, 1 internal, 2 custom, 3 local build).
+    release_type: int
+    #: GetInfo 2: capability bits (2: TMCL).
+    capabilities: int = 0x2
+    #: The ADC's full scale (16 bit on the Landungsbruecke; 12 bit on the LandungsbrueckeV3).
+    adc_full_scale: int = 65535
+    #: VM (0.1 V) at the ADC's full scale: VM = ADC * vm_factor / full scale, truncated.
+    vm_factor: int = 713
 
 
 class IdState(IntEnum):
@@ -36,6 +96,21 @@ class EvalBoards:
     id_eeproms: dict[int, bytes]
     #: GP 5: the Landungsbruecke's hardware id (1: hardware 1.x, 2: 2.0 and later).
     hardware_id: int
+    #: The firmware release's own facts (136, 157, GIO 5/6).
+    firmware: EvalFirmware
+
+    def detected_by(self, channel: int) -> DetectedBy:
+        """How the firmware found the board on ``channel`` (1, 2): by its ID EEPROM, else by
+        the older boards' monoflop pulse, or not at all."""
+        if channel in self.id_eeproms:
+            return DetectedBy.EEPROM
+        board = self.mc_id if channel == 1 else self.drv_id
+        return DetectedBy.MONOFLOP if board else DetectedBy.NONE
+
+    def hardware_version(self, channel: int) -> tuple[int, int]:
+        """(major, minor) from the channel's ID EEPROM; 0xFF each when it has none."""
+        image = self.id_eeproms.get(channel)
+        return (image[18], image[19]) if image is not None else (0xFF, 0xFF)
 
     def word(self, mc_state: int, drv_state: int) -> int:
         """The 32-bit id word: driver state, driver id, controller state, controller id."""

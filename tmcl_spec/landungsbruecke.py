@@ -16,7 +16,7 @@ import dataclasses
 from enum import IntEnum
 
 from tmcl_spec.commands import Opcode, Status
-from tmcl_spec.eval_boards import BoardId, EvalBoards, id_eeprom
+from tmcl_spec.eval_boards import BoardId, EvalBoards, EvalFirmware, id_eeprom
 from tmcl_spec.modules import ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
 from tmcl_spec.parameters import GP, EvalGP, ParamSpec
@@ -31,15 +31,20 @@ class EvalOpcode(IntEnum):
     READ_ID_EEPROM = 65  # UF1: 4 bytes of a board's ID EEPROM (type = channel 1 or 2)
     WRITE_ID_EEPROM = 66  # UF2: 1 byte (motor field) to a board's ID EEPROM
     ASSIGNMENT = 143  # detect the boards (type 0) and report their ids
+    UF_CH1 = 144  # the motion-controller board's user function (TMC4361A: switches, ...)
     WRITE_DRV = 147  # write a register of the driver board (channel 2)
     READ_MC = 148  # read a register of the motion controller (channel 1)
     READ_DRV = 149  # read a register of the driver board
+    GET_INFO = 157  # firmware facts by number (module id, version, capabilities, ...)
 
+
+#: TMC-EvalSystem 3.11.7 (tag 3.11.7, commit 9220279...): the release the profile answers as.
+FIRMWARE_3_11_7 = EvalFirmware(patch=7, build=3117, git_info=0x0922_0279, release_type=0)
 
 TMC4361A_EVAL = EvalBoards(
     mc_id=BoardId.TMC4361A, drv_id=BoardId.NONE,
     id_eeproms={1: id_eeprom("TMC4361A-EVAL", BoardId.TMC4361A, (1, 3))},
-    hardware_id=2)
+    hardware_id=2, firmware=FIRMWARE_3_11_7)
 
 
 # -- axis parameters: the TMC4361A-EVAL firmware's (boards/TMC4361A_eval.c) -----------------
@@ -116,8 +121,13 @@ BANK0_PARAMETERS_EVAL: dict[int, ParamSpec] = {
 #: Opcodes the firmware serves (tmc/TMCL.c); the others answer status 2, as on the board.
 COMMANDS = frozenset({
     Opcode.ROR, Opcode.ROL, Opcode.MST, Opcode.MVP, Opcode.SAP, Opcode.GAP, Opcode.SGP,
-    Opcode.GGP, Opcode.GET_FIRMWARE_VERSION, Opcode.WRITE_MC, *EvalOpcode,
+    Opcode.GGP, Opcode.SIO, Opcode.GIO, Opcode.GET_FIRMWARE_VERSION, Opcode.WRITE_MC,
+    *EvalOpcode,
 })
+
+#: GIO types 0..4 read the Landungsbruecke's ADC inputs AIN0, AIN1, AIN2, DIO4, DIO5 (the
+#: world's analogue inputs 0..4, 16 bit); 5 the supply in 0.1 V, 6 its raw ADC value.
+ANALOG_INPUTS = 5
 
 LANDUNGSBRUECKE_TMC4361A = ModuleType(
     key="landungsbruecke-tmc4361a",
@@ -130,7 +140,7 @@ LANDUNGSBRUECKE_TMC4361A = ModuleType(
     storable_axis_parameters=frozenset(),
     storable_user_variables=0,
     digital_inputs=0,
-    analog_inputs=0,
+    analog_inputs=ANALOG_INPUTS,
     outputs=0,
     coordinates=0,
     program_memory=0,
@@ -138,7 +148,21 @@ LANDUNGSBRUECKE_TMC4361A = ModuleType(
     commands=COMMANDS,
     baud_rates=BAUD_RATES,  # GP 65 as on the TMCL modules (inferred); no CAN
     handlers={
+        # the firmware ignores the motor byte of motion commands (motor 0 moves) and answers
+        # 3 for a parameter of another motor; GIO/SIO, 136 and 146/148 are its own
+        Opcode.ROR: "ror_eval",
+        Opcode.ROL: "rol_eval",
+        Opcode.MST: "mst_eval",
         Opcode.MVP: "mvp_eval",
+        Opcode.SAP: "sap_eval",
+        Opcode.GAP: "gap_eval",
+        Opcode.SIO: "sio_eval",
+        Opcode.GIO: "gio_eval",
+        Opcode.GET_FIRMWARE_VERSION: "get_version_eval",
+        Opcode.WRITE_MC: "write_mc_eval",
+        EvalOpcode.READ_MC: "read_mc_eval",
+        EvalOpcode.UF_CH1: "user_function_ch1",
+        EvalOpcode.GET_INFO: "get_info",
         EvalOpcode.DRIVERS_ENABLE: "drivers_enable",
         EvalOpcode.READ_ID_EEPROM: "read_id_eeprom",
         EvalOpcode.WRITE_ID_EEPROM: "write_id_eeprom",

@@ -55,6 +55,10 @@ class ModuleType:
     supply_voltage_per_volt: int = 10
     #: The supply voltage (V) when the world file does not say.
     nominal_supply_voltage: float = 24.0
+    #: Counts per motor revolution of the encoder behind AP 209 when the world file does not
+    #: say: a built-in one (the sensOstep's 1024), or what the firmware expects by default;
+    #: None: the world file's default (51200).
+    encoder_counts_per_rev: int | None = None
     #: Opcodes this module type serves with a handler of its own instead of the standard
     #: one (opcode -> a name in ``TMCLModule.VARIANT_COMMANDS``): commands whose number
     #: means something else on other modules (the evaluation firmware's 147, UF0..UF2).
@@ -90,6 +94,11 @@ MODULE_TYPES: dict[str, str] = {
     "tmcm-1110": "tmcl_spec.tmc429_modules:TMCM_1110",
     "tmcm-3110": "tmcl_spec.tmc429_modules:TMCM_3110",
     "tmcm-6110": "tmcl_spec.tmc429_modules:TMCM_6110",
+    "tmcm-1140": "tmcl_spec.tmc429_modules:TMCM_1140",
+    "tmcm-1141": "tmcl_spec.tmc429_modules:TMCM_1141",
+    "tmcm-1160": "tmcl_spec.tmc429_modules:TMCM_1160",
+    "tmcm-1161": "tmcl_spec.tmc429_modules:TMCM_1161",
+    "tmcm-1111": "tmcl_spec.tmcm1111:TMCM_1111",
     "landungsbruecke-tmc4361a": "tmcl_spec.landungsbruecke:LANDUNGSBRUECKE_TMC4361A",
 }
 DEFAULT_MODULE_TYPE = "tmcm-6212"

@@ -20,6 +20,8 @@ class ParamSpec:
     STGP/RSGP (or STAP/RSAP), A automatically stored in EEPROM when written.
     ``allowed`` restricts the value to a set when the range is not contiguous.
     ``unsigned`` means the 32-bit wire value is read as unsigned before the range check.
+    ``firmware_number`` maps a module's own numbering onto the firmware's (docs/modules.md,
+    "TMCM-1111").
     """
 
     number: int
@@ -30,6 +32,10 @@ class ParamSpec:
     default: int = 0
     allowed: frozenset[int] | None = None
     unsigned: bool = False
+    #: The number the firmware layer knows this row by (a name of :class:`AP`), where the
+    #: module numbers it otherwise (the TMCM-1111's AP 15 is the TMCM-6212's VSTART, 19);
+    #: None: its own number.  Keys above 255 never appear on the wire.
+    firmware_number: int | None = None
 
     #: The access letters as flags, worked out once (they are asked on every request).
     readable: bool = field(init=False, repr=False, compare=False)
@@ -148,8 +154,34 @@ class AP:
     MAX_DEVIATION = 212
     GROUP_INDEX = 213
     POWER_DOWN_DELAY = 214
+    ABSOLUTE_ENCODER = 215  # sensOstep modules: the rotor angle, one turn
+    EXTERNAL_ENCODER_POSITION = 216
+    EXTERNAL_ENCODER_PRESCALER = 217
+    EXTERNAL_ENCODER_MAX_DEVIATION = 218
     STEP_DIRECTION_MODE = 254
     UNIT_MODE = 255
+
+    # -- keys above 255: what only another numbering has (ParamSpec.firmware_number) --------
+    #: The TMC4361 modules' (TMCM-1111) ramp type: 0 trapezoid, 1 S-shaped.
+    RAMP_TYPE = 0x100
+    #: Their BOW1..BOW4 (pps^3) and DSTOP (pps^2, the soft stop's deceleration).
+    BOW1 = 0x101
+    BOW2 = 0x102
+    BOW3 = 0x103
+    BOW4 = 0x104
+    STOP_DECELERATION = 0x105
+    #: Their virtual stop switches: positions, enable bits (0 left, 1 right), mode (0..3).
+    VIRTUAL_STOP_LEFT = 0x106
+    VIRTUAL_STOP_RIGHT = 0x107
+    VIRTUAL_STOP_ENABLE = 0x108
+    VIRTUAL_STOP_MODE = 0x109
+    #: Their limit switch settings: bit 0 the switch enabled, bit 1 its polarity inverted
+    #: (the firmware derives RIGHT/LEFT_DISABLE and RIGHT/LEFT_POLARITY from them).
+    RIGHT_LIMIT_SWITCH = 0x10A
+    LEFT_LIMIT_SWITCH = 0x10B
+    #: Rows stored and read back that share a number with a parameter the firmware acts on:
+    #: ``STORED + number`` keeps them apart.
+    STORED = 0x1000
 
 
 class GP:
@@ -157,6 +189,7 @@ class GP:
 
     BAUD_RATE = 65
     SERIAL_ADDRESS = 66
+    ASCII_MODE = 67  # TMCM-1141/1160: stored only (no ASCII interface, docs/modules.md)
     SERIAL_HEARTBEAT = 68
     CAN_BIT_RATE = 69
     CAN_REPLY_ID = 70
@@ -176,6 +209,7 @@ class GP:
     APPLICATION_STATUS = 128
     DOWNLOAD_MODE = 129
     PROGRAM_COUNTER = 130
+    LAST_TMCL_ERROR = 131  # TMC429 modules of the 1140 generation
     TICK_TIMER = 132
     RANDOM_NUMBER = 133
     SUPPRESS_REPLY = 255

@@ -17,6 +17,7 @@ pytrinamic class names.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from tmcl_spec.commands import Opcode
@@ -117,11 +118,27 @@ ENCODER_ROWS = (
     _p(212, "Maximum encoder deviation", "RWE", 0, 65535, 0),
 )
 STEP_DIRECTION_MODE = _p(254, "Step/direction mode", "RWE", 0, 2, 0)
+#: The sensOstep encoder of the TMCM-1140/1160/1161: 1024 counts per turn, AP 209 counts
+#: AP 210 / 512 per count, 25600 (50) by default: AP 209 in microsteps at 256 microsteps
+#: (TMCM-1161 manual V1.19 §6.2, TMCM-1021 manual V1.42 §6.2.1).
+SENSOSTEP_COUNTS_PER_REV = 1024
+SENSOSTEP_ROWS = (
+    _p(209, "Encoder position", "RW"),
+    _p(210, "Encoder prescaler", "RWE", 0, 65535, 25600),
+    _p(212, "Maximum encoder deviation", "RWE", 0, 65535, 0),
+    _p(AP.ABSOLUTE_ENCODER, "Absolute resolver value", "R", 0, SENSOSTEP_COUNTS_PER_REV - 1),
+)
+#: An external encoder's rows (TMCM-1140/1160): stored and read back, no encoder behind them.
+EXTERNAL_ENCODER_ROWS = (
+    _p(AP.EXTERNAL_ENCODER_POSITION, "External encoder position", "RW"),
+    _p(AP.EXTERNAL_ENCODER_PRESCALER, "External encoder prescaler", "RWE", 0, 65535, 512),
+    _p(AP.EXTERNAL_ENCODER_MAX_DEVIATION, "External encoder max. deviation", "RWE", 0, 65535, 0),
+)
 
 
-def axis_table(*extra: ParamSpec) -> dict[int, ParamSpec]:
-    """The common rows and ``extra``, by number."""
-    return {spec.number: spec for spec in (*COMMON_AXIS_ROWS, *extra)}
+def axis_table(*extra: ParamSpec, without: frozenset[int] = frozenset()) -> dict[int, ParamSpec]:
+    """The common rows and ``extra``, by number, except the rows ``without``."""
+    return {spec.number: spec for spec in (*COMMON_AXIS_ROWS, *extra) if spec.number not in without}
 
 
 def storable(table: dict[int, ParamSpec]) -> frozenset[int]:
@@ -132,6 +149,17 @@ AXIS_PARAMETERS_1110 = axis_table(*ENCODER_ROWS, STEP_DIRECTION_MODE)
 AXIS_PARAMETERS_3110 = axis_table(LAST_REFERENCE, BOOST_CURRENT, ENCODER_MODE, *ENCODER_ROWS,
                                   STEP_DIRECTION_MODE)
 AXIS_PARAMETERS_6110 = axis_table(LAST_REFERENCE, BOOST_CURRENT)
+#: The one-axis modules of the TMCM-1140 generation have no group index (neither pytrinamic
+#: nor the TMCL-IDE-derived lists name AP 213 for them).
+_NO_GROUP = frozenset({AP.GROUP_INDEX})
+AXIS_PARAMETERS_1140 = axis_table(LAST_REFERENCE, BOOST_CURRENT, *SENSOSTEP_ROWS,
+                                  *EXTERNAL_ENCODER_ROWS, without=_NO_GROUP)
+AXIS_PARAMETERS_1160 = axis_table(LAST_REFERENCE, BOOST_CURRENT, *SENSOSTEP_ROWS,
+                                  *EXTERNAL_ENCODER_ROWS, STEP_DIRECTION_MODE, without=_NO_GROUP)
+AXIS_PARAMETERS_1161 = axis_table(LAST_REFERENCE, BOOST_CURRENT, *SENSOSTEP_ROWS,
+                                  STEP_DIRECTION_MODE, without=_NO_GROUP)
+AXIS_PARAMETERS_1141 = axis_table(LAST_REFERENCE, BOOST_CURRENT, STEP_DIRECTION_MODE,
+                                  without=_NO_GROUP)
 
 
 # -- global parameters -------------------------------------------------------------------------
@@ -150,6 +178,20 @@ def bank0(*extra: ParamSpec) -> dict[int, ParamSpec]:
 END_SWITCH_POLARITY = global_row(GP.END_SWITCH_POLARITY, "End switch polarity", "RWA", 0, 1, 0)
 REVERSE_SHAFT = global_row(GP.REVERSE_SHAFT_DIRECTION, "Reverse shaft direction", "RWA", 0, 1, 0)
 IO_MODE = global_row(GP.IO_MODE, "I/O mode", "RWA", 0, 255, 0)
+#: The 1140 generation's (TMCM-1140/1141/1160/1161, TMCM-1111): the ASCII interface chosen
+#: for the next power-up (stored only: no ASCII interface here), the last command error.
+ASCII_MODE = global_row(GP.ASCII_MODE, "ASCII mode", "RWA", 0, 1, 0)
+LAST_TMCL_ERROR = global_row(GP.LAST_TMCL_ERROR, "Last TMCL error", "R", 0, 255, 0)
+#: Bank-0 rows of the CAN interface (the modules without one keep them hidden, access "").
+CAN_PARAMETERS = frozenset({GP.CAN_BIT_RATE, GP.CAN_REPLY_ID, GP.CAN_ID, GP.CAN_HEARTBEAT,
+                            GP.CAN_SECONDARY_ID})
+
+
+def without_can(table: dict[int, ParamSpec]) -> dict[int, ParamSpec]:
+    """A bank 0 whose CAN rows are hidden (the module has no CAN interface): GGP/SGP answer
+    status 3 for them; the module model still keeps its CAN address inside."""
+    return {n: dataclasses.replace(spec, access="") if n in CAN_PARAMETERS else spec
+            for n, spec in table.items()}
 
 
 def bank3(switch_motors: int, inputs: int) -> dict[int, ParamSpec]:
@@ -174,6 +216,8 @@ SUPPLY_VOLTAGE_CHANNEL = 8
 NOMINAL_SUPPLY_VOLTAGE = 24.0
 PROGRAM_MEMORY = 2048  # TMCL commands (TMCM-6110 manual V1.31 §4)
 COORDINATES = 21  # 0..20 as across the TMCL family; coordinate 0 is RAM only
+#: The TMCM-1160's supply: "up to 48 V" (manual V1.47's title page).
+NOMINAL_SUPPLY_VOLTAGE_1160 = 48.0
 
 
 # -- the profiles ------------------------------------------------------------------------------
@@ -205,7 +249,7 @@ TMCM_1110 = ModuleType(
     storable_axis_parameters=storable(AXIS_PARAMETERS_1110),
     digital_inputs=7,
     analog_inputs=7,
-    supply_voltage_channel=None,
+    supply_voltage_channel=SUPPLY_VOLTAGE_CHANNEL,  # as the family (docs/modules.md)
     **_FAMILY,
 )
 
@@ -243,4 +287,79 @@ TMCM_6110 = ModuleType(
     pullup_ports=1,
     supply_voltage_channel=SUPPLY_VOLTAGE_CHANNEL,
     **_FAMILY,
+)
+
+
+# -- the 1140 generation: one axis, a TMC429 and a TMC262, sensOstep encoder ----------------
+
+#: Bank 0 of the one-axis modules of the TMCM-1140 generation (pytrinamic's GP0 names, and
+#: the TMCL-IDE-derived lists of ``analogdevicesinc/tmcl_ros``: GP 67 and 131).
+BANK0_1140 = bank0(END_SWITCH_POLARITY, REVERSE_SHAFT, ASCII_MODE, LAST_TMCL_ERROR)
+
+#: What the four have in common (one axis on a TMC429, pull-ups, the supply on GIO 8, 1).
+_ONE_AXIS: dict[str, Any] = dict(
+    _FAMILY,
+    number_of_axes=1,
+    outputs=2,  # OUT0, OUT1
+    pullup_ports=1,  # SIO 0, 0, 0|1: the stop switches' pull-ups
+    supply_voltage_channel=SUPPLY_VOLTAGE_CHANNEL,
+)
+
+TMCM_1140 = ModuleType(
+    key="tmcm-1140",
+    name="TMCM-1140",
+    module_number=1140,
+    firmware=(1, 27),  # TMCM-1140 TMCL firmware manual V1.27 (2013/2015)
+    axis_parameters=AXIS_PARAMETERS_1140,
+    global_parameters={0: BANK0_1140, 2: BANK2_PARAMETERS, 3: bank3(switch_motors=1, inputs=4)},
+    storable_axis_parameters=storable(AXIS_PARAMETERS_1140),
+    digital_inputs=4,  # IN0..IN3
+    analog_inputs=4,
+    encoder_counts_per_rev=SENSOSTEP_COUNTS_PER_REV,
+    **_ONE_AXIS,
+)
+
+TMCM_1160 = ModuleType(
+    key="tmcm-1160",
+    name="TMCM-1160",
+    module_number=1160,
+    firmware=(1, 47),  # TMCM-1160 TMCL firmware manual V1.47 (2021)
+    axis_parameters=AXIS_PARAMETERS_1160,
+    global_parameters={0: BANK0_1140, 2: BANK2_PARAMETERS, 3: bank3(switch_motors=1, inputs=2)},
+    storable_axis_parameters=storable(AXIS_PARAMETERS_1160),
+    digital_inputs=2,  # IN0, IN1
+    analog_inputs=2,
+    encoder_counts_per_rev=SENSOSTEP_COUNTS_PER_REV,
+    **{**_ONE_AXIS, "nominal_supply_voltage": NOMINAL_SUPPLY_VOLTAGE_1160},
+)
+
+TMCM_1141 = ModuleType(
+    key="tmcm-1141",
+    name="TMCM-1141",
+    module_number=1141,
+    firmware=(1, 19),  # TMCM-1141 TMCL firmware manual V1.19 (2012)
+    axis_parameters=AXIS_PARAMETERS_1141,
+    global_parameters={0: without_can(BANK0_1140), 2: BANK2_PARAMETERS,
+                       3: bank3(switch_motors=1, inputs=4)},
+    storable_axis_parameters=storable(AXIS_PARAMETERS_1141),
+    digital_inputs=4,
+    analog_inputs=4,
+    has_can=False,  # USB, RS485 and Step/Dir (hardware manual's title)
+    **_ONE_AXIS,
+)
+
+TMCM_1161 = ModuleType(
+    key="tmcm-1161",
+    name="TMCM-1161",
+    module_number=1161,
+    firmware=(1, 24),  # TMCM-1161 TMCL firmware manual V1.24 (2013)
+    axis_parameters=AXIS_PARAMETERS_1161,
+    global_parameters={0: without_can(BANK0_1140), 2: BANK2_PARAMETERS,
+                       3: bank3(switch_motors=1, inputs=4)},
+    storable_axis_parameters=storable(AXIS_PARAMETERS_1161),
+    digital_inputs=4,
+    analog_inputs=4,
+    has_can=False,  # USB, RS485 and RS232 (manual's title)
+    encoder_counts_per_rev=SENSOSTEP_COUNTS_PER_REV,
+    **_ONE_AXIS,
 )

@@ -6,11 +6,13 @@ from pathlib import Path
 
 import pytest
 
-from axes.world import INFINITY, AxisWorld, LoadZone, Switch, World, load_world
+from axes.world import BLOCKED_LOAD, INFINITY, AxisWorld, LoadZone, Switch, World, load_world
 from tmcl_server.cli import build_parser, config_from_args
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
 from tmcl_server.server import ServerConfig, build_simulation
+from tmcl_spec.numbers import NS_PER_S
+from tmcl_spec.parameters import AP
 from tmcl_spec.tmcm6212 import TMCM_6212
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "world-example.toml"
@@ -23,7 +25,7 @@ def test_example_world_file_loads() -> None:
     assert stage.switches["right"] == Switch(200_000, INFINITY)
     assert stage.switches["home"] == Switch(-1000, 1000)
     assert stage.load_zones == [LoadZone(150_000, 152_000, 0)]
-    assert stage.load_at(151_000) == 0 and stage.load_at(0) == 600
+    assert stage.load_at(151_000) == BLOCKED_LOAD and stage.load_at(0) == 600  # load 0: blocked
     assert world.axes[1].encoder_slip == 0.02
     assert world.axes[1].switches["home"].normally_closed
     assert world.analog_inputs == {0: 0, 1: 12000, 2: 0, 3: 65535}
@@ -127,6 +129,9 @@ def test_an_event_raised_by_a_command_at_time_zero_is_delivered() -> None:
     ("[[axis]]\nindex = 0\n[[axis]]\nindex = 0\n", r"line 4: .*appears twice"),
     ("[supply]\nvolts = 24\n", r"line 2: unknown key 'supply\.volts'; did you mean 'voltage'"),
     ("[[axis]]\nindex = 0\nhome = { position = 0, side = 'left' }\n", r"line 3: .*unknown switch side"),
+    ("[[axis]]\nindex = 0\n[[axis.load_zone]]\nfrom = 0\nto = 9\nblocked = true\nload = 300\n",
+     r"line 7: axis\[0\]\.load_zone\[0\]: a blocked motor has no load value"),
+    ("[[axis]]\nindex = 0\nblocked = 'yes'\n", r"line 3: axis\[0\]\.blocked must be true or false"),
 ])
 def test_world_files_are_validated_strictly(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "w.toml"
@@ -174,3 +179,40 @@ def test_the_chip_core_from_the_world_file_and_the_command_line_wins(tmp_path: P
     with pytest.raises(ValueError, match=r"core\.toml, line 3: chip\.core 'tmc4631a' is not a "
                                          r"chip core \(known: .*tmc4361a"):
         build_simulation(ServerConfig(clock="virtual", world=str(path)))
+
+
+# -- a blocked motor apart from a partial load ------------------------------------------------
+
+def test_the_world_says_where_the_motor_is_blocked(tmp_path: Path) -> None:
+    path = tmp_path / "w.toml"
+    path.write_text("[[axis]]\nindex = 0\n"
+                    "[[axis.load_zone]]\nfrom = 100\nto = 200\nblocked = true\n"  # a hard stop
+                    "[[axis.load_zone]]\nfrom = 300\nto = 400\nload = 0\nblocked = false\n"
+                    "[[axis.load_zone]]\nfrom = 500\nto = 600\nload = 0\n"  # as before: blocked
+                    "[[axis]]\nindex = 1\nblocked = true\n"
+                    "[[axis]]\nindex = 2\nblocked = false\n")
+    world = load_world(path)
+    axis = world.axes[0]
+    assert axis.load_zones == [LoadZone(100, 200, 0, True), LoadZone(300, 400, 0, False),
+                               LoadZone(500, 600, 0)]
+    assert [axis.load_at(x) for x in (150, 350, 550, 0)] == [BLOCKED_LOAD, 0, BLOCKED_LOAD, 500]
+    assert world.axes[1].load_at(0) == BLOCKED_LOAD  # blocked everywhere
+    assert world.axes[2].load_at(0) == 500  # not blocked: the default load
+    stuck = AxisWorld(stuck=True, stuck_load=0)
+    assert stuck.load_at(0) == BLOCKED_LOAD  # a stuck rotor reading 0 is blocked too
+
+
+def test_a_blocked_zone_from_a_world_file_stalls_at_a_tuned_threshold(tmp_path: Path) -> None:
+    path = tmp_path / "w.toml"
+    path.write_text("[[axis]]\nindex = 2\n[[axis.load_zone]]\nfrom = 4000\nto = 90000\n"
+                    "blocked = true\n[[axis.load_zone]]\nfrom = 1000\nto = 3000\nload = 0\n"
+                    "blocked = false\n")
+    module = TMCM6212(world=load_world(path))
+    axis = module.axis(2)
+    axis.set_parameter(AP.STALLGUARD_THRESHOLD, 12)
+    axis.set_parameter(AP.STOP_ON_STALL, 1000)
+    axis.rotate(51200)
+    module.advance_to(NS_PER_S)
+    status = axis.status()
+    assert status.position == 4000 and status.velocity == 0  # through the partial 0, not the stop
+    assert axis.get_parameter(AP.ERROR_FLAGS) == 1

@@ -35,14 +35,14 @@ def missing_reason() -> str | None:
     except ImportError:
         return "selenium is not installed (pip install -e '.[test]')"
     if find_chromium() is None:
-        return "chromium and chromium-driver are not installed (scripts/test.sh installs them)"
+        return "chromium and chromium-driver are not installed (apt-get install chromium chromium-driver)"
     return None
 
 
 class HeadlessChromium:
     """A selenium driver on a fresh profile directory, removed again by :meth:`quit`."""
 
-    def __init__(self, width: int = 1400, height: int = 1000) -> None:
+    def __init__(self, width: int = 1400, height: int = 1000, flags: tuple[str, ...] = ()) -> None:
         from selenium import webdriver
         from selenium.webdriver.chrome.service import Service
 
@@ -53,7 +53,7 @@ class HeadlessChromium:
         self.profile = Path(tempfile.mkdtemp(prefix="tmcl-chromium-"))
         options = webdriver.ChromeOptions()
         options.binary_location = browser
-        for flag in CHROMIUM_FLAGS:
+        for flag in (*CHROMIUM_FLAGS, *flags):
             options.add_argument(flag)
         options.add_argument(f"--user-data-dir={self.profile}")
         options.add_argument(f"--window-size={width},{height}")

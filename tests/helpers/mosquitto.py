@@ -17,6 +17,13 @@ MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto"
                                           if Path("/usr/sbin/mosquitto").exists() else None)
 
 
+def missing_reason() -> str | None:
+    """Why MQTT tests cannot run here (None: they can); see tests/helpers/requirements.py."""
+    if MOSQUITTO is None:
+        return "mosquitto is not installed (apt-get install mosquitto; scripts/test.sh says so)"
+    return None
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -16,6 +16,7 @@ from interpreter.cli import main as tmcl_asm
 from interpreter.disassembler import disassemble, listing
 from interpreter.interrupts import INTERRUPT_VECTORS
 from interpreter.isa import PROGRAM_MEMORY_SIZE, Instruction, decode_program, encode_program
+from tmcl_spec import tmcl_ide
 from tmcl_spec.commands import OPERANDS, Opcode
 from tmcl_spec.tmcm6212 import AXIS_PARAMETERS, BANK0_PARAMETERS, BANK3_PARAMETERS
 
@@ -144,7 +145,7 @@ def test_manual_symbolic_constants_example() -> None:
     ("WAIT 9, 0, 0", "1:6", "out of range for WAIT"),
     ("A = B\nB = A\nCOMP A", "1:1", "depends on itself"),
     ("#include missing.inc", "1:10", "not found"),
-    ("COMP 1 +", "1:6", "bad expression"),
+    ("COMP 1 +", "1:8", "missing operand after '+'"),
 ])
 def test_errors_point_at_file_line_and_column(source: str, where: str, message: str) -> None:
     with pytest.raises(AssemblyError) as info:
@@ -205,20 +206,64 @@ def test_include_files_are_generated_from_the_tables() -> None:
 
 
 def _constants(name: str) -> dict[str, int]:
-    pairs = re.findall(r"^(\w+) = (\d+)", (INCLUDE_DIR / name).read_text(), re.MULTILINE)
+    pairs = re.findall(r"^(\w+) = (-?\d+)", (INCLUDE_DIR / name).read_text(), re.MULTILINE)
     return {key: int(value) for key, value in pairs}
 
 
 def test_include_files_cover_every_parameter_and_vector() -> None:
     params = _constants("TMCLParam.tmc")
-    ap = {v for k, v in params.items() if k.startswith("AP")}
-    assert ap == set(AXIS_PARAMETERS)
+    ap = {v for k, v in params.items() if k.startswith("AP") and k not in tmcl_ide.PARAMETER_VALUES}
+    assert ap == set(AXIS_PARAMETERS) | set(tmcl_ide.AXIS_PARAMETERS.values())
+    assert {k: params[k] for k in tmcl_ide.SYMBOLS} == tmcl_ide.SYMBOLS
     gp = [v for k, v in params.items() if k.startswith("GP")]
     assert sorted(gp) == sorted([*BANK0_PARAMETERS, *BANK3_PARAMETERS])
     assert params["APMaxPositioningSpeed"] == 4 and params["APMaxAcceleration"] == 5  # §7.3 names
     assert _constants("Interrupts.inc") == {name: n for n, (name, _) in INTERRUPT_VECTORS.items()}
     assert _constants("Interrupts.inc")["TI_TIMER0"] == 0  # the manual's §3.5.6.4 names
     assert _constants("Interrupts.inc")["TI_GLOBAL"] == 255
+
+
+def _ide_program() -> str:
+    """One instruction per name of the TMCL-IDE's TMCLParam.tmc, each in the field it names."""
+    lines = ["#include TMCLParam.tmc"]
+    lines += [f"SAP {name}, Motor0, 0" for name in tmcl_ide.AXIS_PARAMETERS]
+    lines += [f"GAP 1, {name}" for name in tmcl_ide.MOTORS]
+    lines += [f"SAP 0, 0, {name}" for name in tmcl_ide.PARAMETER_VALUES]
+    return "\n".join(lines) + "\n"
+
+
+def test_every_tmcl_ide_name_assembles_to_the_ides_number() -> None:
+    """A program written with the TMCL-IDE's include (its names, generated from
+    tmcl_spec/tmcl_ide.py) assembles with ours, each name standing for the IDE's number."""
+    program = assemble(_ide_program()).instructions
+    expected = ([(Opcode.SAP, n, 0, 0) for n in tmcl_ide.AXIS_PARAMETERS.values()]
+                + [(Opcode.GAP, 1, n, 0) for n in tmcl_ide.MOTORS.values()]
+                + [(Opcode.SAP, 0, 0, n) for n in tmcl_ide.PARAMETER_VALUES.values()])
+    assert [(i.opcode, i.type, i.motor, i.value) for i in program] == expected
+    assert len(program) == len(tmcl_ide.SYMBOLS)
+
+
+def test_ide_and_own_names_are_aliases() -> None:
+    """Where the IDE names a number otherwise, both names assemble to it (ours stay)."""
+    program = assemble("""
+        #include TMCLParam.tmc
+        SAP APRampMode, Motor0, APVRampModeVelocity
+        GAP APNextPosition, Motor1
+        GAP APTargetPosition, Motor1
+        GAP APActualVelocity, Motor0
+        GAP APActualSpeed, Motor0
+        GAP APStallguardThresholdLevel, Motor2
+        SAP APMixedDecay, Motor0, APVMixedDecayPermanent
+    """).instructions
+    assert [(i.type, i.motor, i.value) for i in program] == [
+        (138, 0, 2), (0, 1, 0), (0, 1, 0), (3, 0, 0), (3, 0, 0), (205, 2, 0), (203, 0, -1)]
+
+
+def test_tmcl_asm_assembles_an_ide_program(tmp_path: Path) -> None:
+    source = tmp_path / "ide.tmc"
+    source.write_text(_ide_program())
+    assert tmcl_asm(["assemble", str(source), "-o", str(tmp_path / "ide.bin")]) == 0
+    assert len(decode_program((tmp_path / "ide.bin").read_bytes())) == len(tmcl_ide.SYMBOLS)
 
 
 # -- tmcl-asm -----------------------------------------------------------------------------------
@@ -245,3 +290,117 @@ def test_tmcl_asm_reports_errors(tmp_path: Path, capsys: pytest.CaptureFixture[s
     source.write_text("STOP\n  JA Missing\n")
     assert tmcl_asm(["assemble", str(source)]) == 1
     assert f"{source}:2:6: undefined symbol 'Missing'" in capsys.readouterr().err
+
+
+# -- every error in one run; includes kept to their folders; limits ----------------------------
+
+SEVERAL_ERRORS = """\
+// five mistakes
+Speed = 1000
+  FLY 1, 2
+SAP 4, 0, Speed
+ROR 0 1 20000
+JA Nowhere
+Bad = 1 +
+COMP Bad
+SAP 300, 0, 1
+Loop: JA Loop
+Loop: STOP
+"""
+
+
+def test_every_error_of_a_source_in_one_run_in_line_order(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    source = tmp_path / "several.tmc"
+    source.write_text(SEVERAL_ERRORS)
+    assert tmcl_asm(["assemble", str(source)]) == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == [
+        f"{source}:3:3: unknown mnemonic 'FLY'",
+        f"{source}:5:1: ROR takes 2 operand(s), got 3 (the manual's form: ROR <axis>, <velocity>)",
+        f"{source}:6:4: undefined symbol 'Nowhere'",
+        f"{source}:7:9: missing operand after '+'",  # and COMP Bad says nothing more
+        f"{source}:9:5: operand '300' = 300 out of range 0..255",
+        f"{source}:11:1: duplicate label 'Loop' (first defined at {source}:10:1)",
+    ]
+    assert not (tmp_path / "several.bin").exists()
+
+
+def test_errors_in_include_files_come_where_they_are_included(tmp_path: Path) -> None:
+    (tmp_path / "part.inc").write_text("X = 1\nBROKEN 3\n")
+    (tmp_path / "main.tmc").write_text("STOP 1\n#include part.inc\nJA Missing\n")
+    with pytest.raises(AssemblyError) as info:
+        assemble_file(tmp_path / "main.tmc")
+    assert [str(e.location) for e in info.value.errors] == [
+        f"{tmp_path}/main.tmc:1:1", f"{(tmp_path / 'part.inc').resolve()}:2:1", f"{tmp_path}/main.tmc:3:4"]
+
+
+def test_includes_resolve_only_in_the_source_tree_the_I_folders_and_the_shipped_one(tmp_path: Path) -> None:
+    project, elsewhere, extra = tmp_path / "project", tmp_path / "elsewhere", tmp_path / "extra"
+    for folder in (project / "sub", elsewhere, extra):
+        folder.mkdir(parents=True)
+    secret = "SECRET_VALUE_not_for_errors"
+    (elsewhere / "secret.inc").write_text(f"{secret} 1, 2\n")
+    (project / "sub" / "ok.inc").write_text("Near = 7\n")
+    (extra / "lib.inc").write_text("Far = 9\n")
+    (project / "link.inc").symlink_to(elsewhere / "secret.inc")
+    main = project / "main.tmc"
+    main.write_text("#include sub/ok.inc\n#include lib.inc\n#include TMCLParam.tmc\nCOMP Near + Far\n")
+    assert assemble_file(main, [extra]).instructions == [Instruction(Opcode.COMP, 0, 0, 16)]
+    for name in (str(elsewhere / "secret.inc"), "../elsewhere/secret.inc", "link.inc", "/etc/passwd",
+                 "/proc/self/environ"):
+        main.write_text(f"#include {name}\nSTOP\n")
+        with pytest.raises(AssemblyError) as info:
+            assemble_file(main, [extra])
+        message = str(info.value)
+        assert message == (f"{main}:1:10: include file {name!r} is outside the source's folder, "
+                           "the -I folders and the shipped include folder"), message
+        assert secret not in message
+
+
+def _hostile(tmp_path: Path) -> dict[str, Path]:
+    """The sources of issue 27: each must end in one clear line (the limits)."""
+    cases: dict[str, Path] = {}
+    fan = tmp_path / "fan"
+    fan.mkdir()
+    for i in range(31):  # every file includes all the files after it: 2**30 inclusions
+        (fan / f"f{i}.inc").write_text("".join(f"#include f{j}.inc\n" for j in range(i + 1, 31)))
+    (fan / "main.tmc").write_text("#include f0.inc\nSTOP\n")
+    cases["fan-out"] = fan / "main.tmc"
+    wide = tmp_path / "wide"
+    wide.mkdir()
+    for i in range(12):  # shallower, but still thousands of inclusions
+        (wide / f"w{i}.inc").write_text("".join(f"#include w{j}.inc\n" for j in range(i + 1, 12)))
+    (wide / "main.tmc").write_text("#include w0.inc\n")
+    cases["wide fan-out"] = wide / "main.tmc"
+    chain = tmp_path / "chain"
+    chain.mkdir()
+    for i in range(200):
+        (chain / f"c{i}.inc").write_text(f"#include c{i + 1}.inc\n" if i < 199 else "X = 1\n")
+    (chain / "main.tmc").write_text("#include c0.inc\n")
+    cases["deep include chain"] = chain / "main.tmc"
+    sources = {
+        "multiplication bomb": "A = " + "*".join(["99999999"] * 40) + "\nB = " + "*".join(["A"] * 40)
+                               + "\nC = " + "*".join(["B"] * 40) + "\n",
+        "huge shift": "COMP 1 << 10000000000\n",
+        "forward constant chain": "".join(f"A{i} = A{i + 1} + 1\n" for i in range(5000)) + "A5000 = 0\n",
+        "long constant chain": "A0 = 0\n" + "".join(f"A{i + 1} = A{i} + 1\n" for i in range(100_000)),
+        "huge expression": "COMP " + "+".join(["1"] * 500_000) + "\n",
+        "deep parentheses": "COMP " + "(" * 100_000 + "1" + ")" * 100_000 + "\n",
+        "many lines": "STOP\n" * 200_000,
+    }
+    for name, text in sources.items():
+        path = tmp_path / (name.replace(" ", "-") + ".tmc")
+        path.write_text(text)
+        cases[name] = path
+    return cases
+
+
+def test_hostile_sources_end_in_one_clear_line(tmp_path: Path) -> None:
+    for name, source in _hostile(tmp_path).items():
+        result = subprocess.run([sys.executable, "-m", "interpreter.cli", "assemble", str(source)],
+                                capture_output=True, text=True, timeout=60)
+        lines = result.stderr.splitlines()
+        assert result.returncode == 1 and len(lines) == 1, (name, result.stderr[-2000:])
+        assert re.match(rf"{re.escape(str(source.parent))}/\S+:\d+:\d+: \S", lines[0]), (name, lines)
+        assert "Traceback" not in result.stderr and "Error:" not in lines[0], (name, lines)

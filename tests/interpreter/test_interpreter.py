@@ -32,6 +32,15 @@ class FakePort:
         self.commands.append((time_ns, opcode, type_, motor, value))
         return 100, self.replies.get(opcode, value), True
 
+    def probe(self, time_ns: int, opcode: int, type_: int, motor: int,
+              value: int) -> tuple[int, int, bool, int]:
+        status, result, _ = self.execute(time_ns, opcode, type_, motor, value)
+        return status, result, True, 0  # a recording port: every command counts
+
+    def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
+                      values: tuple[int, ...]) -> int:
+        return 0
+
     def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
         return self.axis.get((motor, number), 0)
 

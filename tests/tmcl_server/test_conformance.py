@@ -170,6 +170,52 @@ def test_a_sensitive_threshold_stalls_where_the_default_does_not(sim, client: Ra
     assert ok(client, Opcode.GAP, AP.ERROR_FLAGS, 1) == 1
 
 
+@pytest.mark.parametrize("threshold", [0, 1, 6, 12, 24, 32])
+def test_a_blocked_motor_stalls_at_the_thresholds_users_tune(sim, client: RawClient, threshold):
+    """A world load of 0 is a blocked motor: it stalls at AP 174 = 1..24 (and up to 32) as
+    at 0, while the same threshold still lets a partial load run (docs/motion.md)."""
+    set_load(sim, 4, [(3000, 6000, 150), (8000, 90_000, 0)], 500)
+    ok(client, Opcode.SAP, AP.STALLGUARD_THRESHOLD, 4, threshold)
+    ok(client, Opcode.SAP, AP.STOP_ON_STALL, 4, 1000)
+    ok(client, Opcode.ROR, 0, 4, 51200)
+    sim.advance(1.0)
+    assert ok(client, Opcode.GAP, AP.ACTUAL_POSITION, 4) == 8000  # through 150, not into 0
+    assert ok(client, Opcode.GAP, AP.ACTUAL_SPEED, 4) == 0
+    assert ok(client, Opcode.GAP, AP.ERROR_FLAGS, 4) == 1  # stallGuard stop
+    assert ok(client, Opcode.GAP, AP.LOAD, 4) == 0
+
+
+def test_a_threshold_beyond_reason_misses_even_a_blocked_motor(sim, client: RawClient):
+    """The datasheets' tuning rule ("if the motor stalls before SG reaches zero, decrease
+    SGT"): a threshold high enough keeps a blocked motor's reading above 0."""
+    set_load(sim, 4, [(8000, 90_000, 0)], 500)
+    ok(client, Opcode.SAP, AP.STALLGUARD_THRESHOLD, 4, 40)
+    ok(client, Opcode.SAP, AP.STOP_ON_STALL, 4, 1000)
+    ok(client, Opcode.MVP, MoveType.ABS, 4, 20_000)
+    sim.advance(2.0)
+    assert ok(client, Opcode.GAP, AP.ACTUAL_POSITION, 4) == 20_000
+    assert ok(client, Opcode.GAP, AP.LOAD, 4) == (40 - 32) * 16
+    assert ok(client, Opcode.GAP, AP.ERROR_FLAGS, 4) == 0
+
+
+def test_the_threshold_still_sets_the_sensitivity_to_partial_loads(sim, client: RawClient):
+    set_load(sim, 5, [(3000, 90_000, 150)], 500)
+    ok(client, Opcode.SAP, AP.STOP_ON_STALL, 5, 1000)
+    for threshold, reading in ((10, 150 + 160), (0, 150), (-9, 6)):
+        ok(client, Opcode.SAP, AP.STALLGUARD_THRESHOLD, 5, threshold)
+        ok(client, Opcode.MVP, MoveType.ABS, 5, 5000)
+        sim.advance(1.0)
+        assert ok(client, Opcode.GAP, AP.ACTUAL_POSITION, 5) == 5000, threshold
+        assert ok(client, Opcode.GAP, AP.LOAD, 5) == reading
+        ok(client, Opcode.MVP, MoveType.ABS, 5, 0)
+        sim.advance(1.0)
+    ok(client, Opcode.SAP, AP.STALLGUARD_THRESHOLD, 5, -10)  # 150 - 160: a stall at 3000
+    ok(client, Opcode.MVP, MoveType.ABS, 5, 5000)
+    sim.advance(1.0)
+    assert ok(client, Opcode.GAP, AP.ACTUAL_POSITION, 5) == 3000
+    assert ok(client, Opcode.GAP, AP.ERROR_FLAGS, 5) == 1  # stallGuard stop
+
+
 def test_the_filter_averages_four_full_steps(sim, client: RawClient):
     set_load(sim, 2, [(10_000, 50_000, 100)], 500)
     ok(client, Opcode.SAP, AP.STALLGUARD_FILTER, 2, 1)

@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 
 from tests.helpers.browser import HeadlessChromium, missing_reason
+from tests.helpers.requirements import needs
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.upload import StreamClient, upload
 from tmcl_spec.commands import ApplicationStatus, Opcode
@@ -19,7 +20,7 @@ from tmcl_spec.parameters import AP, GP
 pytest.importorskip("aiohttp")
 Keys = pytest.importorskip("selenium.webdriver.common.keys").Keys
 pytrinamic = pytest.importorskip("pytrinamic.connections")
-pytestmark = pytest.mark.skipif(missing_reason() is not None, reason=missing_reason() or "")
+pytestmark = needs(missing_reason())
 
 COUNTING_PROGRAM = """
     CALC LOAD, 0

@@ -2,11 +2,29 @@
 
 from __future__ import annotations
 
+import inspect
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import can
 import pytest
 
 from tests.conftest import Bench
-from tmcl_server.decode import Conversation, Frame, decode_text, describe_request, parse_capture, parse_hex
+from tests.tmcl_server.test_cli import ServerProcess
+from tmcl_server.decode import (
+    Conversation,
+    Frame,
+    decode_text,
+    describe_request,
+    parse_capture,
+    parse_hex,
+    read_capture,
+)
 from tmcl_server.protocol import Request
+from tmcl_server.tool import main as tmcl
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.modules import MODULE_TYPES, module_type
 from tmcl_spec.names import compact_name, names_of
@@ -116,3 +134,124 @@ def test_candump_lines_are_can_frames_with_their_ids() -> None:
 def test_leftover_bytes_are_reported_not_swallowed() -> None:
     decoded = list(Conversation().decode([Frame(bytes([1, 6, 4, 0, 0, 0, 0, 0, 11, 1, 6]))]))
     assert [d.kind for d in decoded] == ["request", "incomplete"]
+
+
+# -- hex dumps of real tools and CAN logs of python-can, made at test time -----------------------
+
+DUMPS = {
+    "hexdump -C": ["hexdump", "-C"],
+    "hexdump": ["hexdump"],  # 16-bit words, little-endian; an odd last byte shown as a word
+    "od -A x -t x1z": ["od", "-A", "x", "-t", "x1z"],
+    "od -t x1": ["od", "-t", "x1"],  # octal offsets
+    "od -A d -t x1": ["od", "-A", "d", "-t", "x1"],
+    "od -x": ["od", "-x"],
+    "xxd": ["xxd"],
+    "xxd -g1": ["xxd", "-g1"],
+    "xxd -a": ["xxd", "-a"],  # squeezes repeated lines too
+    "xxd -p": ["xxd", "-p"],
+    "xxd -i": ["xxd", "-i"],
+}
+
+
+def _dump(command: list[str], path: Path) -> str:
+    if shutil.which(command[0]) is None:
+        pytest.skip(f"{command[0]} is not installed")
+    return subprocess.run([*command, str(path)], capture_output=True, text=True, check=True,
+                          timeout=30).stdout
+
+
+@pytest.mark.parametrize("name", list(DUMPS))
+def test_dumps_of_hexdump_od_and_xxd_decode_without_inventing_torn_frames(bench: Bench, tmp_path: Path,
+                                                                          name: str) -> None:
+    stream = _conversation(bench)
+    # repeated 16-byte lines, which hexdump, od and xxd -a print as one line and a '*'
+    stream += bytes(9 * 8) + Request(1, Opcode.GAP, AP.ACTUAL_POSITION, 0, 0).encode()[:3]
+    capture = tmp_path / "serial.bin"
+    capture.write_bytes(stream)
+    text = _dump(DUMPS[name], capture)
+    assert parse_hex(text) == stream, text
+    decoded = decode_text(text)
+    assert decoded == decode_text(stream.hex(" "))
+    assert [d.kind for d in decoded].count("incomplete") == 1  # the 3 bytes really torn off
+    whole = tmp_path / "whole.bin"
+    whole.write_bytes(stream[:-3])
+    assert "incomplete" not in [d.kind for d in decode_text(_dump(DUMPS[name], whole))]
+
+
+def _can_conversation(bench: Bench) -> list[can.Message]:
+    """Requests to CAN id 1 and the module's replies (id 2), as python-can messages."""
+    messages = []
+    t = 1_700_000_000.0
+    for request in (Request(1, Opcode.SAP, AP.MAX_SPEED, 0, 51200),
+                    Request(1, Opcode.GAP, AP.MAX_SPEED, 0, 0),
+                    Request(1, Opcode.GGP, GP.SERIAL_ADDRESS, 0, 0)):
+        (module, reply), = bench.simulation.handle_can_request(request)
+        for can_id, data in ((request.address, request.encode_can()),
+                             (module.can_reply_id, reply.encode_can())):
+            t += 0.001
+            messages.append(can.Message(timestamp=t, arbitration_id=can_id, is_extended_id=False,
+                                        data=data, channel="can0"))
+    return messages
+
+
+EXPECTED_CAN = [
+    "id 001  05 04 00 00 00 c8 00        request  to id 001: SAP 4 MaxPositioningSpeed m0 = 51200",
+    "id 002  01 64 05 00 00 c8 00        reply    module 1 → id 002: SAP 4 MaxPositioningSpeed m0 = 51200 "
+    "→ 100 OK",
+    "id 001  06 04 00 00 00 00 00        request  to id 001: GAP 4 MaxPositioningSpeed m0",
+    "id 002  01 64 06 00 00 c8 00        reply    module 1 → id 002: GAP 4 MaxPositioningSpeed m0 → 100 OK "
+    "= 51200",
+    "id 001  0a 42 00 00 00 00 00        request  to id 001: GGP 66 SerialAddress b0",
+    "id 002  01 64 0a 00 00 00 01        reply    module 1 → id 002: GGP 66 SerialAddress b0 → 100 OK = 1",
+]
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".blf", ".csv", ".log", ".trc", ".txt", ".db", ".asc.gz"])
+def test_can_logs_written_by_python_can(bench: Bench, tmp_path: Path, suffix: str,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    log = tmp_path / f"capture{suffix}"
+    with can.Logger(str(log)) as writer:  # what `python -m can.logger -f FILE` writes through
+        for message in _can_conversation(bench):
+            writer.on_message_received(message)
+    assert tmcl(["decode", "--file", str(log)]) == 0
+    assert capsys.readouterr().out.splitlines() == EXPECTED_CAN
+
+
+def test_what_python_can_logger_prints_live(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``python -m can.logger`` on the simulator's socketcand bus, its output piped to a file."""
+    server = ServerProcess(tmp_path, "--no-tcp", "--socketcand", "127.0.0.1:0")
+    logger = None
+    try:
+        host, port = server.endpoints["socketcand"][0].rsplit(":", 1)
+        logger = subprocess.Popen(
+            [sys.executable, "-u", "-m", "can.logger", "-i", "socketcand", "-c", "can0",
+             "--bus-kwargs", f"host={host}", f"port={port}"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert logger.stdout is not None
+        while "Can Logger" not in (line := logger.stdout.readline()):  # it listens now
+            assert line, logger.communicate(timeout=10)
+        with can.Bus(interface="socketcand", host=host, port=int(port), channel="can0") as bus:
+            for request in (Request(1, Opcode.SAP, AP.MAX_SPEED, 0, 51200),
+                            Request(1, Opcode.GAP, AP.MAX_SPEED, 0, 0)):
+                bus.send(can.Message(arbitration_id=1, is_extended_id=False, data=request.encode_can()))
+                assert bus.recv(10) is not None
+        lines = [logger.stdout.readline() for _ in range(4)]
+    finally:
+        if logger is not None:
+            logger.send_signal(signal.SIGINT)
+            logger.communicate(timeout=10)
+        server.stop()
+    capture = tmp_path / "logger.txt"
+    capture.write_text("".join(lines))
+    assert tmcl(["decode", "--file", str(capture)]) == 0
+    assert capsys.readouterr().out.splitlines() == EXPECTED_CAN[:4]
+
+
+def test_decode_streams_a_long_capture(tmp_path: Path) -> None:
+    """Frames come out while the input is read: the reader holds a line, not the file."""
+    frame = Request(1, Opcode.GAP, AP.ACTUAL_POSITION, 0, 0).encode()
+    lines = (frame.hex(" ") for _ in range(100_000))
+    reader = read_capture(lines)
+    first = next(reader)
+    assert first.data == frame
+    assert inspect.getgeneratorstate(lines) == inspect.GEN_SUSPENDED  # not read to the end

@@ -171,3 +171,42 @@ def test_kill_9_during_a_store_loop_leaves_a_valid_file_old_or_new(tmp_path: Pat
         if last:
             assert stored >= counted  # SIGTERM flushed the pending store
         seen = stored
+
+
+def test_a_slow_disk_holds_up_no_host_on_a_server(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 27, item 9: an fsync of 300 ms (a loaded disk) used to hold the event loop, so
+    every host waited behind a store.  On a server the store is in the file before its reply
+    and the fsyncs run beside the loop; the shutdown waits for them."""
+    import json
+    import os
+
+    real_fsync = os.fsync
+    synced: list[float] = []
+
+    def slow_fsync(fd: int) -> None:
+        time.sleep(0.3)
+        real_fsync(fd)
+        synced.append(time.monotonic())
+
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], state_dir=str(tmp_path)) as sim:
+        monkeypatch.setattr(os, "fsync", slow_fsync)
+        storer, other = RawClient(sim.tcp), RawClient(sim.tcp)
+        try:
+            for value in range(5):
+                began = time.monotonic()
+                assert storer.request(1, Opcode.SGP, 7, 2, value).status == Status.OK
+                assert storer.request(1, Opcode.STGP, 7, 2).status == Status.OK
+                stored = time.monotonic() - began
+                began = time.monotonic()
+                assert other.request(1, Opcode.GAP, 4, 0).status == Status.OK
+                assert stored < 0.25 and time.monotonic() - began < 0.25
+                state = json.loads((tmp_path / "module-1" / FILE_NAME).read_text())
+                assert state["user_variables"]["7"] == value  # in the file before the reply
+        finally:
+            storer.close()
+            other.close()
+    from tmcl_server.eeprom import SYNCER
+    assert synced and SYNCER.wait(0)  # the shutdown waited for every sync
+    monkeypatch.undo()
+    assert Eeprom(tmp_path / "module-1").get("user_variables", 7) == 4

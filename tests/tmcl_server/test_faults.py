@@ -424,5 +424,5 @@ def test_the_command_line_reads_faults_and_wire_timing(tmp_path) -> None:
     config = config_from_args(args)
     assert [f.text for f in config.faults] == ["sag:volts=9.5", "noreply:opcode=GAP"]
     assert config.wire_timing and config.processing_time == 0.001
-    with pytest.raises(SystemExit, match="fault: unknown fault 'noreplyy'"):
+    with pytest.raises(SystemExit, match="argument --fault noreplyy: unknown fault 'noreplyy'"):
         config_from_args(build_parser().parse_args(["--fault", "noreplyy"]))

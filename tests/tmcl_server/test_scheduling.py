@@ -14,7 +14,7 @@ from tests.helpers.clocks import ManualClock
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
 from tmcl_server.server import PROGRAM_CHUNK_TRAFFIC_NS, PROGRAM_PRIORITY_LAG_NS, Server
-from tmcl_server.simulation import PROGRAM_CHUNK_NS, Simulation
+from tmcl_server.simulation import PROGRAM_CHUNK_NS, REQUEST_TURN_NS, Simulation
 from tmcl_spec.commands import Opcode
 
 BUSY = """
@@ -54,14 +54,16 @@ def test_while_hosts_send_the_program_runs_in_short_chunks(busy_server):
     server, module, clock = busy_server
     clock.t = 20_000_000
     gap = Request(1, Opcode.GAP, 1, 0, 0).encode()
-    server.simulation.handle_serial_frame(gap)
+    server.simulation.handle_serial_frame(gap)  # one instruction before it is served
+    assert module.now_ns == REQUEST_TURN_NS
     server._on_timer()  # a request came since the last slice: a short one
-    assert module.now_ns == PROGRAM_CHUNK_TRAFFIC_NS < PROGRAM_CHUNK_NS
+    assert module.now_ns == REQUEST_TURN_NS + PROGRAM_CHUNK_TRAFFIC_NS
+    assert PROGRAM_CHUNK_TRAFFIC_NS < PROGRAM_CHUNK_NS
     server.simulation.handle_serial_frame(gap)
     server._on_timer()
-    assert module.now_ns == 2 * PROGRAM_CHUNK_TRAFFIC_NS
+    assert module.now_ns == 2 * (REQUEST_TURN_NS + PROGRAM_CHUNK_TRAFFIC_NS)
     server._on_timer()  # nobody asked since: long chunks again
-    assert module.now_ns == 2 * PROGRAM_CHUNK_TRAFFIC_NS + PROGRAM_CHUNK_NS
+    assert module.now_ns == 2 * (REQUEST_TURN_NS + PROGRAM_CHUNK_TRAFFIC_NS) + PROGRAM_CHUNK_NS
 
 
 def test_a_slice_that_has_wall_time_left_catches_the_program_up(busy_server):
@@ -80,8 +82,25 @@ def test_a_program_falling_behind_gets_the_long_chunks_back_despite_hosts(busy_s
     gap = Request(1, Opcode.GAP, 1, 0, 0).encode()
     server.simulation.handle_serial_frame(gap)
     server._on_timer()  # a short slice: the lag was not known yet
-    assert module.now_ns == PROGRAM_CHUNK_TRAFFIC_NS
+    assert module.now_ns == REQUEST_TURN_NS + PROGRAM_CHUNK_TRAFFIC_NS
     assert server.simulation.lag_ns > PROGRAM_PRIORITY_LAG_NS
     server.simulation.handle_serial_frame(gap)
     server._on_timer()  # hosts still send, but the program must catch up first
-    assert module.now_ns == PROGRAM_CHUNK_TRAFFIC_NS + PROGRAM_CHUNK_NS
+    assert module.now_ns == 2 * REQUEST_TURN_NS + PROGRAM_CHUNK_TRAFFIC_NS + PROGRAM_CHUNK_NS
+
+
+def test_a_host_polling_right_after_run_sees_the_first_instruction_done() -> None:
+    """A real module's main loop executes an instruction between two host requests: right
+    after command 129 a host's next request sees what the program's first instruction did,
+    not the state from before (issue 24, item 7)."""
+    clock = ManualClock()
+    module = TMCM6212()
+    simulation = Simulation([module], clock)
+    program = assemble("SGP 0, 2, 1234\nLoop:\n    JA Loop").instructions
+    frames = [Request(1, Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *(Request(1, *i) for i in program),
+              Request(1, Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), Request(1, Opcode.RUN_APPLICATION, 0, 0, 0)]
+    for request in frames:
+        simulation.handle_serial_frame(request.encode())
+    clock.t += 200_000  # the host asks 0.2 ms later; the server's timer has not fired
+    (_, reply), = simulation.handle_serial_frame(Request(1, Opcode.GGP, 0, 2, 0).encode())
+    assert reply.value == 1234

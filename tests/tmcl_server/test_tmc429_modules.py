@@ -156,6 +156,61 @@ def test_inputs_outputs_and_the_supply_voltage(sim, kind) -> None:
             iface.get_digital_input(profile.digital_inputs)
 
 
+def test_supply_voltage_on_gio_8_1_as_odemis_reads_it_at_start_up(sim, kind) -> None:
+    """Odemis' TMCL driver reads GIO 8, 1 on every TMC429 module before anything else and
+    refuses a module that does not answer it (docs/modules.md: the TMCM-1110 too)."""
+    module: TMCLModule = sim.module()
+    with connect(sim, "pty") as iface:
+        assert iface.send(Opcode.GIO, 8, 1, 0).value == 240  # 24.0 V in 0.1 V
+        sim.call(module.set_supply_voltage, 0.0)  # USB power only: recent firmware reads 0
+        assert iface.get_analog_input(8) == 0
+        with pytest.raises(TMCLReplyStatusError) as error:
+            iface.send(Opcode.GIO, 9, 1, 0)
+        assert error.value.reply.status == Status.WRONG_TYPE
+
+
+def test_ap_9_is_the_reference_switch_the_left_one(tmp_path, kind) -> None:
+    """AP 9 ("reference switch status" in pytrinamic and the TMCL-IDE's include) reads the
+    left switch, as AP 11 does: these modules have two reference switches per axis and no
+    home input (docs/modules.md)."""
+    axis = module_type(kind).number_of_axes - 1
+    world = tmp_path / "world.toml"
+    world.write_text(f"[[axis]]\nindex = {axis}\nleft = {{ position = -100 }}\n"
+                     f"home = {{ position = 5000, width = 400 }}\n")
+    with simulator(tmp_path, kind, world=str(world)) as sim, connect(sim, "tcp") as iface:
+        motor = PYTRINAMIC[kind](iface).motors[axis]
+        reference = names(motor.AP)["ReferenceSwitchStatus"]
+        assert (motor.get_axis_parameter(reference), motor.get_axis_parameter(AP.LEFT_SWITCH)) == (0, 0)
+        iface.send(Opcode.SAP, AP.LEFT_DISABLE, axis, 1)  # drive into it, do not stop
+        iface.send(Opcode.MVP, 0, axis, -1000)
+        sim.advance(2.0)
+        assert motor.actual_position == -1000
+        assert (motor.get_axis_parameter(reference), motor.get_axis_parameter(AP.LEFT_SWITCH)) == (1, 1)
+        iface.send(Opcode.MVP, 0, axis, 5000)  # the world's home cam: not an input here
+        sim.advance(2.0)
+        assert motor.actual_position == 5000
+        assert motor.get_axis_parameter(reference) == 0
+
+
+def test_a_blocked_motor_stalls_through_the_tmc262_at_a_tuned_threshold(tmp_path, kind) -> None:
+    """The TMC262 model reads the same law: a blocked zone reads 0 at AP 174 = 24, the
+    partial load before it does not (docs/motion.md, "stallGuard2 and coolStep")."""
+    world = tmp_path / "world.toml"
+    world.write_text("[[axis]]\nindex = 0\n"
+                     "[[axis.load_zone]]\nfrom = 2000\nto = 5000\nload = 100\n"
+                     "[[axis.load_zone]]\nfrom = 8000\nto = 900000\nblocked = true\n")
+    with simulator(tmp_path, kind, world=str(world)) as sim, connect(sim, "tcp") as iface:
+        motor = PYTRINAMIC[kind](iface).motors[0]
+        motor.set_axis_parameter(AP.STALLGUARD_THRESHOLD, 24)
+        motor.set_axis_parameter(AP.STOP_ON_STALL, 100)  # TMC429 units
+        iface.rotate(0, 1500)
+        sim.advance(2.0)
+        assert motor.get_axis_parameter(AP.ACTUAL_SPEED) == 0
+        assert 8000 <= motor.actual_position <= 8000 + 2 * 256  # within the driver's full steps
+        assert motor.get_axis_parameter(AP.ERROR_FLAGS) == 1
+        assert motor.get_axis_parameter(AP.LOAD) == 0
+
+
 def test_user_variables_and_parameters_are_stored_across_a_restart(tmp_path, kind) -> None:
     state = str(tmp_path / "state")
     with simulator(tmp_path, kind, state_dir=state) as sim, connect(sim, "pty") as iface:

@@ -67,7 +67,7 @@ def test_exit_codes_scripts_can_rely_on(server: ServerProcess, capsys, tmp_path:
     bad.write_text("FLY 1, 2, 3\n")
     code, _, err = run(capsys, "--tcp", tcp, "program", "upload", str(bad))
     assert code == 4 and "FLY" in err
-    code, _, err = run(capsys, "--tcp", tcp, "send", "ROR", "0", "3", "1000", "--wait")
+    code, _, err = run(capsys, "--tcp", tcp, "send", "ROR", "3,", "1000", "--wait")
     assert code == 2 and "--wait works with MVP" in err
 
 

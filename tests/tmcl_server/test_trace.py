@@ -15,11 +15,11 @@ from pathlib import Path
 
 import aiomqtt
 import can
-import pytest
 from pytrinamic.connections import ConnectionManager
 
 from tests.conftest import RawClient
-from tests.helpers.mosquitto import MOSQUITTO, Broker
+from tests.helpers.mosquitto import Broker, missing_reason
+from tests.helpers.requirements import needs
 from tests.tmcl_server.test_cli import ServerProcess
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_can_reply
@@ -168,7 +168,7 @@ def test_trace_shows_program_start_stop_interrupts_and_138_events(tmcl_sim_facto
     assert any(line.endswith("VECT 0 6 → 101 LOADED") for line in lines)  # stored while downloading
 
 
-@pytest.mark.skipif(MOSQUITTO is None, reason="mosquitto is not installed")
+@needs(missing_reason())
 def test_trace_names_the_mqtt_topic_a_request_came_on(tmp_path: Path) -> None:
     broker = Broker(tmp_path)
     trace = tmp_path / "trace.txt"
@@ -197,3 +197,24 @@ def test_trace_names_the_mqtt_topic_a_request_came_on(tmp_path: Path) -> None:
                and line.endswith("GAP 4 MaxPositioningSpeed m2 → 100 OK = 51200") for line in replies)
     assert any(" mqtt rig/1/request " in line and line.endswith("(wrong checksum) → 1 WRONG_CHECKSUM")
                for line in _lines(trace, " reply "))
+
+
+def test_on_a_real_clock_each_exchange_carries_the_time_the_module_handled_it() -> None:
+    """The module is brought up to the clock before the tracer notes the request, so the
+    simulated-time column is the request's own time, not the previous request's."""
+    from tests.helpers.clocks import ManualClock
+    from tmcl_server.module import TMCM6212
+    from tmcl_server.simulation import Simulation
+
+    clock = ManualClock()
+    simulation = Simulation([TMCM6212()], clock)
+    stream = io.StringIO()
+    Tracer(stream, "jsonl").attach(simulation)
+    for t_ns in (1_000_000_000, 2_500_000_000, 2_750_000_000):
+        clock.t = t_ns
+        routed = simulation.handle_serial_frame(Request(1, Opcode.GAP, AP.ACTUAL_POSITION, 0, 0).encode())
+        assert routed[0][1].status == Status.OK
+    lines = [json.loads(line) for line in stream.getvalue().splitlines()]
+    assert [line["sim"] for line in lines if line["kind"] == "cmd"] == [1.0, 2.5, 2.75]
+    times = [line["sim"] for line in lines]  # events that fell due meanwhile come first
+    assert times == sorted(times)

@@ -30,6 +30,7 @@ from interpreter.interrupts import vector_table
 from tmcl_server.decode import describe_outcome, describe_request, vocabulary
 from tmcl_server.dispatch import Interface
 from tmcl_server.protocol import RawReply, Reply
+from tmcl_server.sidechannel import SideChannel
 from tmcl_server.transports.mqtt.requests import RequestError, request_from_json
 from tmcl_spec.commands import ApplicationStatus, CodeProtection, Condition, WaitCondition
 from tmcl_spec.names import names_of
@@ -129,6 +130,9 @@ class Dashboard:
         self._wire_seq = 0
         self._watchers = 0
         self._tracer: Tracer | None = None
+        #: The wire view is a side channel: a failure in it stops it, never a request.
+        self.channel = SideChannel("the dashboard's wire view", self._stop_wire)
+        self._trace_listener = self.channel.guard(self._on_trace, "taking the trace")
 
     def module(self, slot: Any) -> TMCLModule:
         module = self.modules.get(slot) if isinstance(slot, int) else None
@@ -149,7 +153,7 @@ class Dashboard:
         if tracer is None:  # no --trace: a tracer without a stream, only for listeners
             tracer = Tracer(None).attach(self.simulation, loop)
         assert isinstance(tracer, Tracer)  # the one tracer there is (a hook may be another)
-        tracer.listeners.append(self._on_trace)
+        tracer.listeners.append(self._trace_listener)
         self._tracer = tracer
 
     def unwatch(self) -> None:
@@ -157,13 +161,18 @@ class Dashboard:
         self._watchers = max(0, self._watchers - 1)
         if self._watchers or self._tracer is None:
             return
-        tracer, self._tracer = self._tracer, None
-        if self._on_trace in tracer.listeners:
-            tracer.listeners.remove(self._on_trace)
-        if tracer.stream is None and not tracer.listeners:  # nobody else reads it (--trace does)
-            tracer.detach()
+        self._stop_wire()
         for samples in self._samples.values():
             samples.clear()
+
+    def _stop_wire(self) -> None:
+        tracer, self._tracer = self._tracer, None
+        if tracer is None:
+            return
+        if self._trace_listener in tracer.listeners:
+            tracer.listeners.remove(self._trace_listener)
+        if tracer.stream is None and not tracer.listeners:  # nobody else reads it (--trace does)
+            tracer.detach()
 
     @property
     def watched(self) -> bool:
@@ -443,7 +452,7 @@ class Dashboard:
     @staticmethod
     def set_free_load(module: TMCLModule, axis: int, value: int) -> None:
         """The load where no load zone lies (the zones of the world stay)."""
-        zones = [(z.low, z.high, z.load) for z in module.axis_world(axis).load_zones]
+        zones = [(z.low, z.high, z.load, z.blocked) for z in module.axis_world(axis).load_zones]
         module.set_load(axis, zones, value)
 
     def command(self, module: TMCLModule, message: dict[str, Any], endpoint: str) -> dict[str, Any]:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from axes.cores import make_axes
-from axes.interface import Axis, AxisEvent, AxisEventKind
+from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind
 from axes.world import DEFAULT_SIDES, INFINITY, AxisWorld, LoadZone, Switch, World, check_supply_voltage
 from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
 from tmcl_server.eeprom import Eeprom, EepromWriteError
@@ -39,6 +39,10 @@ _GLOBAL_PARAMETER_COMMANDS = frozenset({int(Opcode.SGP), int(Opcode.STGP), int(O
 ADDRESS_PARAMETERS = frozenset({GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.CAN_ID,
                                 GP.CAN_SECONDARY_ID})
 _OK = int(Status.OK)
+#: Statuses of a command refused before it did anything (validation).
+_REFUSALS = frozenset({int(Status.INVALID_COMMAND), int(Status.WRONG_TYPE),
+                       int(Status.INVALID_VALUE)})
+_GAP, _GGP = int(Opcode.GAP), int(Opcode.GGP)
 _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
 #: The heartbeat period (GP 68 / GP 82, ms) watching each kind of interface.
@@ -102,6 +106,9 @@ class ModuleCore:
         #: Called when the serial or CAN addresses may have changed (routers cache them).
         self.on_address_change: Callable[[], None] | None = None
         self.now_ns = start_ns
+        #: Whether the command last performed changed anything (a refusal, a read and a write
+        #: of what already is do not): a program loop that changes nothing may be skipped.
+        self.changed = False
         #: Standalone mode: program memory, the interpreter, control commands 128-135.
         self.program = ProgramSupport(self, self.type.program_memory, self.type.number_of_axes,
                                       self.type.digital_inputs)
@@ -165,6 +172,8 @@ class ModuleCore:
         self.apply_world(self.world)
         self._tick_origin_ms = self.now_ns // NS_PER_MS
         self._random = random.Random(0)
+        #: GP 131 (where the module has it): the status of the last command that failed.
+        self.last_error = 0
         self._reach_request: tuple[int, bool, ReplySink, Interface] | None = None
         self._reach_watch: dict[int, _ReachWatch] = {}
         self._last_command_ns = {Interface.SERIAL: self.now_ns, Interface.CAN: self.now_ns}
@@ -180,8 +189,13 @@ class ModuleCore:
         """The module's axes: on its chip core (in groups where a chip drives several)."""
         count = self.type.number_of_axes
         if self._axis_factory is not None:
-            return [self._axis_factory(index) for index in range(count)]
-        return make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+            axes = [self._axis_factory(index) for index in range(count)]
+        else:
+            axes = make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+        if self.type.encoder_counts_per_rev is not None:
+            for axis in axes:  # the module's own encoder, where the world names none
+                axis.builtin_encoder_counts = self.type.encoder_counts_per_rev
+        return axes
 
     @property
     def accumulator(self) -> int:
@@ -270,20 +284,46 @@ class ModuleCore:
         opcode = request.opcode
         handler = self.handlers.get(opcode)
         if handler is None:
+            self.last_error = _INVALID_COMMAND
             return _INVALID_COMMAND, request.value
         touched = self._touched
         touched.clear()
+        self.changed = opcode not in READ_ONLY_OPCODES  # a handler that changes nothing says so
         try:
             result = handler(request, sink, interface)
         except CommandError as exc:
-            return exc.status, request.value
+            self.last_error = int(exc.status)
+            if exc.status in _REFUSALS:  # refused before anything was done
+                self.changed = False
+            return exc.status, request.value if exc.value is None else exc.value
         except EepromWriteError:  # logged by the EEPROM; the host learns it from the status
+            self.last_error = int(Status.EEPROM_LOCKED)
             return Status.EEPROM_LOCKED, request.value
         finally:
-            if self.may_reschedule(opcode, request.motor):
+            if self.changed and self.may_reschedule(opcode, request.motor):
                 self._stale_axes |= touched  # the command may start, stop or move an event
                 self._due_stale = True
         return _OK, request.value if result is None else result
+
+    def steady_until(self, opcode: int, type_: int, motor: int, status: int) -> int:
+        """How long the command just performed (and unchanged) would answer the same and
+        change nothing if executed again, nothing intervening (see ModulePort.probe)."""
+        if status != _OK:
+            return FOREVER if status in _REFUSALS else 0
+        if opcode == _GAP:
+            return self.axes[motor].steady_until(type_)
+        if opcode == _GGP and motor == 0:
+            if type_ == GP.TICK_TIMER:  # counts milliseconds
+                return (self.now_ns // NS_PER_MS + 1) * NS_PER_MS
+            if type_ in (GP.RANDOM_NUMBER, GP.LAST_TMCL_ERROR):  # the next number; a refused
+                return 0  # command of the same loop sets the last error (a refusal "changes nothing")
+        return FOREVER  # inputs, outputs, variables, coordinates: changed only from outside
+
+    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...]) -> int:
+        """For GAP of a moving value: when it first answers one of ``values`` (0: unknown)."""
+        if opcode != _GAP or not 0 <= motor < len(self.axes):
+            return 0
+        return self.axes[motor].first_time_at(type_, values)
 
     @staticmethod
     def may_reschedule(opcode: int, bank: int) -> bool:
@@ -512,11 +552,13 @@ class ModuleCore:
         target.set_switch(name, Switch(-INFINITY, INFINITY) if active else None)
         self.world.axes.setdefault(axis, target.world)
 
-    def set_load(self, axis: int, zones: list[tuple[int, int, int]],
+    def set_load(self, axis: int,
+                 zones: list[tuple[int, int, int]] | list[tuple[int, int, int, bool | None]],
                  free_load: int | None = None) -> None:
-        """Load zones as (from, to, load value); load 0 stalls a motor faster than AP 181."""
+        """Load zones as (from, to, load value[, blocked]); load 0 (or blocked True) is a
+        blocked motor, which stalls a motor faster than AP 181 (docs/world.md)."""
         target = self._world_axis(axis)
-        target.set_load([LoadZone(lo, hi, load) for lo, hi, load in zones], free_load)
+        target.set_load([LoadZone(*zone) for zone in zones], free_load)
         self.world.axes.setdefault(axis, target.world)
 
     def set_encoder_slip(self, axis: int, slip: float) -> None:
@@ -580,6 +622,8 @@ class ModuleCore:
                 return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & 0x7FFF_FFFF
             if number == GP.RANDOM_NUMBER:
                 return self._random.randrange(2**31)
+            if number == GP.LAST_TMCL_ERROR:
+                return self.last_error
         return self.globals[bank][number]
 
     def write_global(self, number: int, bank: int, value: int) -> None:

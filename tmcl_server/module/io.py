@@ -25,6 +25,8 @@ class IOCommands(ModuleCore):
         if self.outputs[req.type] != req.value:
             self.outputs[req.type] = req.value
             self.emit("output_changed", None, port=req.type, level=req.value)
+        else:
+            self.changed = False
 
     def _set_pullup(self, req: Request) -> None:
         """``SIO n, 0, 0|1`` (TMC429 modules): pull-up resistors on or off.  The world gives
@@ -33,6 +35,7 @@ class IOCommands(ModuleCore):
             raise CommandError(Status.WRONG_TYPE)
         if req.value not in (0, 1):
             raise CommandError(Status.INVALID_VALUE)
+        self.changed = self.pullups[req.type] != req.value
         self.pullups[req.type] = req.value
 
     def _input_count(self, bank: int) -> int:
@@ -74,6 +77,9 @@ class IOCommands(ModuleCore):
         number, motor = self._coordinate_request(req)
         if motor is None:
             self._copy_coordinates_to_eeprom(self._eeprom_coordinate_range(number))
+        elif (self.coordinates[motor][number] == req.value
+              and not (number and self.globals[0][GP.COORDINATE_STORAGE] == 1)):
+            self.changed = False  # a RAM coordinate written with the value it has
         else:
             self._set_coordinate(number, motor, req.value)
 
@@ -82,6 +88,7 @@ class IOCommands(ModuleCore):
         if motor is None:
             self._copy_coordinates_from_eeprom(self._eeprom_coordinate_range(number))
             return None
+        self.changed = False  # a read
         return self.coordinates[motor][number]
 
     def _cmd_cco(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:

@@ -18,13 +18,13 @@ class MotionCommands(ModuleCore):
     """Handlers that start, stop and watch motion."""
 
     def _cmd_ror(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        self._axis(req.motor).rotate(req.value)
+        self.changed = self._axis(req.motor).rotate(req.value)
 
     def _cmd_rol(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        self._axis(req.motor).rotate(to_int32(-req.value))
+        self.changed = self._axis(req.motor).rotate(to_int32(-req.value))
 
     def _cmd_mst(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
-        self._axis(req.motor).stop()
+        self.changed = self._axis(req.motor).stop()
 
     def _cmd_mvp(self, req: Request, sink: ReplySink | None, interface: Interface) -> None:
         if req.type == MoveType.COORD:
@@ -62,7 +62,10 @@ class MotionCommands(ModuleCore):
         if req.type not in (0, 1, 2):
             raise CommandError(Status.WRONG_TYPE)
         result = axis.reference_search(req.type)
-        return result if req.type == 2 else None
+        if req.type == 2:
+            self.changed = False  # a status read
+            return result
+        return None
 
     def _cmd_target_reached_event(self, req: Request, sink: ReplySink | None,
                                   interface: Interface) -> None:

@@ -23,7 +23,7 @@ class ParameterCommands(ModuleCore):
         if req.type == 0:
             self._arm_reach_watch(axis.index)
         try:
-            axis.set_parameter(req.type, spec.normalise(req.value))
+            self.changed = axis.set_parameter(req.type, spec.normalise(req.value))
         except ValueError as exc:
             raise CommandError(Status.INVALID_VALUE) from exc
 
@@ -54,7 +54,11 @@ class ParameterCommands(ModuleCore):
             raise CommandError(Status.WRONG_TYPE)
         if not spec.accepts(req.value):
             raise CommandError(Status.INVALID_VALUE)
-        self.write_global(req.type, req.motor, spec.normalise(req.value))
+        value = spec.normalise(req.value)
+        if req.motor == 2 and self.globals[2][req.type] == value:
+            self.changed = False  # a user variable written with the value it has
+            return
+        self.write_global(req.type, req.motor, value)
 
     def _cmd_ggp(self, req: Request, sink: ReplySink | None, interface: Interface) -> int:
         if not self._global_spec(req.type, req.motor).readable:

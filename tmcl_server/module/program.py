@@ -33,9 +33,12 @@ from tmcl_spec.commands import (
     RfsType,
     Status,
 )
+from tmcl_spec.modules import ModuleType
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN
 from tmcl_spec.parameters import GP
 
 EEPROM_SECTION = "program"
+_GGP, _SGP, _OK = int(Opcode.GGP), int(Opcode.SGP), int(Status.OK)
 #: Command 135 "mode" while the module is in download mode (GP 128 only knows 0..3).
 DOWNLOAD_MODE = 4
 _LEGACY_READ = struct.Struct(">BBBBiB")
@@ -56,6 +59,10 @@ class StandaloneHost(Protocol):
 
     now_ns: int
     eeprom: Eeprom
+    #: The module type (its bank-2 table tells which user variables are plain RAM).
+    type: ModuleType
+    #: Whether the command last performed changed anything (see ModulePort.probe).
+    changed: bool
     #: bank -> number -> value, as stored in RAM (GP 77, GP 81, bank 3 timers and triggers).
     globals: dict[int, dict[int, int]]
 
@@ -70,6 +77,12 @@ class StandaloneHost(Protocol):
 
     def may_reschedule(self, opcode: int, bank: int) -> bool:
         """Whether a command can create, move or cancel an internal event."""
+
+    def steady_until(self, opcode: int, type_: int, motor: int, status: int) -> int:
+        """How long the unchanged command just performed would answer the same."""
+
+    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...]) -> int:
+        """When a moving value read by GAP first equals one of ``values`` (0: unknown)."""
 
     def perform(self, request: Request, sink: ReplySink | None = None,
                 interface: Interface = Interface.SERIAL) -> tuple[int, Any]:
@@ -96,6 +109,11 @@ class ProgramSupport:
         self.downloading = False
         self.download_address = 0
         self._dirty = False
+        #: User variables any int32 can be written to and read from (GGP/SGP bank 2 fast path).
+        self._plain_variables = frozenset(
+            number for number, spec in module.type.global_parameters.get(2, {}).items()
+            if spec.readable and spec.writable and spec.minimum <= INT32_MIN
+            and spec.maximum >= INT32_MAX)
 
     # == power-up ==============================================================================
 
@@ -119,6 +137,15 @@ class ProgramSupport:
                 value: int) -> tuple[int, int, bool]:
         module = self.module
         module.catch_up(time_ns)
+        if motor == 2 and type_ in self._plain_variables:  # user variables: plain RAM, the usual
+            variables = module.globals[2]                # case of a program's GGP and AGP
+            if opcode == _GGP:
+                module.changed = False
+                return _OK, variables[type_], False
+            if opcode == _SGP:
+                module.changed = variables[type_] != value
+                variables[type_] = value
+                return _OK, value, False
         request = tuple.__new__(Request, (module.address, opcode, type_, motor, value))  # no __new__
         if opcode in READ_ONLY_OPCODES:  # the usual case: a read stores nothing, moves no event
             status, result = module.perform(request)
@@ -132,7 +159,20 @@ class ProgramSupport:
             eeprom.deferring = False
         if eeprom.stores != stores:  # the program waits for the part's write cycles
             self.interpreter.busy_until(time_ns + (eeprom.stores - stores) * WRITE_TIME_NS)
-        return status, result, module.may_reschedule(opcode, motor)
+        return status, result, module.changed and module.may_reschedule(opcode, motor)
+
+    def probe(self, time_ns: int, opcode: int, type_: int, motor: int,
+              value: int) -> tuple[int, int, bool, int]:
+        status, result, _ = self.execute(time_ns, opcode, type_, motor, value)
+        module = self.module
+        if module.changed:
+            return status, result, True, 0
+        return status, result, False, module.steady_until(opcode, type_, motor, status)
+
+    def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
+                      values: tuple[int, ...]) -> int:
+        self.module.catch_up(time_ns)
+        return self.module.first_time_at(opcode, type_, motor, values)
 
     def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
         self.module.catch_up(time_ns)
@@ -153,6 +193,21 @@ class ProgramSupport:
     def run(self, now_ns: int, end_ns: int) -> bool:
         """Run the program's instructions that start before ``end_ns`` (see Interpreter)."""
         return self.interpreter.run_until(now_ns, end_ns)
+
+    @property
+    def skip_loops(self) -> bool:
+        """Whether loops that change nothing are skipped (False: every instruction stepped)."""
+        return self.interpreter.skip_loops
+
+    @skip_loops.setter
+    def skip_loops(self, value: bool) -> None:
+        self.interpreter.skip_loops = value
+
+    def on_virtual_clock(self, slice_ns: int) -> None:
+        """Nothing waits for a real clock: a running program asks to be run every
+        ``slice_ns`` only, its timers fire inside its runs (docs/scheduling.md)."""
+        self.interpreter.slice_ns = slice_ns
+        self.interpreter.wake_for_timers = False
 
     @property
     def busy(self) -> bool:

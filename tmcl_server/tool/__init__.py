@@ -17,16 +17,19 @@ It reaches the simulator over TCP (``--tcp``, default 127.0.0.1:2323) or its pty
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 from tmcl_server.tool.connection import EXIT_CODES, ToolError
-from tmcl_spec.package import add_version_option, version_text
+from tmcl_spec.package import add_version_option, safe_console, version_text
 
 _EPILOG = """examples:
-  tmcl send SAP MaxPositioningSpeed 0 51200     set AP 4 of motor 0
+  tmcl send SAP 4, 0, 51200                     set AP 4 of motor 0, as a TMCL program writes it
+  tmcl send SAP MaxPositioningSpeed 0 51200     the same: commas optional, names allowed
   tmcl send GAP ActualPosition 0 --value        print only the value
-  tmcl send MVP ABS 0 51200 --wait              move and wait until the target is reached
+  tmcl send MVP ABS, 0, 51200 --wait            move and wait until the target is reached
   tmcl --serial /tmp/ttyTMCL0 info              over the simulator's pty
   tmcl --connection "--interface usb_tmcl" dump --json > module.json   a real module
   tmcl watch ActualPosition ActualSpeed --axes 0,1 --rate 20 --csv > motion.csv
@@ -36,6 +39,43 @@ _EPILOG = """examples:
 
 exit codes:
 """ + "\n".join(f"  {code:<4} {meaning}" for code, meaning in EXIT_CODES)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """Usage errors in one line (the message and where help is), not the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
+def positive(text: str) -> float:
+    """A finite number above 0 (argparse type for seconds and rates): ``inf``, ``nan`` and
+    ``0`` get a message of their own, not a failure further on."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a number expected, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"a finite number above 0 expected, got {text!r}")
+    return value
+
+
+def count(text: str) -> int:
+    """A whole number 0 or more (argparse type for addresses and counts)."""
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a whole number expected, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"a number 0 or more expected, got {value}")
+    return value
+
+
+def positive_count(text: str) -> int:
+    value = count(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError("a number above 0 expected, got 0")
+    return value
 
 
 def _connection_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
@@ -48,17 +88,27 @@ def _connection_options(parser: argparse.ArgumentParser, suppress: bool) -> None
                        help="raw TMCL over a serial port or the simulator's pty")
     group.add_argument("--connection", metavar="ARGS", default=default,
                        help='pytrinamic ConnectionManager arguments, e.g. "--interface usb_tmcl"')
-    group.add_argument("--address", type=int, metavar="A", default=default,
+    group.add_argument("--address", type=count, metavar="A", default=default,
                        help="module address / CAN id (default 1)")
-    group.add_argument("--timeout", type=float, metavar="SECONDS", default=default,
+    group.add_argument("--timeout", type=positive, metavar="SECONDS", default=default,
                        help="reply timeout (default 2)")
     group.add_argument("--module-type", metavar="NAME", default=argparse.SUPPRESS if suppress
                        else "tmcm-6212", help="names parameters from this module type's tables "
                        "(default tmcm-6212; dump asks the module)")
 
 
+def _send_epilog() -> str:
+    from tmcl_server.tool.line import old_form_help
+
+    return ("examples:\n  tmcl send SAP 4, 0, 51200\n  tmcl send SAP MaxPositioningSpeed 0 51200\n"
+            "  tmcl send SAP APMaxPositioningSpeed, Motor0, 51200   (names of the include files)\n"
+            "  tmcl send 'ROR 1, 20000'; tmcl send MST 1\n  tmcl send MVP ABS, 2, 1000 --wait\n"
+            "  tmcl send GIO 8, 1\n  tmcl send GGP SerialAddress 0 --value\n"
+            "  tmcl send GET_FIRMWARE_VERSION\n  tmcl send 138 0 0 1\n\n" + old_form_help())
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="tmcl", description="Talk to a TMCL module (simulated or real): send commands by "
         "name, read its identity and parameters, watch it, manage its program, decode dumps, "
         "plot recordings.", epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -72,20 +122,20 @@ def build_parser() -> argparse.ArgumentParser:
         _connection_options(p, suppress=True)
         return p
 
-    send = command("send", "send one command; the reply is printed decoded",
-                   "examples:\n  tmcl send SAP MaxPositioningSpeed 0 51200\n"
-                   "  tmcl send GGP SerialAddress 0 --value\n  tmcl send MVP REL 0 -1000 --wait\n"
-                   "  tmcl send GET_FIRMWARE_VERSION\n  tmcl send 138 0 0 1")
-    send.add_argument("command", help="mnemonic (SAP, MVP, ...), opcode name or number")
-    send.add_argument("type", nargs="?", help="parameter name or number, or a symbol (ABS, START)")
-    send.add_argument("motor", nargs="?", help="motor or bank (default 0)")
-    send.add_argument("value", nargs="?", help="value (default 0; 0x.. for hex)")
+    send = command("send", "send one command, written as in a TMCL program; the reply is printed "
+                   "decoded", _send_epilog())
+    send.add_argument("line", nargs="+", metavar="COMMAND",
+                      help="a TMCL line: mnemonic and the manual's operands (SAP 4, 0, 51200), a "
+                      "control command (GET_FIRMWARE_VERSION) or a number with TYPE MOTOR VALUE")
     shown = send.add_mutually_exclusive_group()
     shown.add_argument("--value", dest="value_only", action="store_true", help="print only the reply value")
     shown.add_argument("--json", action="store_true", help="print the reply as JSON")
     send.add_argument("--wait", action="store_true",
                       help="after MVP / SAP 0 / RFS START: wait until the move or search is done")
-    send.add_argument("--wait-timeout", type=float, default=60.0, metavar="SECONDS")
+    send.add_argument("--wait-timeout", type=positive, default=60.0, metavar="SECONDS")
+    send.add_argument("--stop-on-interrupt", action="store_true",
+                      help="Ctrl-C during --wait stops the motor (MST, or RFS STOP); without it "
+                      "the motor goes on and the tool says so")
 
     info = command("info", "firmware version, module type, addresses, program state")
     info.add_argument("--json", action="store_true")
@@ -102,9 +152,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "example:\n  tmcl watch ActualPosition ActualSpeed --axes 0,1 --rate 10")
     watch.add_argument("parameters", nargs="+", metavar="PARAMETER", help="axis parameter names or numbers")
     watch.add_argument("--axes", metavar="LIST", default="0", help="axes (default 0)")
-    watch.add_argument("--rate", type=float, default=5.0, metavar="HZ", help="samples per second (default 5)")
-    watch.add_argument("--count", type=int, metavar="N", help="stop after N samples")
-    watch.add_argument("--duration", type=float, metavar="SECONDS", help="stop after this long")
+    watch.add_argument("--rate", type=positive, default=5.0, metavar="HZ",
+                       help="samples per second (default 5)")
+    watch.add_argument("--count", type=positive_count, metavar="N", help="stop after N samples")
+    watch.add_argument("--duration", type=positive, metavar="SECONDS", help="stop after this long")
     watch.add_argument("--csv", action="store_true", help="CSV even on a terminal")
 
     program = command("program", "the standalone TMCL program: upload, run, stop, step, status, read")
@@ -117,25 +168,29 @@ def build_parser() -> argparse.ArgumentParser:
 
     up = action("upload", "download a .tmc source or .bin program (132, 133; 134 to verify)")
     up.add_argument("program", type=Path, help=".tmc source or .bin binary")
-    up.add_argument("--start", type=int, default=0, help="program address to download to")
+    up.add_argument("--start", type=count, default=0, help="program address to download to")
     up.add_argument("-I", "--include", action="append", type=Path, default=[], metavar="DIR")
     up.add_argument("--verify", action="store_true", help="read the program back (command 134)")
     up.add_argument("--run", action="store_true", help="reset and start the program afterwards")
+    up.add_argument("--force", action="store_true",
+                    help="upload even while a program runs (the upload stops it; without "
+                    "--force the tool refuses)")
     run = action("run", "start the program (129) and print its state")
-    run.add_argument("address_from", nargs="?", type=int, default=0, metavar="ADDRESS",
+    run.add_argument("address_from", nargs="?", type=count, default=0, metavar="ADDRESS",
                      help="start here (default 0)")
     run.add_argument("--continue", dest="continue_", action="store_true",
                      help="continue where it stopped instead")
     run.add_argument("--wait", action="store_true", help="wait until the program stops")
-    run.add_argument("--wait-timeout", type=float, default=600.0, metavar="SECONDS")
+    run.add_argument("--wait-timeout", type=positive, default=600.0, metavar="SECONDS")
     action("stop", "stop the program (128)")
     step = action("step", "execute single instructions (130)")
-    step.add_argument("steps", nargs="?", type=int, default=1)
+    step.add_argument("steps", nargs="?", type=positive_count, default=1)
     status = action("status", "state, program counter, accumulator and X (135)")
     status.add_argument("--json", action="store_true")
     read = action("read", "read the program back (134) as source")
-    read.add_argument("--start", type=int, default=0)
-    read.add_argument("--count", type=int, help="commands to read (default: up to the first empty)")
+    read.add_argument("--start", type=count, default=0)
+    read.add_argument("--count", type=positive_count,
+                      help="commands to read (default: up to the first empty)")
     read.add_argument("--listing", action="store_true", help="numbered addresses instead of labels")
     read.add_argument("-o", "--output", type=Path)
 
@@ -153,7 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("-o", "--output", type=Path, required=True, help="image file (.png, .svg, .pdf)")
     plot.add_argument("--axes", metavar="LIST", help="axes to draw (default: those that moved)")
     plot.add_argument("--size", default="10x6", metavar="WxH", help="inches (default 10x6)")
-    plot.add_argument("--dpi", type=int, default=100, help="pixels per inch (default 100)")
+    plot.add_argument("--dpi", type=positive_count, default=100, help="pixels per inch (default 100)")
     plot.add_argument("--title")
     plot.add_argument("--all", dest="whole", action="store_true",
                       help="the whole recording (default: from shortly before the first motion "
@@ -164,6 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     from tmcl_server.tool import commands
 
+    safe_console()  # a cp1252 console shows "->" for the arrows in decoded replies
     parser = build_parser()
     args = parser.parse_args(argv)
     handler = {"send": commands.cmd_send, "info": commands.cmd_info, "dump": commands.cmd_dump,
@@ -172,7 +228,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return handler(args)
     except ToolError as exc:
-        print(f"tmcl: {exc}", file=sys.stderr)
+        for line in str(exc).splitlines() or [""]:  # several source errors: one line each
+            print(f"tmcl: {line}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("tmcl: interrupted", file=sys.stderr)

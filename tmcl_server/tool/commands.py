@@ -3,48 +3,64 @@
 from __future__ import annotations
 
 import argparse
+import codecs
 import csv
 import difflib
+import io
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from interpreter.assembler import AssemblyError
 from interpreter.disassembler import disassemble, listing
 from interpreter.isa import Instruction
 from tmcl_server.decode import (
+    CAN_LOG_SUFFIXES,
+    MAX_LINE,
+    CaptureError,
+    Conversation,
+    Frame,
     Vocabulary,
-    decode_text,
     describe_outcome,
     describe_program_record,
     describe_request,
+    is_can_log,
     module_type_by_number,
+    read_can_log,
+    read_capture,
 )
 from tmcl_server.protocol import Reply
 from tmcl_server.tool.connection import (
     BadInput,
     Connection,
     GaveUp,
+    Interrupted,
     Refused,
+    ToolError,
     UsageError,
     Where,
 )
+from tmcl_server.tool.line import LineError, parse_command
 from tmcl_server.tool.progress import Progress
 from tmcl_server.upload import UploadError, load_program, upload
-from tmcl_spec.commands import TYPE_SYMBOLS, ApplicationStatus, Opcode, Status
+from tmcl_spec.commands import (
+    FACTORY_RESET_KEY,
+    TYPE_SYMBOLS,
+    ApplicationStatus,
+    CodeProtection,
+    Opcode,
+    RfsType,
+    Status,
+)
 from tmcl_spec.modules import ModuleType, module_type
 from tmcl_spec.numbers import to_int32
 from tmcl_spec.parameters import AP, BANK_USER_VARIABLES, GP
 
 _AXIS_COMMANDS = frozenset({Opcode.SAP, Opcode.GAP, Opcode.STAP, Opcode.RSAP, Opcode.AAP})
 _GLOBAL_COMMANDS = frozenset({Opcode.SGP, Opcode.GGP, Opcode.STGP, Opcode.RSGP, Opcode.AGP})
-#: Mnemonics people type for the control commands, besides the Opcode names.
-_ALIASES = {"GETVERSION": Opcode.GET_FIRMWARE_VERSION, "VERSION": Opcode.GET_FIRMWARE_VERSION,
-            "RUN": Opcode.RUN_APPLICATION, "STOPAPP": Opcode.STOP_APPLICATION,
-            "STATUS": Opcode.GET_APPLICATION_STATUS}
 #: How often waits poll the module (wall seconds).
 POLL_S = 0.05
 
@@ -60,22 +76,6 @@ def parse_number(text: str, what: str) -> int:
         return int(text, 0)
     except ValueError:
         raise UsageError(f"{what} must be a number, got {text!r}") from None
-
-
-def parse_opcode(text: str) -> int:
-    """A mnemonic (``SAP``), an opcode name (``GET_FIRMWARE_VERSION``) or a number."""
-    name = text.strip().upper().replace("-", "_")
-    if name in Opcode.__members__:
-        return int(Opcode[name])
-    if name in _ALIASES:
-        return int(_ALIASES[name])
-    if text.strip().isdigit() or text.strip().lower().startswith("0x"):
-        opcode = parse_number(text, "the command")
-        if 0 <= opcode <= 255:
-            return opcode
-    close = difflib.get_close_matches(name, list(Opcode.__members__), n=3)
-    hint = f" (did you mean {', '.join(close)}?)" if close else ""
-    raise UsageError(f"unknown command {text!r}{hint}")
 
 
 def parse_type(opcode: int, text: str, motor: int, words: Vocabulary) -> int:
@@ -125,36 +125,70 @@ def _detect_type(conn: Connection, fallback: str) -> ModuleType:
 
 def cmd_send(args: argparse.Namespace) -> int:
     words = _words(args)
-    opcode = parse_opcode(args.command)
-    motor = parse_number(args.motor, "the motor/bank") if args.motor is not None else 0
-    type_ = parse_type(opcode, args.type, motor, words) if args.type is not None else 0
-    value = to_int32(parse_number(args.value, "the value")) if args.value is not None else 0
+    try:
+        command = parse_command(" ".join(args.line), words)
+    except LineError as exc:
+        raise UsageError(str(exc)) from None
+    opcode, type_, motor, value = command.opcode, command.type, command.motor, command.value
     text = describe_request(opcode, type_, motor, value, words)
     if args.wait and _motion_done_check(opcode, type_) is None:
         raise UsageError("--wait works with MVP, SAP 0 (TargetPosition) and RFS START")
-    with Connection(Where.from_args(args)) as conn:
+    where = Where.from_args(args)
+    with Connection(where) as conn:
         if opcode == Opcode.GET_FIRMWARE_VERSION and type_ == 0:
             version = conn.version_string()
             _show(args, text, f'→ "{version}"', {"status": Status.OK, "version": version}, version)
             return 0
-        if opcode == Opcode.RESTORE_FACTORY_SETTINGS and value == 1234:
+        if opcode == Opcode.RESTORE_FACTORY_SETTINGS and value == FACTORY_RESET_KEY:
             conn.send_no_reply(opcode, type_, motor, value)
             _show(args, text, "(no reply: the module restarts)", {"status": None}, "")
             return 0
         reply = conn.request(opcode, type_, motor, value)
-        if opcode == Opcode.READ_PROGRAM_MEMORY and reply.opcode != opcode:  # the legacy layout
-            raw = bytes((reply.host, reply.module, reply.status, reply.opcode)) + \
-                (reply.value & 0xFFFFFFFF).to_bytes(4, "big")
-            _show(args, text, describe_program_record(raw, value, words),
-                  {"status": Status.OK, "instruction": [*raw[1:4], to_int32(reply.value)]}, "")
-            return 0
-        _show(args, text, describe_outcome(reply.status, reply.opcode, type_, reply.value),
-              _reply_json(reply), str(to_int32(reply.value)))
-        if reply.status not in (Status.OK, Status.LOADED):
-            return Refused.exit_code
-        if args.wait:
-            _wait_for_motion(conn, opcode, type_, motor, value, args.wait_timeout)
+        try:
+            return _answer(args, conn, text, words, reply, (opcode, type_, motor, value))
+        except KeyboardInterrupt:  # (during --wait) the move was started: say what runs on
+            if not args.wait:
+                raise
+            conn.close()  # a request may be half answered: a fresh connection stops it
+            raise _interrupted_wait(where, opcode, motor, args.stop_on_interrupt) from None
+
+
+def _answer(args: argparse.Namespace, conn: Connection, text: str, words: Vocabulary, reply: Reply,
+            fields: tuple[int, int, int, int]) -> int:
+    """Show the reply; with ``--wait``, wait for the move or search it started."""
+    opcode, type_, motor, value = fields
+    if opcode == Opcode.READ_PROGRAM_MEMORY and reply.opcode != opcode:  # the legacy layout
+        raw = bytes((reply.host, reply.module, reply.status, reply.opcode)) + \
+            (reply.value & 0xFFFFFFFF).to_bytes(4, "big")
+        _show(args, text, describe_program_record(raw, value, words),
+              {"status": Status.OK, "instruction": [*raw[1:4], to_int32(reply.value)]}, "")
+        return 0
+    _show(args, text, describe_outcome(reply.status, reply.opcode, type_, reply.value),
+          _reply_json(reply), str(to_int32(reply.value)))
+    if reply.status not in (Status.OK, Status.LOADED):
+        return Refused.exit_code
+    if args.wait:
+        _wait_for_motion(conn, opcode, type_, motor, value, args.wait_timeout)
     return 0
+
+
+def _interrupted_wait(where: Where, opcode: int, motor: int, stop: bool) -> Interrupted:
+    """Ctrl-C during ``--wait``: the module goes on moving unless asked to stop; say which."""
+    search = opcode == Opcode.RFS
+    stop_line = f"RFS STOP, {motor}" if search else f"MST {motor}"
+    what = "the reference search" if search else f"motor {motor}"
+    if not stop:
+        return Interrupted(f"interrupted: {what} still runs on the module (stop it with "
+                           f"'tmcl send {stop_line}', or pass --stop-on-interrupt)")
+    try:
+        with Connection(where) as conn:
+            if search:
+                conn.ok(Opcode.RFS, RfsType.STOP, motor)
+            else:
+                conn.ok(Opcode.MST, 0, motor)
+    except ToolError as exc:
+        return Interrupted(f"interrupted; stopping {what} ({stop_line}) failed: {exc}")
+    return Interrupted(f"interrupted: {what} stopped ({stop_line})")
 
 
 def _reply_json(reply: Reply) -> dict[str, Any]:
@@ -211,11 +245,17 @@ def cmd_info(args: argparse.Namespace) -> int:
         version = conn.version_string()
         number = conn.ok(Opcode.GET_FIRMWARE_VERSION, 1) & 0xFFFF_FFFF
         kind = module_type_by_number(number >> 16)
-        bank0 = {n: conn.ok(Opcode.GGP, n, 0) for n in (
-            GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.HOST_ADDRESS, GP.BAUD_RATE,
-            GP.CAN_ID, GP.CAN_REPLY_ID, GP.CAN_SECONDARY_ID, GP.CAN_BIT_RATE)}
+        # what the module's table shows (a module without CAN hides its CAN rows: None)
+        shown = None if kind is None else kind.global_parameters[0]
+        bank0: dict[int, int | None] = {
+            n: conn.ok(Opcode.GGP, n, 0) if shown is None or (n in shown and shown[n].readable)
+            else None
+            for n in (GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.HOST_ADDRESS,
+                      GP.BAUD_RATE, GP.CAN_ID, GP.CAN_REPLY_ID, GP.CAN_SECONDARY_ID,
+                      GP.CAN_BIT_RATE)}
         status = conn.ok(Opcode.GET_APPLICATION_STATUS, 1) & 0xFFFF_FFFF
-    baud = (kind or module_type()).baud_rates.get(bank0[GP.BAUD_RATE])
+    rate = bank0[GP.BAUD_RATE]
+    baud = None if rate is None else (kind or module_type()).baud_rates.get(rate)
     mode = status >> 24
     info = {
         "version": version,
@@ -370,7 +410,11 @@ def cmd_program(args: argparse.Namespace) -> int:
             else:
                 conn.ok(Opcode.RUN_APPLICATION, 1, 0, args.address_from)
             if args.wait:
-                _wait_for_program(conn, args.wait_timeout)
+                try:
+                    _wait_for_program(conn, args.wait_timeout)
+                except KeyboardInterrupt:
+                    raise Interrupted("interrupted: the program still runs on the module (stop it "
+                                      "with 'tmcl program stop')") from None
         elif action == "stop":
             conn.ok(Opcode.STOP_APPLICATION)
         elif action == "step":
@@ -382,6 +426,10 @@ def cmd_program(args: argparse.Namespace) -> int:
 
 
 def _upload(conn: Connection, args: argparse.Namespace, instructions: list[Instruction]) -> int:
+    stopped = _running_program(conn)
+    if stopped is not None and not args.force:
+        raise Refused(f"module {conn.address} runs a TMCL program (at pc {stopped}); the upload "
+                      "would stop it: add --force to stop it and upload")
     total = 2 + len(instructions) * (2 if args.verify else 1) + (2 if args.run else 0)
     with Progress(f"upload {args.program.name}", total) as bar:
         try:
@@ -389,9 +437,19 @@ def _upload(conn: Connection, args: argparse.Namespace, instructions: list[Instr
         except UploadError as exc:
             raise Refused(str(exc)) from None
     done = ", verified" if args.verify else ""
+    was = f" (the program that ran was stopped at pc {stopped})" if stopped is not None else ""
     _out(f"{args.program}: {len(instructions)} commands at {args.start}{done}"
-         f"{', running' if args.run else ''}")
+         f"{', running' if args.run else ''}{was}")
     return 0
+
+
+def _running_program(conn: Connection) -> int | None:
+    """The program counter of a running standalone program, or None (stopped, or no answer)."""
+    reply = conn.request(Opcode.GET_APPLICATION_STATUS, 1)
+    if reply.status != Status.OK:
+        return None
+    status = reply.value & 0xFFFF_FFFF
+    return status & 0xFFFF if status >> 24 == ApplicationStatus.RUN else None
 
 
 def _wait_for_program(conn: Connection, timeout: float) -> None:
@@ -423,6 +481,10 @@ def _status(conn: Connection, args: argparse.Namespace) -> int:
 
 
 def _read_program(conn: Connection, args: argparse.Namespace) -> int:
+    protection = conn.request(Opcode.GGP, GP.CODE_PROTECTION, 0)
+    if protection.status == Status.OK and protection.value & CodeProtection.READ:
+        raise Refused(f"module {conn.address}'s program memory is read-protected "
+                      f"(GP 81 = {to_int32(protection.value)}): it reads back as empty")
     instructions: list[Instruction] = []
     address = args.start
     limit = args.count if args.count is not None else 1 << 16
@@ -437,9 +499,13 @@ def _read_program(conn: Connection, args: argparse.Namespace) -> int:
             instructions.append(ins)
             address += 1
             bar.advance()
+    if not instructions and address == args.start and args.start > 0:
+        first = conn.request(Opcode.READ_PROGRAM_MEMORY, 0, 0, args.start)
+        if first.opcode == Opcode.READ_PROGRAM_MEMORY and first.status < Status.OK:
+            raise Refused(f"address {args.start} is outside module {conn.address}'s program memory")
     text = listing(instructions, args.start) if args.listing else disassemble(instructions)
     if args.output:
-        args.output.write_text(text)
+        args.output.write_text(text, encoding="utf-8")
     else:
         sys.stdout.write(text)
     return 0
@@ -448,26 +514,101 @@ def _read_program(conn: Connection, args: argparse.Namespace) -> int:
 # -- decode -----------------------------------------------------------------------------------
 
 def cmd_decode(args: argparse.Namespace) -> int:
-    if args.file is not None:
-        try:
-            text = sys.stdin.read() if str(args.file) == "-" else Path(args.file).read_text()
-        except OSError as exc:
-            raise BadInput(f"{args.file}: {exc}") from None
-    elif args.hex:
-        text = " ".join(args.hex)
-    elif not sys.stdin.isatty():
-        text = sys.stdin.read()
-    else:
+    """Streams: frames are printed as they are read, so a long capture needs little memory."""
+    if args.file is None and not args.hex and sys.stdin.isatty():
         raise UsageError("give hex bytes, --file FILE, or pipe a dump in")
+    conversation = Conversation(_words(args), replies_only=args.replies)
+    shown = 0
     try:
-        decoded = decode_text(text, _words(args), replies_only=args.replies)
-    except ValueError as exc:
-        raise BadInput(f"cannot read the dump: {exc}") from None
-    if not decoded:
+        for frame in conversation.decode(_capture_frames(args)):
+            _out(frame.as_json() if args.json else frame.line())
+            shown += 1
+    except CaptureError as exc:
+        raise BadInput(str(exc)) from None
+    except BrokenPipeError:  # `tmcl decode ... | head`
+        raise
+    except OSError as exc:
+        raise BadInput(f"{args.file}: {exc.strerror or exc}") from None
+    if not shown:
         raise BadInput("no TMCL frame found in the input")
-    for frame in decoded:
-        _out(frame.as_json() if args.json else frame.line())
     return 0
+
+
+def _capture_frames(args: argparse.Namespace) -> Iterator[Frame]:
+    if args.file is None and args.hex:
+        return read_capture([" ".join(args.hex)])
+    if args.file is None or str(args.file) == "-":
+        return read_capture(_text_lines(sys.stdin.buffer, "standard input"))
+    path = Path(args.file)
+    if is_can_log(path):
+        return _can_log_or_text(path)
+    if path.is_file():  # (a pipe or device is streamed and checked as it comes)
+        _check_text(path)
+    return _file_lines(path)
+
+
+def _can_log_or_text(path: Path) -> Iterator[Frame]:
+    """A CAN log by its name; a text dump that merely ends in ``.log`` or ``.csv`` (python-can
+    finds no first message in it) is read as text instead."""
+    frames = read_can_log(path)
+    try:
+        first = next(frames)
+    except StopIteration:
+        return
+    except CaptureError:
+        try:
+            _check_text(path)
+        except CaptureError:
+            raise CaptureError(f"{path}: neither a CAN log python-can reads nor a text dump") from None
+        yield from _file_lines(path)
+        return
+    yield first
+    yield from frames
+
+
+def _file_lines(path: Path) -> Iterator[Frame]:
+    with path.open("rb") as stream:
+        yield from read_capture(_text_lines(stream, str(path)))
+
+
+def _check_text(path: Path) -> None:
+    """A dump is text: say so before any output if the file is not UTF-8 (read in chunks)."""
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    offset = 0
+    with path.open("rb") as stream:
+        while chunk := stream.read(1 << 16):
+            try:
+                decoder.decode(chunk)
+            except UnicodeDecodeError as exc:
+                raise CaptureError(_not_text(str(path), offset + exc.start, chunk[exc.start])) from None
+            offset += len(chunk)
+        try:
+            decoder.decode(b"", final=True)
+        except UnicodeDecodeError:
+            raise CaptureError(_not_text(str(path), offset, None)) from None
+
+
+def _not_text(name: str, offset: int, byte: int | None) -> str:
+    what = f"byte {byte:#04x} at offset {offset}" if byte is not None else "its last bytes"
+    return (f"{name} is not a text dump ({what} is not UTF-8): give a hex dump (xxd FILE | tmcl "
+            f"decode) or a CAN log python-can reads ({', '.join(CAN_LOG_SUFFIXES)})")
+
+
+def _text_lines(stream: BinaryIO, name: str) -> Iterator[str]:
+    """Lines of UTF-8 text, each at most MAX_LINE characters read (bounded memory)."""
+    text = io.TextIOWrapper(stream, encoding="utf-8", errors="strict", newline=None)
+    number = 0
+    while True:
+        try:
+            line = text.readline(MAX_LINE + 1)
+        except UnicodeDecodeError as exc:
+            raise CaptureError(f"{name}, line {number + 1}: not UTF-8 text ({exc.reason})") from None
+        if not line:
+            return
+        number += 1
+        if len(line) > MAX_LINE:
+            raise CaptureError(f"{name}, line {number}: longer than {MAX_LINE} characters: not a dump")
+        yield line.rstrip("\n")
 
 
 # -- plot -------------------------------------------------------------------------------------
@@ -481,7 +622,10 @@ def cmd_plot(args: argparse.Namespace) -> int:
             raise ValueError
     except ValueError:
         raise UsageError(f"--size must look like 10x6 (inches), got {args.size!r}") from None
-    axes = [int(a) for a in args.axes.split(",")] if args.axes else None
+    try:
+        axes = [int(a) for a in args.axes.split(",") if a.strip()] if args.axes else None
+    except ValueError:
+        raise UsageError(f"--axes: a list like 0,2 expected, got {args.axes!r}") from None
     try:
         shown = plot_file(args.record, args.output, axes=axes, size=size, dpi=args.dpi,  # type: ignore[arg-type]
                           title=args.title, whole=args.whole)

@@ -57,6 +57,12 @@ class GaveUp(ToolError):
     exit_code = 5
 
 
+class Interrupted(ToolError):
+    """Ctrl-C: what was left running (or stopped) is in the message."""
+
+    exit_code = 130
+
+
 #: Exit codes, for ``--help`` and the README.
 EXIT_CODES = (
     (0, "success"),

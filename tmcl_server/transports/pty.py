@@ -19,7 +19,12 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from tmcl_server.platform import bytes_waiting, lock_exclusively, open_raw_pty
+from tmcl_server.platform import (
+    bytes_waiting,
+    lock_exclusively,
+    open_raw_pty,
+    require_pseudo_terminals,
+)
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
     ByteSession,
@@ -133,6 +138,7 @@ class PtyTransport(Transport):
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
+        require_pseudo_terminals()  # before the lock file: nothing is left behind on Windows
         self._lock.acquire(self.link)
         # Keep our own slave descriptor open: the master then never sees EIO/hang-up when a
         # client closes the port, so the next client finds the port just as it was.

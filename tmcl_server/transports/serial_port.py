@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import serial
 
 from tmcl_server.endpoints import parse_serial_spec
+from tmcl_server.platform import can_watch_descriptors
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
     LinkMode,
@@ -76,10 +77,12 @@ class SerialPortTransport(Transport):
             fd = self._port.fileno()
         except (AttributeError, NotImplementedError, OSError, ValueError):
             fd = None
-        if isinstance(fd, int):
-            self._reader_fd = fd
-            loop.add_reader(fd, self._on_readable)
-        else:  # ports without a descriptor (Windows, URL handlers): a small reader thread
+        if isinstance(fd, int) and can_watch_descriptors():
+            # a loop that watches sockets only refuses: the thread below reads instead
+            with contextlib.suppress(NotImplementedError, OSError, ValueError):
+                loop.add_reader(fd, self._on_readable)
+                self._reader_fd = fd
+        if self._reader_fd is None:  # Windows' COM ports, URL handlers: a small reader thread
             self._port.timeout = 0.01
             self._thread = threading.Thread(target=self._read_loop, args=(loop,), daemon=True)
             self._thread.start()

@@ -87,23 +87,37 @@ def quiet_accept_errors(loop: asyncio.AbstractEventLoop) -> None:
     loop.set_exception_handler(handler)
 
 
+class _Activity:
+    """A count that goes up with every read on any connection: a connection's last value says
+    how recently its client spoke, without reading a clock on the per-frame path."""
+
+    __slots__ = ("count",)
+
+    def __init__(self) -> None:
+        self.count = 0
+
+
 class _TcpProtocol(asyncio.Protocol):
     def __init__(self, simulation: Simulation, connections: set[_TcpProtocol],
-                 mode: LinkMode, limit: int) -> None:
+                 mode: LinkMode, limit: int, activity: _Activity) -> None:
         self._simulation = simulation
         self._connections = connections
         self._mode = mode
         self._limit = limit
+        self._activity = activity
+        #: ``activity.count`` when this client last sent bytes (or connected).
+        self.last_heard = 0
         self.transport: asyncio.Transport | None = None
         self._session: StreamSession | None = None
+        self._peer = "?"
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         peer = transport.get_extra_info("peername")
+        self._peer = f"{peer[0]}:{peer[1]}" if peer else "?"
         if len(self._connections) >= self._limit:
-            log.warning("tcp: %d clients already connected (--max-connections); closing the "
-                        "connection from %s", len(self._connections), peer)
-            transport.close()
-            return
+            self._evict_idlest()
+        self._activity.count += 1
+        self.last_heard = self._activity.count
         # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
         self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
@@ -114,8 +128,21 @@ class _TcpProtocol(asyncio.Protocol):
                                       partial(bytes_waiting, sock.fileno()) if sock is not None else None)
         self._connections.add(self)
 
+    def _evict_idlest(self) -> None:
+        """At the limit the client silent longest makes room (idle connections must not lock
+        a live host out; docs/robustness.md)."""
+        victim = min(self._connections, key=lambda c: c.last_heard)
+        log.warning("tcp: %d clients connected (--max-connections); closing %s, the one silent "
+                    "longest, for %s", len(self._connections), victim._peer, self._peer)
+        self._connections.discard(victim)
+        if victim.transport is not None:
+            victim.transport.close()
+
     def data_received(self, data: bytes) -> None:
-        if self._session is not None:  # None: refused, closing
+        if self._session is not None:  # None: closing
+            activity = self._activity
+            activity.count += 1
+            self.last_heard = activity.count
             self._session.feed(data)
 
     def pause_writing(self) -> None:
@@ -147,10 +174,11 @@ class TcpTransport(Transport):
         self.simulation = simulation
         self.host, self.port = parse_host_port(address)
         self.mode = mode
-        #: Clients served at once; the next ones are accepted and closed at once.
+        #: Clients served at once; a new one past it closes the one silent longest.
         self.max_connections = max_connections
         self._server: asyncio.Server | None = None
         self.connections: set[_TcpProtocol] = set()
+        self._activity = _Activity()
 
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> TcpTransport:
@@ -164,7 +192,8 @@ class TcpTransport(Transport):
         loop = asyncio.get_running_loop()
         quiet_accept_errors(loop)
         self._server = await loop.create_server(
-            lambda: _TcpProtocol(self.simulation, self.connections, self.mode, self.max_connections),
+            lambda: _TcpProtocol(self.simulation, self.connections, self.mode, self.max_connections,
+                                 self._activity),
             self.host, self.port, reuse_address=True)
         endpoints = listening_endpoints(self._server)
         descriptors = descriptor_limit()

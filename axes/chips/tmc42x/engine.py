@@ -242,6 +242,9 @@ class MotorEngine(ChipModel):
         """``spi(frame) & MASK24``, the data bits of the answer: the firmware's reads ignore
         the status byte, so a chip may skip sampling it (the frame acts the same)."""
 
+    def steps_reach_motor(self) -> bool:
+        return self.steps_out
+
     def at_rest(self) -> bool:
         """Stopped, and no ramp tick will start the motor again."""
         return self.v == 0 and self._steady_steps() == -1

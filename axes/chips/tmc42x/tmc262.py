@@ -107,7 +107,8 @@ class MotorSense(Protocol):
         ...
 
     def sensed_load(self, steps: int) -> int:
-        """The world's load value (stallGuard2 units at SGT 0, 0 = stall) at motor position ``steps``."""
+        """The world's load value (stallGuard2 units at SGT 0; a blocked motor's lies below 0:
+        axes.world.BLOCKED_LOAD) at motor position ``steps``."""
         ...
 
     def sequencer_units(self) -> int:

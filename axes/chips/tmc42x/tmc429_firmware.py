@@ -213,3 +213,8 @@ class TMC429Axis(AxisFirmware):
             for first in range(0, count, NUMBER_OF_MOTORS)]
         return [cls(index, parameters, chip=chips[index // NUMBER_OF_MOTORS],
                     motor=index % NUMBER_OF_MOTORS) for index in range(count)]
+
+    def get_parameter(self, number: int) -> int:
+        """AP 9 is the reference switch status: the left switch, the one the TMC429 calls
+        the reference switch (as AP 11), not a home input (docs/modules.md, "AP 9")."""
+        return super().get_parameter(AP.LEFT_SWITCH if number == AP.HOME_SWITCH else number)

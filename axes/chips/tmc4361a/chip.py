@@ -143,6 +143,7 @@ class TMC4361A(ChipModel):
         self.t = 0  # chip clock ticks fully processed
         self._ramp = Ramp(Params.from_registers(RampRegisters(), bow_quantum))
         self.pin_left = self.pin_right = self.pin_home = False  # electrical levels
+        self.pin_freeze = True  # NFREEZE: its internal pull-up keeps it high when unconnected
         self.power_on()
         if board is not None:
             self.pin_left, self.pin_right, self.pin_home = board.pins(self.motor_position)
@@ -165,6 +166,7 @@ class TMC4361A(ChipModel):
         self._home_latched = False
         self._home_entry: tuple[int, int] | None = None  # (XACTUAL, direction) entering
         self._freeze_written = False
+        self._frozen = False  # NFREEZE fell: no motion until a reset (datasheet §12)
         self._mark: int | None = None
         self._mark_dir = 0
         self._enc_const = (0, 65536, 0)  # (numerator, denominator, ENC_CONST register)
@@ -232,6 +234,23 @@ class TMC4361A(ChipModel):
         self._update_flags()
         self._check_stops()
 
+    def set_freeze(self, level: bool) -> None:
+        """Drive NFREEZE (electrical level, low active).  A falling edge freezes the chip
+        (datasheet §12): the FROZEN event, the ramp stopped — at once, as DFREEZE = 0 says;
+        a linear stop with DFREEZE > 0 is not modelled (docs/tmc4361a.md) — and no motion
+        until a reset.  Rising again releases nothing."""
+        falling = self.pin_freeze and not level
+        self.pin_freeze = level
+        if falling and not self._frozen:
+            self._frozen = True
+            self._ramp.hard_stop()
+            self._raise(Event.FROZEN)
+            self._update_flags()
+
+    @property
+    def frozen(self) -> bool:
+        return self._frozen
+
     def adopt(self, twin: TMC4361A) -> TMC4361A:
         """Continue with the state a :meth:`clone` reached (one chip, one motor: the clone)."""
         return twin
@@ -286,7 +305,8 @@ class TMC4361A(ChipModel):
     # fraction of the step, the positions the law and the flags depend on relative to
     # XACTUAL, flags and events) and of the ramp parameters; in a chip without position marks
     # from the board, virtual stops, home checks or an encoder tolerance nothing else enters
-    # it, and the engine's answers do not depend on ``until`` (HORIZON_TICKS).  So the state
+    # it (NFREEZE counts: a frozen chip locks both directions), and the engine's answers do
+    # not depend on ``until`` (HORIZON_TICKS).  So the state
     # after each clock the engine did by itself is kept (a trace, by start state), and a run
     # from a state seen before replays the trace up to ``until`` (or its budget, or a stop)
     # and goes on from there: the same clocks, states, flags and events, worked out once.
@@ -311,7 +331,8 @@ class TMC4361A(ChipModel):
         q = (None if ramp.stage == Stage.IDLE and not ramp.stopping and ramp.P.profile
              else ramp.q)
         return (signed32(xtarget - x), signed32(compare - x), ramp.p - m * ramp.P.S, fixed,
-                g(Reg.REFERENCE_CONF, 0), g(Reg.INTR_CONF, 0), self._flags, self.events,
+                g(Reg.REFERENCE_CONF, 0), g(Reg.INTR_CONF, 0), self._frozen, self._flags,
+                self.events,
                 ramp.w, ramp.s, ramp.a, ramp.slope, ramp.stage, q, ramp.goal,
                 ramp.braking, ramp.wait, ramp.no_vstart, ramp.stopping)
 
@@ -435,12 +456,13 @@ class TMC4361A(ChipModel):
     def _context(self) -> Context:
         flags = self._flags
         events = self.events
+        frozen = self._frozen  # both directions locked until a reset
         return Context(
             target=self._unwrap(self.regs.get(Reg.XTARGET, 0)),
-            blocked_neg=bool(flags & (Status.STOPL_ACTIVE_F | Status.VSTOPL_ACTIVE_F)
-                             or events & (Event.STOPL | Event.VSTOPL_ACTIVE)),
-            blocked_pos=bool(flags & (Status.STOPR_ACTIVE_F | Status.VSTOPR_ACTIVE_F)
-                             or events & (Event.STOPR | Event.VSTOPR_ACTIVE)))
+            blocked_neg=frozen or bool(flags & (Status.STOPL_ACTIVE_F | Status.VSTOPL_ACTIVE_F)
+                                       or events & (Event.STOPL | Event.VSTOPL_ACTIVE)),
+            blocked_pos=frozen or bool(flags & (Status.STOPR_ACTIVE_F | Status.VSTOPR_ACTIVE_F)
+                                       or events & (Event.STOPR | Event.VSTOPR_ACTIVE)))
 
     def _positions(self, ctx: Context, direction: int) -> tuple[int, ...]:
         """Motor positions at which something observable changes (the engine stops there)."""
@@ -799,8 +821,8 @@ class TMC4361A(ChipModel):
         match address:
             case Reg.EVENTS:
                 value = self.events
-                kept = g(Reg.EVENT_CLEAR_CONF, 0)
-                self.events &= kept
+                kept = g(Reg.EVENT_CLEAR_CONF, 0) | (Event.FROZEN if self._frozen else 0)
+                self.events &= kept  # FROZEN "remains active until the reset"
                 self._events_cleared(value & ~kept)
                 return value
             case Reg.STATUS:
@@ -867,6 +889,8 @@ class TMC4361A(ChipModel):
                 self._check_stops()
                 return
             case Reg.EVENTS:
+                if self._frozen:
+                    data &= ~Event.FROZEN
                 cleared = self.events & data
                 self.events &= ~data
                 self._events_cleared(cleared)

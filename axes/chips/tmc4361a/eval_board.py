@@ -19,7 +19,8 @@ from axes.chips.tmc4361a import TMC4361A, Reg, Status, datagram
 from axes.chips.tmc4361a.registers import MASK32, POWER_ON, RESET_KEY, signed32
 from axes.interface import Axis, AxisEvent, AxisStatus
 from axes.world import AxisWorld, LoadZone, Switch
-from tmcl_spec.numbers import to_int32
+from tmcl_spec.eval_boards import EvalError
+from tmcl_spec.numbers import NS_PER_MS, to_int32
 from tmcl_spec.parameters import ParamSpec
 
 DEFAULT_CLOCK_HZ = 16_000_000  # the TMC4361A-EVAL's oscillator
@@ -58,13 +59,36 @@ RESET_EPILOGUE = ((Reg.SPI_OUT_CONF, 0x4440_0040 | 40 << 13 | 0x0F),
                   (Reg.GENERAL_CONF, 0x0000_6000))
 
 
+#: RAMPMODE bits of the TMC-API: positioning, and the "hold" profile (no ramp).
+RAMP_POSITION = 0b100
+RAMP_HOLD = 0b000
+#: ENC_IN_CONF fields the closed-loop calibration sets (stored: closed loop is not emulated).
+REGULATION_MODUS = 0b11 << 22
+CL_CALIBRATION_EN = 1 << 24
+#: The calibration's move to the next full step: VMAX 10 000 pps (24.8), AMAX/DMAX at least 1000.
+CALIBRATION_VMAX = 10_000 << 8
+CALIBRATION_MIN_ACCELERATION = 1000
+#: The firmware's periodic job runs once per systick.
+SYSTICK_NS = NS_PER_MS
+
+
 class EvalBoardInputs(AxisBoard):
     """The eval board's STOPL/STOPR/HOME_REF lines: pulled up, pulled low by an actuated
-    switch (active for the chip's power-on low-active polarity)."""
+    switch (active for the chip's power-on low-active polarity) or by the microcontroller
+    (command 144, the firmware's switch simulation).  A line the microcontroller releases (or
+    drives high, as at start-up) follows the switch: the firmware's own comment has external
+    switches work "if the signals from µC are high or floating"."""
+
+    def __init__(self, world: AxisWorld | None = None) -> None:
+        super().__init__(world)
+        #: The lines ("left", "right", "home") the microcontroller drives low.
+        self.driven_low: set[str] = set()
 
     def pins(self, motor_position: int) -> tuple[bool, bool, bool]:
         left, right, home = super().pins(motor_position)
-        return not left, not right, not home
+        low = self.driven_low
+        return (not left and "left" not in low, not right and "right" not in low,
+                not home and "home" not in low)
 
 
 def _c_div(value: int, divisor: int) -> int:
@@ -90,6 +114,10 @@ class TMC4361AEvalAxis(Axis):
         #: The TMC-API cache: last value written per address (reads of write-only ones).
         self._cache: dict[int, int] = {}
         self.move_velocity = DEFAULT_MOVE_VELOCITY  # AP 4, the firmware's vmax_position
+        #: The closed-loop calibration's state (the firmware's static ``state``, 0: idle) and
+        #: the RAMPMODE it restores.
+        self._calibration = 0
+        self._calibration_ramp = 0
         self.reset_board()
 
     # == SPI, as the TMC-API does it ===========================================================
@@ -131,23 +159,33 @@ class TMC4361AEvalAxis(Axis):
             chip.run(until)
 
     def advance_to(self, t_ns: int) -> list[AxisEvent]:
+        while self._calibration and (tick := self._next_systick()) <= t_ns:
+            self._now_ns = tick  # the periodic job, once per systick, as the worker
+            self._sync()
+            self._calibrate(master=False)
         if t_ns > self._now_ns:
             self._now_ns = t_ns
         return []
 
     def next_event_ns(self) -> int | None:
-        return None  # the evaluation firmware waits for the host: no events
+        """The evaluation firmware waits for the host: no events, but while a closed-loop
+        calibration runs its periodic job works at every systick."""
+        return self._next_systick() if self._calibration else None
+
+    def _next_systick(self) -> int:
+        return (self._now_ns // SYSTICK_NS + 1) * SYSTICK_NS
 
     # == motion (the firmware's rotate / moveTo) ===============================================
 
-    def rotate(self, velocity: int) -> None:
+    def rotate(self, velocity: int) -> bool:
         """ROR/ROL/MST: velocity mode, VMAX = the velocity (the profile stays)."""
         self._sync()
         self._field(Reg.RAMPMODE, RAMPMODE_POSITIONING, 0)
         self._write(Reg.VMAX, _velocity_register(velocity))
+        return True  # the evaluation firmware writes the registers every time
 
-    def stop(self) -> None:
-        self.rotate(0)
+    def stop(self) -> bool:
+        return self.rotate(0)
 
     def emergency_stop(self) -> None:
         self.rotate(0)  # the Landungsbruecke has no heartbeat; a plain stop
@@ -189,7 +227,11 @@ class TMC4361AEvalAxis(Axis):
             return to_int32(read(Reg.STDBY_DELAY))
         raise ValueError(f"axis parameter {number} is not served")
 
-    def set_parameter(self, number: int, value: int) -> None:
+    def set_parameter(self, number: int, value: int) -> bool:
+        self._set_parameter(number, value)
+        return True  # the evaluation firmware writes the register every time
+
+    def _set_parameter(self, number: int, value: int) -> None:
         self._sync()
         write = self._write
         if number in _PLAIN:
@@ -212,6 +254,90 @@ class TMC4361AEvalAxis(Axis):
             write(Reg.STDBY_DELAY, value * STANDBY_DELAY_SCALE)
         else:
             raise ValueError(f"axis parameter {number} is read-only or not served")
+
+    # == the board's user function (command 144) ===============================================
+
+    def user_function(self, type_: int, value: int) -> tuple[int, int]:
+        """Command 144 (``userFunction`` of ``boards/TMC4361A_eval.c``, motor ignored):
+        (the board's error bits, the reply value).
+
+        0: simulated stop switches, bit 0 STOP_R, bit 1 STOP_L (1 releases the line, high; 0
+        drives it low; a value with other bits does nothing); 1: HOME_REF, 2: FREEZE (non-zero
+        releases, 0 drives low); 3: the closed-loop calibration (value 0 and NOT_DONE while it
+        runs); 255: the boards' reset (NRST pulse, configuration written anew).
+        """
+        self._sync()
+        match type_:
+            case 0:
+                if not value & ~3:
+                    self._drive("right", value & 1)
+                    self._drive("left", value & 2)
+            case 1:
+                self._drive("home", value)
+            case 2:
+                self.chip.set_freeze(bool(value))
+            case 3:
+                value = self._calibrate(master=True)
+                return (EvalError.NONE if value else EvalError.NOT_DONE), value
+            case 255:
+                self.reset_board()
+            case _:
+                return EvalError.TYPE, value
+        return EvalError.NONE, value
+
+    def _drive(self, line: str, release: int) -> None:
+        if release:
+            self.board.driven_low.discard(line)
+        else:
+            self.board.driven_low.add(line)
+        self._pins_changed()
+
+    def _calibrate(self, master: bool) -> int:
+        """One call of the firmware's ``tmc4361A_calibrateClosedLoop``: the host's (master,
+        command 144 type 3) starts it; the periodic job (worker) drives it on.  1 when it
+        ends (5 -> 0), else 0."""
+        state = self._calibration
+        if master and state == 0:
+            state = 1
+        result = 0
+        if state == 1:  # hold position: no ramp, VMAX 0, accelerations at least 1000
+            amax, dmax = self._read(Reg.AMAX), self._read(Reg.DMAX)
+            self._calibration_ramp = self._read(Reg.RAMPMODE)
+            self._write(Reg.RAMPMODE, RAMP_POSITION | RAMP_HOLD)
+            self._write(Reg.AMAX, max(amax, CALIBRATION_MIN_ACCELERATION))
+            self._write(Reg.DMAX, max(dmax, CALIBRATION_MIN_ACCELERATION))
+            self._write(Reg.VMAX, 0)
+            state = 2
+        elif state == 2:
+            self._field(Reg.ENC_IN_CONF, CL_CALIBRATION_EN, 0)
+            self._field(Reg.ENC_IN_CONF, REGULATION_MODUS, 1 << 22)
+            if self._move_to_next_fullstep():
+                state = 3
+        elif state == 3:
+            self._field(Reg.ENC_IN_CONF, CL_CALIBRATION_EN, CL_CALIBRATION_EN)
+            state = 4
+        elif state == 4 and not master:
+            self._field(Reg.ENC_IN_CONF, CL_CALIBRATION_EN, 0)
+            self._field(Reg.ENC_IN_CONF, REGULATION_MODUS, 1 << 22)
+            self._write(Reg.RAMPMODE, RAMP_POSITION | self._calibration_ramp)
+            state = 5
+        elif state == 5:
+            state, result = 0, 1
+        self._calibration = state
+        return result
+
+    def _move_to_next_fullstep(self) -> bool:
+        """Once the motor stands: position mode without ramp at 10 000 pps to the next full
+        step (MSCNT % 256 = 128, "256 microsteps assumed"); True when it stands on one."""
+        if self._read(Reg.VACTUAL) != 0:
+            return False
+        self._write(Reg.RAMPMODE, RAMP_POSITION)
+        self._write(Reg.VMAX, CALIBRATION_VMAX)
+        steps = 128 - self._read(Reg.MSCNT) % 256
+        if steps == 0:
+            return True
+        self._write(Reg.XTARGET, signed32(self._read(Reg.XACTUAL)) + steps)
+        return False
 
     # == registers (146 / 148) =================================================================
 
@@ -259,7 +385,7 @@ class TMC4361AEvalAxis(Axis):
     def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
         self.board.world.load_zones = list(zones)  # no driver board: nothing measures load
         if free_load is not None:
-            self.board.world.free_load = free_load
+            self.board.world.free_load, self.board.world.free_blocked = free_load, None
 
     def set_encoder_slip(self, slip: float) -> None:
         if not 0.0 <= slip <= 1.0:

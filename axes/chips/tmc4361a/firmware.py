@@ -55,7 +55,14 @@ _FIRMWARE_REF_BITS = (RefConf.STOP_LEFT_EN | RefConf.STOP_RIGHT_EN | RefConf.POL
                       | RefConf.SOFT_STOP_EN)
 #: Ramp registers the firmware writes through a shadow (a repeated value is not sent again).
 _SHADOWED = frozenset({Reg.AMAX, Reg.DMAX, Reg.ASTART, Reg.DFINAL, Reg.DSTOP, Reg.VSTART,
-                       Reg.VSTOP, Reg.VBREAK, Reg.TZEROWAIT, Reg.GENERAL_CONF})
+                       Reg.VSTOP, Reg.VBREAK, Reg.TZEROWAIT, Reg.GENERAL_CONF, Reg.BOW1,
+                       Reg.BOW2, Reg.BOW3, Reg.BOW4})
+#: The TMC4361 modules' (TMCM-1111) bows, their own parameters (raw pps^3 register values).
+_BOWS = ((Reg.BOW1, AP.BOW1), (Reg.BOW2, AP.BOW2), (Reg.BOW3, AP.BOW3), (Reg.BOW4, AP.BOW4))
+#: REFERENCE_CONF's virtual stop bits, owned by the firmware where the module has the
+#: TMC4361 modules' virtual stop parameters (AP 26..29 on the TMCM-1111).
+_VIRTUAL_REF_BITS = (RefConf.VIRTUAL_LEFT_LIMIT_EN | RefConf.VIRTUAL_RIGHT_LIMIT_EN
+                     | RefConf.VIRT_STOP_MODE)
 
 #: Registers only a datagram changes (the chip never does): the firmware remembers what it
 #: wrote and answers its own questions from that instead of reading them back.
@@ -85,6 +92,11 @@ class TMC4361ADriver(ChipDriver):
         self._shadow: dict[int, int] = {}
         #: The value of each remembered register as the firmware last wrote it.
         self._known: dict[int, int] = {}
+        #: The module numbers its parameters as the TMC4361 modules do (the TMCM-1111: a ramp
+        #: type, bows and DSTOP of its own; TMCL-LITE-1111 ``SetAccelerationDeceleration``):
+        #: every ramp register comes from its parameter, in both modes.
+        self._own_ramp = AP.STOP_DECELERATION in params
+        self._virtual_stops = AP.VIRTUAL_STOP_ENABLE in params
 
     # == chip access ===========================================================================
 
@@ -274,9 +286,12 @@ class TMC4361ADriver(ChipDriver):
 
     def _set_mode(self, positioning: bool) -> None:
         """RAMPMODE: the operation mode; the profile bits stay as they are (trapezoid after
-        power-up, S-shaped if a host chose it through command 146)."""
-        rampmode = self._read(Reg.RAMPMODE)
-        profile = rampmode & PROFILE_MASK or TRAPEZOID
+        power-up, S-shaped if a host chose it through command 146), or, on a module with a
+        ramp type parameter (the TMCM-1111's AP 14), as that says."""
+        if AP.RAMP_TYPE in self.params:
+            profile = S_SHAPED if self.params[AP.RAMP_TYPE] else TRAPEZOID
+        else:
+            profile = self._read(Reg.RAMPMODE) & PROFILE_MASK or TRAPEZOID
         self._write(Reg.RAMPMODE, profile | (POSITIONING if positioning else 0))
 
     def _write_ramp(self, positioning: bool) -> None:
@@ -287,10 +302,23 @@ class TMC4361ADriver(ChipDriver):
         VSTOP = AP 20.  Velocity mode ("in position mode only" for the rest) accelerates and
         decelerates with AP 5 and starts and stops from 0.  A soft stop (AP 26) brakes with
         DSTOP = the deceleration in force.  AP 21 is TZEROWAIT (direction reversals).
+
+        A module numbering its parameters as the TMC4361 modules do (the TMCM-1111) has a
+        parameter for every register: AMAX, DMAX, ASTART, DFINAL, DSTOP, VBREAK, VSTART,
+        VSTOP and BOW1..4 are written as they are, for moves and rotations alike (as
+        TMCL-LITE-1111 does); ramp wait stays 0 (it has none).
         """
         p = self.params
         accelerations: dict[int, int] = {Reg.AMAX: p[AP.MAX_ACCELERATION]}
-        if positioning:
+        if self._own_ramp:  # the TMC4361 modules: each register its parameter, both modes
+            accelerations.update({Reg.DMAX: p[AP.MAX_DECELERATION], Reg.ASTART: p[AP.A1],
+                                  Reg.DFINAL: p[AP.D1], Reg.DSTOP: p[AP.STOP_DECELERATION]})
+            vbreak = self._velocity_register(p[AP.V1])
+            vstart = self._velocity_register(p[AP.VSTART])
+            vstop = self._velocity_register(p[AP.VSTOP])
+            for bow, number in _BOWS:
+                self._write(bow, p[number])
+        elif positioning:
             accelerations[Reg.DMAX] = p[AP.MAX_DECELERATION]
             six_point = p[AP.V1] > 0
             accelerations[Reg.ASTART] = p[AP.A1] if six_point else 0
@@ -311,7 +339,8 @@ class TMC4361ADriver(ChipDriver):
         self._write(Reg.GENERAL_CONF, general)
         for reg, value in registers.items():
             self._write(reg, value)
-        self._write(Reg.DSTOP, registers[Reg.DMAX])
+        if not self._own_ramp:
+            self._write(Reg.DSTOP, registers[Reg.DMAX])
         self._write(Reg.VBREAK, vbreak)
         self._write(Reg.VSTART, vstart)
         self._write(Reg.VSTOP, vstop)
@@ -339,10 +368,21 @@ class TMC4361ADriver(ChipDriver):
             conf |= RefConf.STOP_RIGHT_EN
         if p[AP.SOFT_STOP]:
             conf |= RefConf.SOFT_STOP_EN
+        if self._virtual_stops:  # the TMCM-1111's AP 26..29 (TMCL-LITE-1111's SAP 26..29)
+            self._write(Reg.VIRT_STOP_LEFT, p[AP.VIRTUAL_STOP_LEFT])
+            self._write(Reg.VIRT_STOP_RIGHT, p[AP.VIRTUAL_STOP_RIGHT])
+            enable = p[AP.VIRTUAL_STOP_ENABLE]
+            conf &= ~_VIRTUAL_REF_BITS
+            if enable & 1:
+                conf |= RefConf.VIRTUAL_LEFT_LIMIT_EN
+            if enable & 2:
+                conf |= RefConf.VIRTUAL_RIGHT_LIMIT_EN
+            conf |= (p[AP.VIRTUAL_STOP_MODE] & 3) << 8
         self._write(Reg.REFERENCE_CONF, conf)
 
     def configure_stops(self, searching: bool) -> None:
-        """Stop switches as AP 12/13/26 say; a reference search drives through them."""
+        """Stop switches as AP 12/13/26 say (and the virtual stops where the module has them);
+        a reference search drives through the switches."""
         self._searching = searching
         self._write_reference_conf()
 

@@ -26,7 +26,7 @@ import pytest
 
 from tests.conftest import RawClient
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.lograte import REPEATS, WIRE_LOGGERS, RepeatFilter
+from tmcl_server.lograte import LIBRARY_LOGGERS, REPEATS, WIRE_LOGGERS, RepeatFilter
 from tmcl_server.loops import uvloop_available
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_spec.commands import Opcode
@@ -269,34 +269,56 @@ def test_an_over_speed_ror_flood_logs_one_line(wire_log):
     assert len(beyond) == 1
 
 
-def test_clients_over_the_connection_limit_are_closed_and_the_first_still_served(wire_log):
+def test_at_the_connection_limit_a_new_client_closes_the_one_silent_longest(wire_log):
+    """Idle connections must not lock a live host out: past the limit the client that has
+    been silent longest is closed, the active ones keep their connections."""
     limit = 6
     with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], max_connections=limit) as sim:
         clients = [RawClient(sim.tcp) for _ in range(limit)]
-        for client in clients:  # each served before the next one connects
-            assert client.request(1, Opcode.GAP, 4, 0).value == 51200
-        extra = [RawClient(sim.tcp) for _ in range(5)]
         try:
-            for client in extra:  # accepted, then closed at once: end of stream, no reply
-                client.sock.settimeout(5)
-                assert client.sock.recv(9) == b""
-            for client in clients:
+            for client in clients:  # each served in turn: clients[0] is the one silent longest
                 assert client.request(1, Opcode.GAP, 4, 0).value == 51200
-            clients.pop().close()  # a slot frees up: the next client is served
-            deadline = time.monotonic() + 5
-            while True:
-                late = RawClient(sim.tcp)
-                extra.append(late)
-                late.sock.settimeout(2)
-                late.send_raw(GAP)
-                if (data := late.sock.recv(9)) or time.monotonic() > deadline:
-                    break  # the close above may take a loop turn to be noticed
-            assert decode_reply(data).value == 51200
+            newcomer = RawClient(sim.tcp)
+            clients.append(newcomer)
+            assert newcomer.request(1, Opcode.GAP, 4, 0).value == 51200
+            clients[0].sock.settimeout(5)
+            assert clients[0].sock.recv(9) == b""  # closed: end of stream
+            for client in clients[1:]:
+                assert client.request(1, Opcode.GAP, 4, 0).value == 51200
         finally:
-            for client in clients + extra:
+            for client in clients:
                 client.close()
-    refused = [r for r in wire_log.records if "--max-connections" in r.getMessage()]
-    assert 1 <= len(refused) <= 2
+    evicted = [r for r in wire_log.records if "--max-connections" in r.getMessage()]
+    assert len(evicted) == 1 and "silent longest" in evicted[0].getMessage()
+
+
+def test_600_idle_connections_at_the_256_limit_do_not_lock_a_live_host_out(wire_log):
+    """The issue's case: a host polls while 600 idle connections come; every one of its
+    requests is answered, and a host that connects afterwards is served at once."""
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"]) as sim:
+        host = RawClient(sim.tcp)
+        idle: list[socket.socket] = []
+        try:
+            for n in range(600):
+                idle.append(socket.create_connection(_host_port(sim.tcp)))
+                if n % 20 == 0:
+                    assert host.request(1, Opcode.GAP, 4, 0).value == 51200
+            late = RawClient(sim.tcp)
+            assert late.request(1, Opcode.GAP, 4, 0).value == 51200
+            assert host.request(1, Opcode.GAP, 4, 0).value == 51200
+            late.close()
+            served = sim.call(lambda: len(sim.server.transports[0].connections))
+            assert served <= 256
+        finally:
+            host.close()
+            for sock in idle:
+                sock.close()
+    assert sum("--max-connections" in r.getMessage() for r in wire_log.records) <= 2  # rate-limited
+
+
+def _host_port(endpoint: str) -> tuple[str, int]:
+    host, _, port = endpoint.rpartition(":")
+    return host, int(port)
 
 
 @pytest.mark.parametrize("loop", LOOPS)
@@ -358,7 +380,13 @@ def test_every_wire_logger_is_rate_limited():
         if "getLogger(__name__)" in path.read_text()}
     assert logging_modules <= set(WIRE_LOGGERS)
     for name in WIRE_LOGGERS:
-        assert name == "asyncio" or importlib.util.find_spec(name) is not None, name
+        assert name in LIBRARY_LOGGERS or importlib.util.find_spec(name) is not None, name
+    aiohttp_log = importlib.util.find_spec("aiohttp.log")
+    if aiohttp_log is not None:  # the library's names, as aiohttp spells them
+        import aiohttp.log
+        names = {getattr(aiohttp.log, attr).name for attr in dir(aiohttp.log)
+                 if isinstance(getattr(aiohttp.log, attr), logging.Logger)}
+        assert {n for n in LIBRARY_LOGGERS if n.startswith("aiohttp.")} <= names
 
 
 # -- item 11: a connection that comes and goes leaves nothing behind --------------------------

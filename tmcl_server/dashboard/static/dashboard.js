@@ -72,6 +72,10 @@
     socket.onmessage = (event) => receive(JSON.parse(event.data));
   }
 
+  // A hidden tab draws (and so acknowledges) nothing: say "alive" now and then, or the server
+  // closes the page as idle after two minutes (docs/robustness.md).
+  setInterval(() => send({op: "alive"}), 30000);
+
   function setConnection(text, kind) {
     const node = $("connection");
     node.textContent = text;

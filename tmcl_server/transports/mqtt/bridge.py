@@ -11,15 +11,18 @@ address a module was started with (its slot):
 * ``PREFIX/A/sim/...``         set the simulated world (inputs, switches, load, slip), inject
                                faults (``sim/fault``; the list: ``PREFIX/faults``, retained)
 
-Field names and payloads are documented in docs/mqtt.md.  The bridge keeps every reply and
-event it owes in an outbox until the broker has taken it, so a broker restart loses nothing
-the simulator accepted; it reconnects with back-off and republishes the retained state.
+Field names and payloads are documented in docs/mqtt.md.  The bridge keeps the replies and
+events it owes in a bounded outbox until the broker has taken them: a short broker restart
+loses nothing, a long one (or events faster than the broker takes them) loses the events that
+do not fit, counted on ``PREFIX/dropped``; retained messages (the fault list, the counter)
+keep only their latest value.  It reconnects with back-off and republishes the state.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import logging
 import os
@@ -40,6 +43,7 @@ from tmcl_server.dispatch import Interface
 from tmcl_server.faults import FaultInjector, FaultSpecError
 from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import FRAME_LENGTH, ChecksumError, Reply, decode_request
+from tmcl_server.sidechannel import SideChannel
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import Transport, TransportHost
 from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ
@@ -55,6 +59,12 @@ ENV_USERNAME = "TMCL_MQTT_USERNAME"
 ENV_PASSWORD = "TMCL_MQTT_PASSWORD"
 BACKOFF_START_S = 0.2
 BACKOFF_MAX_S = 5.0
+#: Replies (and answers such as ``sim_error``) waiting for the broker, at most this many; and
+#: as many events.  What comes beyond is dropped and counted (docs/mqtt.md, Reliability).
+MAX_QUEUED = 10_000
+#: Messages sent to the broker before their acknowledgements are awaited together (QoS 1):
+#: one at a time, a broker's round trip limits the bridge to a few hundred a second.
+IN_FLIGHT = 16
 
 
 @dataclass(frozen=True)
@@ -92,13 +102,73 @@ class MqttSettings:
         return f"{scheme}://{self.host}:{self.port}/{self.prefix}"
 
 
-@dataclass
+@dataclass(slots=True)
 class _Outgoing:
     topic: str
     payload: bytes
     qos: int = 1
     retain: bool = False
     correlation: bytes | None = None
+
+
+class Outbox:
+    """What the bridge owes the broker, bounded: replies and events in order, each queue at
+    most :data:`MAX_QUEUED` long (beyond it a message is dropped and counted), and retained
+    messages coalesced to the latest per topic."""
+
+    def __init__(self, limit: int = MAX_QUEUED) -> None:
+        self.limit = limit
+        self.replies: deque[_Outgoing] = deque()
+        self.events: deque[_Outgoing] = deque()
+        self.latest: dict[str, _Outgoing] = {}
+        #: Messages dropped so far, by kind (published on PREFIX/dropped).
+        self.dropped = {"events": 0, "replies": 0}
+        self.ready = asyncio.Event()
+
+    def __len__(self) -> int:
+        return len(self.replies) + len(self.events) + len(self.latest)
+
+    def reply(self, message: _Outgoing) -> bool:
+        return self._add(self.replies, "replies", message)
+
+    def event(self, message: _Outgoing) -> bool:
+        return self._add(self.events, "events", message)
+
+    def retained(self, message: _Outgoing) -> None:
+        self.latest[message.topic] = message
+        self.ready.set()
+
+    def _add(self, queue: deque[_Outgoing], kind: str, message: _Outgoing) -> bool:
+        if len(queue) >= self.limit:
+            self.dropped[kind] += 1
+            log.warning("MQTT outbox: %d %s wait for the broker (the limit); dropping more, "
+                        "counted on PREFIX/dropped", len(queue), kind)
+            return False
+        queue.append(message)
+        self.ready.set()
+        return True
+
+    def batch(self, size: int = IN_FLIGHT) -> list[tuple[str, _Outgoing]]:
+        """The next messages to send, oldest first, replies before retained before events;
+        they stay queued until :meth:`sent` (a lost connection sends them again)."""
+        picked: list[tuple[str, _Outgoing]] = [("replies", m) for m in
+                                               list(itertools.islice(self.replies, size))]
+        picked += [("latest", m) for m in list(self.latest.values())[:size - len(picked)]]
+        picked += [("events", m) for m in
+                   list(itertools.islice(self.events, max(0, size - len(picked))))]
+        return picked
+
+    def sent(self, picked: list[tuple[str, _Outgoing]]) -> None:
+        for kind, message in picked:
+            if kind == "latest":
+                if self.latest.get(message.topic) is message:  # not replaced meanwhile
+                    del self.latest[message.topic]
+            else:
+                queue = self.replies if kind == "replies" else self.events
+                if queue and queue[0] is message:
+                    queue.popleft()
+        if not len(self):
+            self.ready.clear()
 
 
 @dataclass
@@ -153,20 +223,36 @@ class _ReplyRoute:
         self.send(reply)
 
 
+def _raise_if_cancelling() -> None:
+    """Honour a cancellation that a publish swallowed: before Python 3.12, asyncio.wait_for
+    (inside aiomqtt's publish) returns the result when the broker's acknowledgement and the
+    cancellation arrive together, and the task, still marked as cancelling, would wait on
+    forever while the server stops (seen on Ctrl-C, tests/tmcl_server/test_windows.py)."""
+    task = asyncio.current_task()
+    if task is not None and task.cancelling():
+        raise asyncio.CancelledError
+
+
 class MqttBridge(Transport):
     kind = "mqtt"
 
     def __init__(self, simulation: Simulation, url: str, rate_hz: float = DEFAULT_RATE_HZ,
-                 connect_timeout: float = 5.0) -> None:
+                 connect_timeout: float = 5.0, allow_faults: bool = False) -> None:
         if rate_hz <= 0:
             raise ValueError("--mqtt-rate must be positive")
         self.simulation = simulation
         self.settings = MqttSettings.from_url(url)
         self.rate_hz = rate_hz
         self.connect_timeout = connect_timeout
-        self._outbox: deque[_Outgoing] = deque()
-        self._outbox_ready = asyncio.Event()
+        #: ``--mqtt-faults``: whether ``sim/fault`` and ``sim/power_cycle`` are served (every
+        #: client of the broker could otherwise silence or reset the module).
+        self.allow_faults = allow_faults
+        self.outbox = Outbox()
+        #: The dropped counts last queued for PREFIX/dropped.
+        self._dropped_shown: dict[str, int] | None = None
         self._connected = asyncio.Event()
+        #: The module events are a side channel: a failure stops them, never the module.
+        self.events_channel = SideChannel("the MQTT bridge's events", self._remove_listeners)
         self._feeds = [_ModuleFeed(m, f"{self.settings.prefix}/{m.slot}")
                        for m in simulation.modules]
         self._task: asyncio.Task[None] | None = None
@@ -174,7 +260,8 @@ class MqttBridge(Transport):
 
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> MqttBridge:
-        return cls(host.simulation, argument, rate_hz=host.option("mqtt_rate"))
+        return cls(host.simulation, argument, rate_hz=host.option("mqtt_rate"),
+                   allow_faults=bool(host.option("mqtt_faults")))
 
     @property
     def status_topic(self) -> str:
@@ -195,25 +282,42 @@ class MqttBridge(Transport):
         return [self.settings.display]
 
     async def close(self) -> None:
-        for feed in self._feeds:
-            if feed.listener in feed.module.listeners:
-                feed.module.listeners.remove(feed.listener)
+        self._remove_listeners()
         if self._task is not None:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self._task = None
 
+    def _remove_listeners(self) -> None:
+        for feed in self._feeds:
+            if feed.listener in feed.module.listeners:
+                feed.module.listeners.remove(feed.listener)
+
     def enqueue(self, message: _Outgoing) -> None:
-        self._outbox.append(message)
-        self._outbox_ready.set()
+        """A reply or an answer (in order; dropped and counted past MAX_QUEUED)."""
+        if message.retain:
+            self.outbox.retained(message)
+        else:
+            self.outbox.reply(message)
+
+    @property
+    def dropped_topic(self) -> str:
+        return f"{self.settings.prefix}/dropped"
+
+    def _show_dropped(self) -> None:
+        """Queue PREFIX/dropped when the counts changed (retained: the latest counts)."""
+        if self.outbox.dropped != self._dropped_shown:
+            self._dropped_shown = dict(self.outbox.dropped)
+            self.outbox.retained(_Outgoing(self.dropped_topic, json.dumps(
+                self._dropped_shown, separators=(",", ":")).encode(), retain=True))
 
     # -- connection ---------------------------------------------------------------------------
 
     def _client(self) -> aiomqtt.Client:
         s = self.settings
         tls_context = ssl.create_default_context() if s.tls else None
-        return aiomqtt.Client(
+        client = aiomqtt.Client(
             s.host, s.port, username=s.username, password=s.password,
             identifier=f"tmcl-sim-{s.prefix}-{os.getpid()}",
             protocol=aiomqtt.ProtocolVersion.V5,
@@ -221,6 +325,10 @@ class MqttBridge(Transport):
             tls_context=tls_context, keepalive=10, timeout=5,
             # small request/reply messages: Nagle + delayed ACK would add ~40 ms each way
             socket_options=[(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)])
+        # IN_FLIGHT publications (and the state's) await their acknowledgements at once: not a
+        # "concerning number of pending calls" for aiomqtt to warn about
+        client.pending_calls_threshold = 2 * IN_FLIGHT + len(self._feeds) + 8
+        return client
 
     async def _run(self) -> None:
         backoff = BACKOFF_START_S
@@ -244,6 +352,8 @@ class MqttBridge(Transport):
         await client.publish(self.status_topic, b"online", qos=1, retain=True)
         for feed in self._feeds:
             feed.last_state = None  # the broker may have lost it: publish afresh
+        self._dropped_shown = None
+        self._show_dropped()
         self.connections += 1
         self._connected.set()
         try:
@@ -260,18 +370,26 @@ class MqttBridge(Transport):
     # -- outgoing -----------------------------------------------------------------------------
 
     async def _publish_outbox(self, client: aiomqtt.Client) -> None:
+        outbox = self.outbox
         while True:
-            await self._outbox_ready.wait()
-            while self._outbox:
-                message = self._outbox[0]
-                properties = None
-                if message.correlation is not None:
-                    properties = Properties(PacketTypes.PUBLISH)
-                    properties.CorrelationData = message.correlation
-                await client.publish(message.topic, message.payload, qos=message.qos,
-                                     retain=message.retain, properties=properties)
-                self._outbox.popleft()  # only once the broker has it
-            self._outbox_ready.clear()
+            await outbox.ready.wait()
+            picked = outbox.batch()
+            if not picked:
+                outbox.ready.clear()
+                continue
+            # sent in order, acknowledged together; removed only once the broker has them
+            await asyncio.gather(*(self._publish(client, message) for _, message in picked))
+            _raise_if_cancelling()
+            outbox.sent(picked)
+
+    @staticmethod
+    async def _publish(client: aiomqtt.Client, message: _Outgoing) -> None:
+        properties = None
+        if message.correlation is not None:
+            properties = Properties(PacketTypes.PUBLISH)
+            properties.CorrelationData = message.correlation
+        await client.publish(message.topic, message.payload, qos=message.qos,
+                             retain=message.retain, properties=properties)
 
     async def _publish_state(self, client: aiomqtt.Client) -> None:
         period = 1.0 / self.rate_hz
@@ -285,20 +403,26 @@ class MqttBridge(Transport):
                     payload = json.dumps({"t": stamp, **snapshot}, separators=(",", ":"))
                     await client.publish(f"{feed.base}/state", payload.encode(), qos=1,
                                          retain=True)
+                    _raise_if_cancelling()
                     feed.last_state = state
+            self._show_dropped()
             await asyncio.sleep(period)
 
     def _event_listener(self, feed: _ModuleFeed) -> Callable[[ModuleEvent], None]:
         topic = f"{feed.base}/event"
+        outbox = self.outbox
 
         def on_event(event: ModuleEvent) -> None:
+            if len(outbox.events) >= outbox.limit:  # full: count it without building it
+                outbox.event(_Outgoing(topic, b""))
+                return
             body = {"t": event.time_ns / NS_PER_S, "kind": event.kind}
             if event.axis is not None:
                 body["axis"] = event.axis
             body.update({k: v for k, v in event.data.items() if v is not None})
-            self.enqueue(_Outgoing(topic, json.dumps(body, separators=(",", ":")).encode()))
+            outbox.event(_Outgoing(topic, json.dumps(body, separators=(",", ":")).encode()))
 
-        return on_event
+        return self.events_channel.guard(on_event, "publishing an event")
 
     # -- incoming -----------------------------------------------------------------------------
 
@@ -356,6 +480,9 @@ class MqttBridge(Transport):
     def _handle_sim(self, feed: _ModuleFeed, path: list[str], payload: bytes) -> None:
         try:
             if path[:1] and path[0] in FAULT_TOPICS:
+                if not self.allow_faults:
+                    raise FaultSpecError("faults over MQTT are off: start tmcl-server with "
+                                         "--mqtt-faults to allow them")
                 injector = FaultInjector.of(self.simulation)
                 apply_fault_message(injector, feed.module, path, payload)
                 self.enqueue(_Outgoing(f"{self.settings.prefix}/faults",
