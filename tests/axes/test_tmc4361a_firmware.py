@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from axes.chips.tmc4361a import TMC4361A, Reg
+from axes.chips.tmc4361a import TMC4361A, Event, Reg
 from axes.chips.tmc4361a.firmware import TMC4361AAxis
 from axes.interface import AxisEventKind
 from axes.world import AxisWorld, Switch
@@ -358,3 +358,43 @@ def test_remembered_runs_change_nothing_a_host_sees(s_ramp: bool,
 
     assert session(True) == session(False)
     assert replays > 40  # the moves (and the rotation's reversals) were replayed
+
+
+def test_stop_events_are_cleared_at_standstill_as_the_tmc4361_firmware_does() -> None:
+    """TMCL-LITE-1111 (Trinamic's TMCL firmware for the TMC4361 modules) reads and clears a
+    STOPL/STOPR/VSTOPL/VSTOPR event in every main-loop pass while VACTUAL = 0: a host that
+    reads EVENTS (command 147) after a switch came and went at standstill finds none.  While
+    the motor moves the event stays, and locks its direction until the motor stands."""
+    h = harness()
+    h.sap(AP.RIGHT_POLARITY, 1)
+    h.sap(AP.RIGHT_POLARITY, 0)
+    assert not h.axis.register_access(Reg.EVENTS) & Event.STOPR
+    h.axis.rotate(20_000)
+    h.advance(0.5)
+    h.axis.set_switch("left", Switch.place(h.gap(AP.ACTUAL_POSITION), side="below"))
+    h.axis.set_switch("left", None)  # the left switch came and went while moving right
+    assert h.axis.register_access(Reg.EVENTS) & Event.STOPL  # moving: kept
+    h.axis.rotate(-20_000)  # down to 0 (the event locks the left side), then left
+    h.advance(1.0)
+    assert h.gap(AP.ACTUAL_SPEED) == -20_000
+
+
+def test_the_tmc4361_modules_write_vmax_unclamped() -> None:
+    """The speed ceiling is the TMCM-6212 core's choice; TMCL-LITE-1111 writes VMAX = pps << 8
+    whatever it is, so a module with the TMC4361 modules' numbering positions as fast as it
+    is told (the chip model does not emulate what goes wrong above f/4)."""
+    from tmcl_server.clock import VirtualClock
+    from tmcl_server.module import TMCLModule
+    from tmcl_server.protocol import Request
+    from tmcl_server.simulation import Simulation
+    from tmcl_spec.commands import Opcode
+
+    module = TMCLModule(kind="tmcm-1111")
+    sim = Simulation([module], VirtualClock())
+    for number, value in ((AP.MAX_SPEED, 6_000_000), (AP.MAX_ACCELERATION, 4_000_000),
+                          (AP.MAX_DECELERATION, 4_000_000)):
+        module.execute(Request(1, Opcode.SAP, number, 0, value))
+    module.execute(Request(1, Opcode.MVP, 0, 0, 2_000_000_000))
+    sim.replan()
+    sim.advance(2.0)
+    assert module.execute(Request(1, Opcode.GAP, AP.ACTUAL_SPEED, 0, 0)).value == 6_000_000

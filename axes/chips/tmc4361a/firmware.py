@@ -49,6 +49,8 @@ INTERNAL_ACCELERATION_SHIFT = 41
 
 _VEL_STATE = Status.VEL_STATE_POS | Status.VEL_STATE_NEG
 _SWITCH_EVENTS = Event.STOPL | Event.STOPR
+#: The events that lock a direction: the stop switches' and the virtual stops'.
+_STOP_EVENTS = _SWITCH_EVENTS | Event.VSTOPL_ACTIVE | Event.VSTOPR_ACTIVE
 #: The REFERENCE_CONF bits the firmware owns (the rest is left as a host wrote it via 146).
 _FIRMWARE_REF_BITS = (RefConf.STOP_LEFT_EN | RefConf.STOP_RIGHT_EN | RefConf.POL_STOP_LEFT
                       | RefConf.POL_STOP_RIGHT | RefConf.INVERT_STOP_DIRECTION
@@ -146,7 +148,10 @@ class TMC4361ADriver(ChipDriver):
         A write sends one datagram with the value as its data; a read sends the read datagram
         twice (the answer comes one datagram later) and returns the data, so the SPI status
         byte of the 40-bit answer is not part of the reply.  Writes bypass the firmware.
+        The firmware's main loop has run before the request (stop events at standstill
+        cleared, :meth:`_release_stop_events`).
         """
+        self._release_stop_events()
         if value is None:
             answer = self._read(address)
         else:
@@ -247,7 +252,13 @@ class TMC4361ADriver(ChipDriver):
 
     def _vmax_register(self, speed: int, positioning: bool) -> int:
         """VMAX for a speed parameter, within the datasheet's ceiling for the mode (f/4 pps
-        in positioning, f/2 pps in velocity mode; docs/tmc4361a.md, "Speed ceiling")."""
+        in positioning, f/2 pps in velocity mode; docs/tmc4361a.md, "Speed ceiling").
+
+        The TMC4361 modules' own firmware (TMCL-LITE-1111: VMAX = pps << 8) does not clamp,
+        so a module with their numbering (the TMCM-1111) writes what it is given.
+        """
+        if self._own_ramp:
+            return self._velocity_register(speed)
         divisor = POSITIONING_CEILING_DIVISOR if positioning else VELOCITY_MODE_CEILING_DIVISOR
         ceiling = (self.chip.clock_hz << 8) // divisor
         return max(-ceiling, min(self._velocity_register(speed), ceiling))
@@ -389,15 +400,20 @@ class TMC4361ADriver(ChipDriver):
     # == motion ================================================================================
 
     def _release_stop_events(self) -> None:
-        """Clear the latched STOPL/STOPR events before a motion command (datasheet §8.1.2).
+        """Clear latched stop events while the motor stands (datasheet §8.1.2), as Trinamic's
+        TMC4361 TMCL firmware does in every pass of its main loop (TMCL-LITE-1111,
+        ``SystemControl``: a STOPL, STOPR, VSTOPL or VSTOPR event with VACTUAL = 0 is read
+        and cleared).
 
         The chip latches a stop event whenever an enabled switch becomes active, also at
-        standstill (a polarity or swap change, a switch passing by), and blocks that direction
-        until the event is cleared, even after the switch is released.  The firmware clears
-        them (writing 1 clears only these two) so that, as on the TMC4210 core, only a switch
-        that is still active blocks: its STATUS flag keeps that direction locked.
+        standstill (a polarity or swap change, a switch passing by), and locks that direction
+        until the event is cleared, even after the switch is released; an active switch (or
+        a virtual limit still passed) keeps it locked through its STATUS flag.  The main loop
+        runs between any two host requests, so the firmware here clears the events before
+        each motion command and each register access (writing 1 clears only those bits).
         """
-        self._write(Reg.EVENTS, _SWITCH_EVENTS)
+        if not self._read(Reg.VACTUAL):
+            self._write(Reg.EVENTS, _STOP_EVENTS)
 
     def start_velocity(self, speed: int) -> None:
         self._release_stop_events()
