@@ -211,6 +211,8 @@ class ReferenceRamp:
     def _choose(self, target: int) -> tuple | None:
         if self.positioning:
             if self.braking:
+                if (target - self.x) * self.s < 0:  # past the target: U-turn, datasheet §6.6
+                    return ("fall", TO_ZERO, 0, True)
                 return ("fall", TO_TARGET, 0)
             if self.V == 0:
                 return ("fall", TO_ZERO, 0) if self.stage != IDLE else None
@@ -428,8 +430,9 @@ class ReferenceRamp:
             if w <= goal:
                 w, next_stage, ended = goal, CRUISE, False
         elif continuous:
-            if w < 0:
+            if w < 0:  # through 0: on to XTARGET with a new approach (datasheet §6.6)
                 self.s = -self.s
+                self.braking = False
                 w = -w
                 self.a = min(g, self.AMAX)
                 self.slope = RISE

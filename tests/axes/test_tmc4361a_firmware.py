@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import pytest
 
-from axes.chips.tmc4361a import Reg
+from axes.chips.tmc4361a import TMC4361A, Event, Reg
 from axes.chips.tmc4361a.firmware import TMC4361AAxis
 from axes.interface import AxisEventKind
-from tests.axes.test_axis_firmware import Harness
+from axes.world import AxisWorld, Switch
+from tests.axes.test_axis_firmware import CORES, Harness
 from tests.axes.test_tmc4361a import _s_time, _sixpoint_time
 from tmcl_spec.parameters import AP
 from tmcl_spec.tmcm6212 import MAX_ACCELERATION_PPS2, MAX_VELOCITY_PPS
@@ -95,6 +96,9 @@ def test_ap17_changed_in_flight_takes_effect_and_mst_brakes_with_ap5() -> None:
 
 
 def test_the_manuals_full_speed_and_acceleration_ranges() -> None:
+    """The manual's AP 4 range (7 999 774 pps) is accepted and read back; the chip positions
+    at most at f/4 (datasheet §6.7.2, Table 18: 4 000 000 pps at 16 MHz) and rotates at up
+    to f/2, so a rotation runs at the full range."""
     h = harness()
     h.sap(AP.MAX_SPEED, MAX_VELOCITY_PPS)
     h.sap(AP.MAX_ACCELERATION, MAX_ACCELERATION_PPS2)
@@ -106,10 +110,34 @@ def test_the_manuals_full_speed_and_acceleration_ranges() -> None:
     assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(MAX_ACCELERATION_PPS2 * 0.5, rel=2e-5)
     assert h.axis.register_access(Reg.GENERAL_CONF) & 0b10
     h.advance(1.0)
-    assert h.gap(AP.ACTUAL_SPEED) == MAX_VELOCITY_PPS
+    assert h.gap(AP.MAX_SPEED) == MAX_VELOCITY_PPS
+    assert h.gap(AP.ACTUAL_SPEED) == CLOCK // 4
+    assert h.axis.register_access(Reg.VMAX) == (CLOCK // 4) << 8
     h.axis.rotate(-MAX_VELOCITY_PPS)
     h.advance(3.0)
     assert h.gap(AP.ACTUAL_SPEED) == -MAX_VELOCITY_PPS
+
+
+@pytest.mark.parametrize("clock", [16_000_000, 10_000_000])
+def test_the_datasheets_speed_ceiling_in_each_mode(clock: int) -> None:
+    """|VMAX| <= f/4 in positioning, <= f/2 in velocity mode (datasheet §6.7.2): beyond them
+    the real chip makes wrong step pulses or positions wrongly, so the firmware writes no
+    more (a raised AP 4 during a move too); AP 4 and AP 2 keep the values the host wrote."""
+    h = Harness(axis_class=lambda index, world=None: TMC4361AAxis(index, world=world,
+                                                                  clock_hz=clock))
+    h.sap(AP.MAX_ACCELERATION, MAX_ACCELERATION_PPS2)
+    h.sap(AP.MAX_DECELERATION, MAX_ACCELERATION_PPS2)
+    h.sap(AP.MAX_SPEED, 1_000_000)
+    h.axis.move_to(1_000_000_000)
+    h.advance(0.5)
+    assert h.gap(AP.ACTUAL_SPEED) == 1_000_000
+    h.sap(AP.MAX_SPEED, 7_000_000)  # on the fly
+    h.advance(1.5)
+    assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.MAX_SPEED)) == (clock // 4, 7_000_000)
+    h.axis.rotate(7_000_000)
+    h.advance(1.5)
+    assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.TARGET_SPEED)) == (min(7_000_000, clock // 2),
+                                                                 7_000_000)
 
 
 # == the six-point ramp of Table 14 ==============================================================
@@ -193,3 +221,180 @@ def test_register_access_is_32_bit_data_and_writes_bypass_the_firmware() -> None
     h.axis.register_access(Reg.VMAX, 10_000 << 8)  # velocity mode after power-up: it runs
     h.advance(1)
     assert h.gap(AP.ACTUAL_SPEED) == 10_000
+
+
+# == stop switches: a direction is blocked only while its switch is active (issue 24, item 1) ====
+
+
+@pytest.mark.parametrize("core", CORES)
+@pytest.mark.parametrize(("polarity", "speed"), [(AP.RIGHT_POLARITY, 20_000),
+                                                 (AP.LEFT_POLARITY, -20_000)])
+def test_a_polarity_toggled_at_standstill_leaves_no_direction_blocked(
+        core: str, polarity: int, speed: int) -> None:
+    """``SAP 24, 0, 1; SAP 24, 0, 0`` with no switch in the world: the inverted input reads
+    the switch active for a moment, the chip latches its stop event (datasheet §8.1.2: at
+    standstill too) and kept that direction locked, so ``ROR 0, 20000`` never moved.  The
+    firmware clears the stale event before a motion command; both cores now move."""
+    h = Harness(axis_class=CORES[core])
+    h.sap(polarity, 1)
+    assert h.gap(AP.RIGHT_SWITCH if speed > 0 else AP.LEFT_SWITCH) == 1
+    h.sap(polarity, 0)
+    h.axis.rotate(speed)
+    h.advance(0.5)
+    assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(speed, abs=5)
+    assert h.gap(AP.ACTUAL_POSITION) * speed > 0
+
+
+@pytest.mark.parametrize("core", CORES)
+@pytest.mark.parametrize(("standing_on", "speed"), [("left", 20_000), ("right", -20_000)])
+def test_swapping_switches_back_while_standing_on_one_leaves_the_other_side_free(
+        core: str, standing_on: str, speed: int) -> None:
+    """AP 14 toggled 1 -> 0 while the motor stands on a switch: for a moment the switch was
+    the other side's, whose event stayed latched.  Moving away from the real switch works;
+    moving into it stays blocked while it is active."""
+    side = "below" if standing_on == "left" else "above"
+    h = Harness(AxisWorld(switches={standing_on: Switch.place(0, side=side)}), CORES[core])
+    h.sap(AP.SWAP_SWITCHES, 1)
+    h.sap(AP.SWAP_SWITCHES, 0)
+    h.axis.rotate(-speed)  # into the switch it stands on: blocked
+    h.advance(0.5)
+    assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.ACTUAL_POSITION)) == (0, 0)
+    h.axis.rotate(speed)  # away from it
+    h.advance(0.5)
+    assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(speed, abs=5)
+    assert h.gap(AP.ACTUAL_POSITION) * speed > 0
+
+
+@pytest.mark.parametrize("core", CORES)
+def test_a_switch_released_at_standstill_frees_its_direction_for_mvp(core: str) -> None:
+    """A switch the world closes and opens again (here: puts under the motor and takes away)
+    while the motor stands still: an MVP toward that side moves and arrives."""
+    h = Harness(axis_class=CORES[core])
+    h.axis.set_switch("right", Switch.place(0, side="above"))
+    assert h.gap(AP.RIGHT_SWITCH) == 1
+    h.axis.set_switch("right", Switch.place(50_000, side="above"))
+    assert h.gap(AP.RIGHT_SWITCH) == 0
+    h.axis.move_to(10_000)
+    h.until(AxisEventKind.TARGET_REACHED, timeout_s=5)
+    assert h.gap(AP.ACTUAL_POSITION) == 10_000
+
+
+# == a target inside the braking distance (issue 24, item 2) =====================================
+
+
+@pytest.mark.parametrize("s_ramp", [False, True])
+def test_a_new_target_inside_the_braking_distance_is_reached_with_vstop(s_ramp: bool) -> None:
+    """AP 20 at its factory value (10 pps): an MVP to a target closer than the braking
+    distance used to end in a VSTOP crawl away from it for ever (87 936 steps past after
+    20 s, AP 8 = 0).  The move passes the target, turns (datasheet §6.6) and arrives."""
+    h = harness()
+    assert h.gap(AP.VSTOP) == 10
+    if s_ramp:
+        rampmode = h.axis.register_access(Reg.RAMPMODE)
+        h.axis.register_access(Reg.RAMPMODE, (rampmode & ~0b11) | 0b10)
+        for reg in (Reg.BOW1, Reg.BOW2, Reg.BOW3, Reg.BOW4):
+            h.axis.register_access(reg, 400_000)  # BOW2 = BOW4: the U-turn passes through 0
+    for number, value in ((AP.MAX_SPEED, 100_000), (AP.MAX_ACCELERATION, 51_200),
+                          (AP.MAX_DECELERATION, 51_200)):
+        h.sap(number, value)
+    h.axis.move_to(10_000_000)
+    h.advance(3.0)
+    assert h.gap(AP.ACTUAL_SPEED) == 100_000
+    target = h.gap(AP.ACTUAL_POSITION) + 10_000
+    h.axis.move_to(target)
+    h.until(AxisEventKind.TARGET_REACHED, timeout_s=20)
+    assert (h.gap(AP.ACTUAL_POSITION), h.gap(AP.POSITION_REACHED), h.gap(AP.ACTUAL_SPEED)) == (
+        target, 1, 0)
+    h.advance(1.0)
+    assert h.gap(AP.ACTUAL_POSITION) == target
+
+
+# == remembered runs through the firmware (issue 23, item 4) =====================================
+
+
+@pytest.mark.parametrize("s_ramp", [False, True])
+def test_remembered_runs_change_nothing_a_host_sees(s_ramp: bool,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """The manual's program (MVP ±512000) on one axis and a rotation reversed every 7 s on
+    another, through the firmware and its look-ahead: with the chip replaying runs it has
+    seen, every event comes at the same instant and every reading is the same as with a
+    chip that works each run out."""
+    replays = 0
+    replay = TMC4361A._replay
+
+    def counted(chip: TMC4361A, *args) -> None:  # type: ignore[no-untyped-def]
+        nonlocal replays
+        replays += 1
+        replay(chip, *args)
+
+    monkeypatch.setattr(TMC4361A, "_replay", counted)
+
+    def session(recall: bool) -> list[tuple]:
+        monkeypatch.setattr(TMC4361A, "recall", recall)
+        mover, rotor = harness(), harness()
+        for h in (mover, rotor):
+            if s_ramp:
+                rampmode = h.axis.register_access(Reg.RAMPMODE)
+                h.axis.register_access(Reg.RAMPMODE, (rampmode & ~0b11) | 0b10)
+                for reg in (Reg.BOW1, Reg.BOW2, Reg.BOW3, Reg.BOW4):
+                    h.axis.register_access(reg, 400_000)
+            h.sap(AP.MAX_SPEED, 200_000)
+            h.sap(AP.MAX_ACCELERATION, 100_000)
+        seen: list[tuple] = []
+        target, speed = 512_000, 80_000
+        mover.axis.move_to(target)
+        rotor.axis.rotate(speed)
+        for _ in range(40):
+            event = mover.until(AxisEventKind.TARGET_REACHED, timeout_s=60)
+            rotor.advance_to(event.time_ns)
+            if event.time_ns // (7 * NS) != (event.time_ns - 1) // (7 * NS) or len(seen) % 3 == 0:
+                speed = -speed
+                rotor.axis.rotate(speed)
+            seen.append((event.time_ns, mover.gap(AP.ACTUAL_POSITION), rotor.gap(AP.ACTUAL_POSITION),
+                         rotor.gap(AP.ACTUAL_SPEED), rotor.axis.register_access(Reg.EVENTS)))
+            target = -target
+            mover.axis.move_to(target)
+        return seen
+
+    assert session(True) == session(False)
+    assert replays > 40  # the moves (and the rotation's reversals) were replayed
+
+
+def test_stop_events_are_cleared_at_standstill_as_the_tmc4361_firmware_does() -> None:
+    """TMCL-LITE-1111 (Trinamic's TMCL firmware for the TMC4361 modules) reads and clears a
+    STOPL/STOPR/VSTOPL/VSTOPR event in every main-loop pass while VACTUAL = 0: a host that
+    reads EVENTS (command 147) after a switch came and went at standstill finds none.  While
+    the motor moves the event stays, and locks its direction until the motor stands."""
+    h = harness()
+    h.sap(AP.RIGHT_POLARITY, 1)
+    h.sap(AP.RIGHT_POLARITY, 0)
+    assert not h.axis.register_access(Reg.EVENTS) & Event.STOPR
+    h.axis.rotate(20_000)
+    h.advance(0.5)
+    h.axis.set_switch("left", Switch.place(h.gap(AP.ACTUAL_POSITION), side="below"))
+    h.axis.set_switch("left", None)  # the left switch came and went while moving right
+    assert h.axis.register_access(Reg.EVENTS) & Event.STOPL  # moving: kept
+    h.axis.rotate(-20_000)  # down to 0 (the event locks the left side), then left
+    h.advance(1.0)
+    assert h.gap(AP.ACTUAL_SPEED) == -20_000
+
+
+def test_the_tmc4361_modules_write_vmax_unclamped() -> None:
+    """The speed ceiling is the TMCM-6212 core's choice; TMCL-LITE-1111 writes VMAX = pps << 8
+    whatever it is, so a module with the TMC4361 modules' numbering positions as fast as it
+    is told (the chip model does not emulate what goes wrong above f/4)."""
+    from tmcl_server.clock import VirtualClock
+    from tmcl_server.module import TMCLModule
+    from tmcl_server.protocol import Request
+    from tmcl_server.simulation import Simulation
+    from tmcl_spec.commands import Opcode
+
+    module = TMCLModule(kind="tmcm-1111")
+    sim = Simulation([module], VirtualClock())
+    for number, value in ((AP.MAX_SPEED, 6_000_000), (AP.MAX_ACCELERATION, 4_000_000),
+                          (AP.MAX_DECELERATION, 4_000_000)):
+        module.execute(Request(1, Opcode.SAP, number, 0, value))
+    module.execute(Request(1, Opcode.MVP, 0, 0, 2_000_000_000))
+    sim.replan()
+    sim.advance(2.0)
+    assert module.execute(Request(1, Opcode.GAP, AP.ACTUAL_SPEED, 0, 0)).value == 6_000_000

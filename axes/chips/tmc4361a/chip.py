@@ -24,6 +24,7 @@ from axes.chips.tmc4361a.ramp import (
     A_START,
     A_WAIT,
     BOW_QUANTUM,
+    MOTION_SLOTS,
     Context,
     Params,
     Ramp,
@@ -52,9 +53,26 @@ from axes.chips.tmc4361a.registers import (
 from axes.core import Board, ChipModel, Stop
 
 DEFAULT_CLOCK_HZ = 16_000_000
+#: Remembered runs: at most this many states in all (then everything is forgotten and
+#: remembered afresh), and at most TRACE_POINTS per run.
+RECALLED_STATES = 4096
+TRACE_POINTS = 64
+#: How far ahead (clock ticks) the engine looks for the next clock the law must do by itself,
+#: whatever ``until`` a caller gives: the answer, and so the motion, cannot depend on how a
+#: caller cuts time into runs.  2^42 ticks: 76 h at 16 MHz.
+HORIZON_TICKS = 1 << 42
 #: Hidden STATUS bit (above the 32 real ones) that tracks the MAX_PHASE_TRAP condition.
 _MAX_PHASE = 1 << 40
 _VEL_STATE = Status.VEL_STATE_POS | Status.VEL_STATE_NEG
+#: The motion state a remembered run restores (the position moves by its recorded distance).
+_MOTION_SLOTS = tuple(name for name in MOTION_SLOTS if name != "p")
+_TARGET_REACHED_F = Status.TARGET_REACHED_F
+_POS_COMP_REACHED_F = Status.POS_COMP_REACHED_F
+_VEL_REACHED_F = Status.VEL_REACHED_F
+_VEL_STATE_POS = Status.VEL_STATE_POS
+_VEL_STATE_NEG = Status.VEL_STATE_NEG
+_RAMP_STATE_ACC = Status.RAMP_STATE_ACC
+_RAMP_STATE_DEC = Status.RAMP_STATE_DEC
 _RAMP_STATE = Status.RAMP_STATE_ACC | Status.RAMP_STATE_DEC
 #: home_event values (REFERENCE_CONF 19..16), digest §9.3
 HOME_SIDE_TYPES = {3: False, 12: True}  # value: the level on the negative side
@@ -76,6 +94,21 @@ def _status_bits(selection: int) -> tuple[int, ...]:
     return tuple(bit for bit in range(32) if selection >> bit & 1)[:8]
 
 
+@lru_cache(maxsize=64)
+def _params_for(registers: RampRegisters, quantum: int) -> Params:
+    """The ramp parameters of a register set (the same object for the same registers, which
+    keeps the engine's memos: a rotation that reverses alternates between two sets)."""
+    return Params.from_registers(registers, quantum)
+
+
+@lru_cache(maxsize=256)
+def _spi_status(events: int, selection: int) -> int:
+    status = 0
+    for out_bit, bit in enumerate(_status_bits(selection)):
+        status |= (events >> bit & 1) << out_bit
+    return status
+
+
 @runtime_checkable
 class EncoderBoard(Board, Protocol):
     """A board that also drives the encoder inputs (A/B transitions)."""
@@ -89,14 +122,24 @@ class TMC4361A(ChipModel):
     """The chip.  Host access is :meth:`spi`; the world drives pins through the board."""
 
     frame_bits = 40
+    #: Replay runs from a state seen before (:meth:`run`); False: work every run out (the
+    #: tests compare the two).
+    recall = True
 
     def __init__(self, clock_hz: int = DEFAULT_CLOCK_HZ, board: Board | None = None,
-                 bow_quantum: int = BOW_QUANTUM) -> None:
+                 bow_quantum: int = BOW_QUANTUM, recall: bool | None = None) -> None:
         if clock_hz <= 0:
             raise ValueError("clock frequency must be positive")
         self.clock_hz = clock_hz
         self.board = board
         self.bow_quantum = bow_quantum
+        if recall is not None:
+            self.recall = recall
+        #: Remembered runs by ramp parameters, shared with clones (:meth:`_recall_key`).
+        self._recalled: dict[Params, dict[tuple, list]] = {}
+        self._recall_for: tuple[Params | None, dict[tuple, list]] = (None, {})
+        #: States remembered in all (one item, shared with clones, as the memo is)
+        self._recall_count = [0]
         self.t = 0  # chip clock ticks fully processed
         self._ramp = Ramp(Params.from_registers(RampRegisters(), bow_quantum))
         self.pin_left = self.pin_right = self.pin_home = False  # electrical levels
@@ -111,6 +154,7 @@ class TMC4361A(ChipModel):
     def power_on(self) -> None:
         """Every register at its power-on value; the motor stays where it is (RST_EV set)."""
         m = self._ramp.x
+        self._setup: tuple | None = None
         self.regs: dict[int, int] = dict(POWER_ON)
         self._ramp = Ramp(Params.from_registers(RampRegisters(), self.bow_quantum))
         self._ramp.p = m * self._ramp.P.S
@@ -175,6 +219,7 @@ class TMC4361A(ChipModel):
         old_l, old_r = self._stop_active_raw()
         old_home = self.pin_home
         self.pin_left, self.pin_right, self.pin_home = left, right, home
+        self._setup = None
         new_l, new_r = self._stop_active_raw()
         conf = self.regs.get(Reg.REFERENCE_CONF, 0)
         if ((old_l and not new_l and conf & RefConf.LATCH_X_ON_INACTIVE_L)
@@ -182,6 +227,7 @@ class TMC4361A(ChipModel):
                 or (old_r and not new_r and conf & RefConf.LATCH_X_ON_INACTIVE_R)
                 or (not old_r and new_r and conf & RefConf.LATCH_X_ON_ACTIVE_R)):
             self.x_latch = self.xactual
+            self._setup = None
             self._raise(Event.XLATCH_DONE)
         if home != old_home:
             self._home_edge(old_home, home)
@@ -223,31 +269,142 @@ class TMC4361A(ChipModel):
         budget is spent the call returns None with ``t < until``.  None: no bound.
         """
         self._wake = 0
+        key = self._recall_key() if self.recall else None
+        if key is None:
+            return self._run(until, budget)
+        runs = self._recall_runs()
+        trace = runs.get(key)
+        ramp = self._ramp
+        t0, p0 = self.t, ramp.p
+        used = 0
+        if trace is None:
+            if not self._remember(1):
+                return self._run(until, budget)
+            trace = runs[key] = []
+        elif trace:
+            last = None
+            for point in trace:
+                if point[0] > until - t0 or (budget is not None and point[1] > budget):
+                    break
+                last = point
+                if point[7] is not None:
+                    break
+            if last is not None:
+                self._replay(last, t0, p0)
+                if last[7] is not None:
+                    return last[7]
+                used = last[1]
+            if last is not trace[-1]:
+                trace = None  # left inside the trace (until or budget): nothing to add
+        return self._run(until, budget, used, trace, t0, p0)
+
+    # == remembered runs =======================================================================
+    #
+    # Back-and-forth moves and periodic rotations start the same runs again and again.  What a
+    # run does is a function of the chip state relative to the motor (ramp state, the fine
+    # fraction of the step, the positions the law and the flags depend on relative to
+    # XACTUAL, flags and events) and of the ramp parameters; in a chip without position marks
+    # from the board, virtual stops, home checks or an encoder tolerance nothing else enters
+    # it (NFREEZE counts: a frozen chip locks both directions), and the engine's answers do
+    # not depend on ``until`` (HORIZON_TICKS).  So the state
+    # after each clock the engine did by itself is kept (a trace, by start state), and a run
+    # from a state seen before replays the trace up to ``until`` (or its budget, or a stop)
+    # and goes on from there: the same clocks, states, flags and events, worked out once.
+
+    def _recall_key(self) -> tuple | None:
+        """The whole input of a run from here, relative to the motor; None: not recallable."""
+        board = self.board
+        m = self.motor_position
+        if board is not None and (board.next_mark(m, 1) is not None
+                                  or board.next_mark(m, -1) is not None):
+            return None
+        xtarget, compare, fixed, virtual_left, virtual_right, home, tolerance = (
+            self._setup or self._status_setup())
+        if not (virtual_left is None and virtual_right is None and home is None
+                and tolerance is None):
+            return None
+        ramp = self._ramp
+        g = self.regs.get
+        x = self.xactual
+        # at rest the stage counter is left over from the last stage: a start sets it to 0
+        # (without a ramp nothing starts: the counter runs on)
+        q = (None if ramp.stage == Stage.IDLE and not ramp.stopping and ramp.P.profile
+             else ramp.q)
+        return (signed32(xtarget - x), signed32(compare - x), ramp.p - m * ramp.P.S, fixed,
+                g(Reg.REFERENCE_CONF, 0), g(Reg.INTR_CONF, 0), self._frozen, self._flags,
+                self.events,
+                ramp.w, ramp.s, ramp.a, ramp.slope, ramp.stage, q, ramp.goal,
+                ramp.braking, ramp.wait, ramp.no_vstart, ramp.stopping)
+
+    def _recall_runs(self) -> dict[tuple, list]:
+        P = self._ramp.P
+        params, runs = self._recall_for
+        if params is not P:
+            runs = self._recalled.setdefault(P, {})
+            self._recall_for = (P, runs)
+        return runs
+
+    def _remember(self, states: int) -> bool:
+        """Count ``states`` more remembered states; False (and everything forgotten) when the
+        memory is full: the run at hand is then worked out without being remembered."""
+        count = self._recall_count
+        count[0] += states
+        if count[0] <= RECALLED_STATES:
+            return True
+        self._recalled.clear()
+        self._recall_for = (None, {})
+        count[0] = 0
+        return False
+
+    def _replay(self, point: tuple, t0: int, p0: int) -> None:
+        """Take the state of a trace point (recorded from a run that started at t0, p0)."""
+        ticks, _, moved, motion, flags, events, wake, _ = point
+        ramp = self._ramp
+        self.t = t0 + ticks
+        ramp.p = p0 + moved
+        for name, value in zip(_MOTION_SLOTS, motion, strict=True):
+            setattr(ramp, name, value)
+        self._flags = flags
+        self.events = events
+        self._wake = wake
+        self._mark = None
+
+    def _run(self, until: int, budget: int | None, used: int = 0, trace: list | None = None,
+             t0: int = 0, p0: int = 0) -> Stop | None:
+        """The engine's run (see :meth:`run`), ``used`` budget units spent already; with a
+        ``trace``, each clock it does by itself is appended to it (relative to t0, p0)."""
         ramp = self._ramp
         while self.t < until:
-            if budget is not None:
-                if budget <= 0:
-                    return None  # out of budget, short of until
-                budget -= 1
+            if budget is not None and used >= budget:
+                return None  # out of budget, short of until
+            used += 1
             ctx = self._context()
             limit = until - self.t
-            action = ramp.decide(ctx)
+            plan = ramp.segment_for(ctx)
+            action = plan[0]
             if ramp.w or action[0] not in (A_IDLE, A_WAIT):
                 positions = self._positions(ctx, action[1] if action[0] == A_START else ramp.s)
             else:
                 positions = ()
                 self._mark = None
-            e = ramp.horizon(ctx, limit, positions)
+            e = ramp.horizon(ctx, HORIZON_TICKS, positions, plan)
             if e > limit:
-                ramp.advance(ctx, limit)
+                ramp.advance(ctx, limit, plan)
                 self.t = until
                 self._update_flags()  # nothing rises inside a jump; live flags move on
                 return None
             if e > 1:
-                ramp.advance(ctx, e - 1)
+                ramp.advance(ctx, e - 1, plan)
                 self.t += e - 1
                 self._update_flags()
             stop = self._tick(ctx)
+            if trace is not None:
+                if len(trace) < TRACE_POINTS and self._remember(1):
+                    trace.append((self.t - t0, used, ramp.p - p0, tuple(
+                        [getattr(ramp, name) for name in _MOTION_SLOTS]), self._flags,
+                        self.events, self._wake, stop))
+                else:
+                    trace = None
             if stop is not None:
                 return stop
         return None
@@ -283,7 +440,7 @@ class TMC4361A(ChipModel):
 
     def _params(self) -> Params:
         g = self.regs.get
-        return Params.from_registers(RampRegisters(
+        return _params_for(RampRegisters(
             rampmode=g(Reg.RAMPMODE, 0), vmax=g(Reg.VMAX, 0), vstart=g(Reg.VSTART, 0),
             vstop=g(Reg.VSTOP, 0), vbreak=g(Reg.VBREAK, 0), amax=g(Reg.AMAX, 0),
             dmax=g(Reg.DMAX, 0), astart=g(Reg.ASTART, 0) & 0xFF_FFFF, dfinal=g(Reg.DFINAL, 0),
@@ -416,6 +573,7 @@ class TMC4361A(ChipModel):
         conf = self.regs.get(Reg.REFERENCE_CONF, 0)
         if position is not None and conf & RefConf.START_HOME_TRACKING and not self._home_latched:
             self.regs[Reg.X_HOME] = position & MASK32
+            self._setup = None
             self._home_latched = True
             self._raise(Event.XLATCH_DONE)
 
@@ -433,48 +591,70 @@ class TMC4361A(ChipModel):
             return self.x_latch
         return self.regs.get(Reg.POS_COMP, 0)
 
-    def _status(self) -> int:
-        """The live STATUS flags (plus the hidden MAX_PHASE bit)."""
+    def _status_setup(self) -> tuple:
+        """What the STATUS flags depend on besides the motion: registers and pin levels, worked
+        out once and kept until a register, a pin or a latch changes (``_setup = None``)."""
+        setup = self._setup
+        if setup is not None:
+            return setup
         g = self.regs.get
-        ramp = self._ramp
-        P = ramp.P
-        x = self.xactual
         conf = g(Reg.REFERENCE_CONF, 0)
-        flags = 0
-        if x == g(Reg.XTARGET, 0):
-            flags |= Status.TARGET_REACHED_F
-        if x == self._compare_value():
-            flags |= Status.POS_COMP_REACHED_F
-        if ramp.w == P.V:
-            flags |= Status.VEL_REACHED_F
-        if ramp.w:
-            flags |= Status.VEL_STATE_POS if ramp.s > 0 else Status.VEL_STATE_NEG
-        if ramp.a > 0:
-            flags |= Status.RAMP_STATE_ACC
-        elif ramp.a < 0:
-            flags |= Status.RAMP_STATE_DEC
+        fixed = 0
         left, right = self._stop_active_raw()
         if left and conf & RefConf.STOP_LEFT_EN:
-            flags |= Status.STOPL_ACTIVE_F
+            fixed |= Status.STOPL_ACTIVE_F
         if right and conf & RefConf.STOP_RIGHT_EN:
-            flags |= Status.STOPR_ACTIVE_F
-        xs = signed32(x)
-        if conf & RefConf.VIRTUAL_LEFT_LIMIT_EN and xs <= signed32(g(Reg.VIRT_STOP_LEFT, 0)):
-            flags |= Status.VSTOPL_ACTIVE_F
-        if conf & RefConf.VIRTUAL_RIGHT_LIMIT_EN and xs >= signed32(g(Reg.VIRT_STOP_RIGHT, 0)):
-            flags |= Status.VSTOPR_ACTIVE_F
+            fixed |= Status.STOPR_ACTIVE_F
+        virtual_left = (signed32(g(Reg.VIRT_STOP_LEFT, 0))
+                        if conf & RefConf.VIRTUAL_LEFT_LIMIT_EN else None)
+        virtual_right = (signed32(g(Reg.VIRT_STOP_RIGHT, 0))
+                         if conf & RefConf.VIRTUAL_RIGHT_LIMIT_EN else None)
         expected = self._home_expectation()
-        if expected is not None:
-            offset = signed32(x - g(Reg.X_HOME, 0))
-            margin = g(Reg.HOME_SAFETY_MARGIN, 0)
+        home = None if expected is None else (
+            expected, g(Reg.X_HOME, 0), g(Reg.HOME_SAFETY_MARGIN, 0))
+        tolerance = g(Reg.ENC_POS_DEV_TOL, 0)
+        setup = self._setup = (g(Reg.XTARGET, 0), self._compare_value(), fixed, virtual_left,
+                               virtual_right, home,
+                               tolerance if tolerance < 0x8000_0000 else None)
+        return setup
+
+    def _status(self) -> int:
+        """The live STATUS flags (plus the hidden MAX_PHASE bit)."""
+        xtarget, compare, flags, virtual_left, virtual_right, home, tolerance = (
+            self._setup or self._status_setup())
+        ramp = self._ramp
+        P = ramp.P
+        x = (ramp.p // P.S + self._x_offset) & MASK32
+        if x == xtarget:
+            flags |= _TARGET_REACHED_F
+        if x == compare:
+            flags |= _POS_COMP_REACHED_F
+        w = ramp.w
+        if w:
+            if w == P.V:
+                flags |= _VEL_REACHED_F
+            flags |= _VEL_STATE_POS if ramp.s > 0 else _VEL_STATE_NEG
+            if P.profile == 1 and 0 < P.VBREAK <= w:
+                flags |= _MAX_PHASE
+        elif not P.V:
+            flags |= _VEL_REACHED_F
+        a = ramp.a
+        if a > 0:
+            flags |= _RAMP_STATE_ACC
+        elif a < 0:
+            flags |= _RAMP_STATE_DEC
+        if virtual_left is not None and signed32(x) <= virtual_left:
+            flags |= Status.VSTOPL_ACTIVE_F
+        if virtual_right is not None and signed32(x) >= virtual_right:
+            flags |= Status.VSTOPR_ACTIVE_F
+        if home is not None:
+            expected, x_home, margin = home
+            offset = signed32(x - x_home)
             if (offset < -margin and self.pin_home != expected[0]) or (
                     offset > margin and self.pin_home != expected[1]):
                 flags |= Status.HOME_ERROR_F
-        tolerance = g(Reg.ENC_POS_DEV_TOL, 0)
-        if tolerance < 0x8000_0000 and abs(self._enc_dev(self.motor_position)) > tolerance:
+        if tolerance is not None and abs(self._enc_dev(self.motor_position)) > tolerance:
             flags |= Status.ENC_FAIL_F
-        if P.profile == 1 and 0 < P.VBREAK <= ramp.w:
-            flags |= _MAX_PHASE
         return flags
 
     def _update_flags(self) -> None:
@@ -516,10 +696,7 @@ class TMC4361A(ChipModel):
         events = self.events
         if not events:
             return 0
-        status = 0
-        for out_bit, bit in enumerate(_status_bits(self.regs.get(Reg.SPI_STATUS_SELECTION, 0))):
-            status |= (events >> bit & 1) << out_bit
-        return status
+        return _spi_status(events, self.regs.get(Reg.SPI_STATUS_SELECTION, 0))
 
     # == encoder ===============================================================================
 
@@ -695,6 +872,7 @@ class TMC4361A(ChipModel):
         if cleared & Event.XLATCH_DONE and self._home_latched:
             self.regs[Reg.REFERENCE_CONF] = (self.regs.get(Reg.REFERENCE_CONF, 0)
                                              & ~RefConf.START_HOME_TRACKING)
+            self._setup = None
             self._home_latched = False
 
     def _write(self, address: int, data: int) -> None:
@@ -703,6 +881,7 @@ class TMC4361A(ChipModel):
         data &= WRITE_MASKS.get(address, MASK32)
         ramp = self._ramp
         old = self.regs.get(address, 0)
+        self._setup = None
         match address:
             case Reg.XACTUAL:
                 self._x_offset = data - self.motor_position

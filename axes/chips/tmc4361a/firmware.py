@@ -15,7 +15,7 @@ from collections.abc import Mapping
 
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
-from axes.chips.tmc4361a.registers import MASK32, signed32
+from axes.chips.tmc4361a.registers import MASK32, WRITE_MASKS, signed32
 from axes.core import ChipDriver
 from axes.firmware import AxisFirmware
 from axes.world import AxisWorld
@@ -36,6 +36,10 @@ REAL_ACCELERATION_MAX = 0xFF_FFFF / 4
 DIRECT_ACCELERATION_MAX = 1 << 20
 #: The largest VMAX/VSTART/VSTOP/VBREAK register value (23.8 fixed point, positive).
 VELOCITY_REGISTER_MAX = 0x7FFF_FFFF
+#: Datasheet §6.7.2 and Table 18: |VMAX| <= f/2 in velocity mode and <= f/4 in positioning
+#: mode ("INCORRECT step pulses ... and/or positioning is not executed properly" beyond).
+VELOCITY_MODE_CEILING_DIVISOR = 2
+POSITIONING_CEILING_DIVISOR = 4
 #: AP 21 counts 32 µs (manual Table 14: "0.000032 s").
 RAMP_WAIT_UNIT_S = 32e-6
 #: Unit mode 0: the manual's internal units (the TMC5130's, "used directly", Table 14 AP 255):
@@ -45,6 +49,8 @@ INTERNAL_ACCELERATION_SHIFT = 41
 
 _VEL_STATE = Status.VEL_STATE_POS | Status.VEL_STATE_NEG
 _SWITCH_EVENTS = Event.STOPL | Event.STOPR
+#: The events that lock a direction: the stop switches' and the virtual stops'.
+_STOP_EVENTS = _SWITCH_EVENTS | Event.VSTOPL_ACTIVE | Event.VSTOPR_ACTIVE
 #: The REFERENCE_CONF bits the firmware owns (the rest is left as a host wrote it via 146).
 _FIRMWARE_REF_BITS = (RefConf.STOP_LEFT_EN | RefConf.STOP_RIGHT_EN | RefConf.POL_STOP_LEFT
                       | RefConf.POL_STOP_RIGHT | RefConf.INVERT_STOP_DIRECTION
@@ -59,6 +65,10 @@ _BOWS = ((Reg.BOW1, AP.BOW1), (Reg.BOW2, AP.BOW2), (Reg.BOW3, AP.BOW3), (Reg.BOW
 #: TMC4361 modules' virtual stop parameters (AP 26..29 on the TMCM-1111).
 _VIRTUAL_REF_BITS = (RefConf.VIRTUAL_LEFT_LIMIT_EN | RefConf.VIRTUAL_RIGHT_LIMIT_EN
                      | RefConf.VIRT_STOP_MODE)
+
+#: Registers only a datagram changes (the chip never does): the firmware remembers what it
+#: wrote and answers its own questions from that instead of reading them back.
+_REMEMBERED = frozenset({Reg.RAMPMODE, Reg.VMAX, Reg.XTARGET})
 
 _READ_XACTUAL = datagram(Reg.XACTUAL)
 _READ_STATUS = datagram(Reg.STATUS)
@@ -82,6 +92,8 @@ class TMC4361ADriver(ChipDriver):
         self._searching = False
         #: Last value written to each shadowed register (None: unknown, send it).
         self._shadow: dict[int, int] = {}
+        #: The value of each remembered register as the firmware last wrote it.
+        self._known: dict[int, int] = {}
         #: The module numbers its parameters as the TMC4361 modules do (the TMCM-1111: a ramp
         #: type, bows and DSTOP of its own; TMCL-LITE-1111 ``SetAccelerationDeceleration``):
         #: every ramp register comes from its parameter, in both modes.
@@ -96,10 +108,20 @@ class TMC4361ADriver(ChipDriver):
             if self._shadow.get(reg) == value:
                 return
             self._shadow[reg] = value
+        elif reg in _REMEMBERED:
+            self._known[reg] = value & WRITE_MASKS.get(reg, MASK32)
         self.chip.spi(datagram(reg, value, write=True))
+
+    def _forget(self) -> None:
+        """A host wrote a register (command 146) or the chip was reset: send and read again."""
+        self._shadow.clear()
+        self._known.clear()
 
     def _read(self, reg: int) -> int:
         """The 32 data bits of a register: the read is answered one datagram later."""
+        known = self._known.get(reg)
+        if known is not None:
+            return known
         frame = datagram(reg)
         self.chip.spi(frame)
         return self.chip.spi(frame) & MASK32
@@ -112,7 +134,7 @@ class TMC4361ADriver(ChipDriver):
         (polarity AP 24/25 and swap AP 14 are applied before the chip, as on the TMC4210
         core); EVENTS is read once to clear the reset event.
         """
-        self._shadow.clear()
+        self._forget()
         self.chip.spi(datagram(Reg.CLK_FREQ, self.chip.clock_hz, write=True))
         self._write_reference_conf()
         self._set_mode(positioning=False)
@@ -126,12 +148,15 @@ class TMC4361ADriver(ChipDriver):
         A write sends one datagram with the value as its data; a read sends the read datagram
         twice (the answer comes one datagram later) and returns the data, so the SPI status
         byte of the 40-bit answer is not part of the reply.  Writes bypass the firmware.
+        The firmware's main loop has run before the request (stop events at standstill
+        cleared, :meth:`_release_stop_events`).
         """
+        self._release_stop_events()
         if value is None:
             answer = self._read(address)
         else:
             self.chip.spi(datagram(address, value, write=True))
-            self._shadow.clear()  # the host may have changed what the firmware wrote
+            self._forget()  # the host may have changed what the firmware wrote
             answer = value & MASK32
         self.read_position()
         return to_int32(answer)
@@ -224,6 +249,19 @@ class TMC4361ADriver(ChipDriver):
             magnitude = round(abs(speed) * self.chip.clock_hz / (1 << (INTERNAL_VELOCITY_SHIFT - 8)))
         magnitude = min(magnitude, VELOCITY_REGISTER_MAX)
         return -magnitude if speed < 0 else magnitude
+
+    def _vmax_register(self, speed: int, positioning: bool) -> int:
+        """VMAX for a speed parameter, within the datasheet's ceiling for the mode (f/4 pps
+        in positioning, f/2 pps in velocity mode; docs/tmc4361a.md, "Speed ceiling").
+
+        The TMC4361 modules' own firmware (TMCL-LITE-1111: VMAX = pps << 8) does not clamp,
+        so a module with their numbering (the TMCM-1111) writes what it is given.
+        """
+        if self._own_ramp:
+            return self._velocity_register(speed)
+        divisor = POSITIONING_CEILING_DIVISOR if positioning else VELOCITY_MODE_CEILING_DIVISOR
+        ceiling = (self.chip.clock_hz << 8) // divisor
+        return max(-ceiling, min(self._velocity_register(speed), ceiling))
 
     def _pps2(self, acceleration: int) -> float:
         """An acceleration parameter in pps² (unit mode 0: internal units of f²/2^41 pps²)."""
@@ -324,10 +362,10 @@ class TMC4361ADriver(ChipDriver):
         in_positioning_mode = bool(self._read(Reg.RAMPMODE) & POSITIONING)
         if positioning and in_positioning_mode:
             self._write_ramp(positioning=True)
-            self._write(Reg.VMAX, self._velocity_register(self.params[AP.MAX_SPEED]))
+            self._write(Reg.VMAX, self._vmax_register(self.params[AP.MAX_SPEED], True))
         elif not in_positioning_mode:
             self._write_ramp(positioning=False)
-            self._write(Reg.VMAX, self._velocity_register(velocity_command))
+            self._write(Reg.VMAX, self._vmax_register(velocity_command, False))
 
     # == switches ==============================================================================
 
@@ -361,14 +399,32 @@ class TMC4361ADriver(ChipDriver):
 
     # == motion ================================================================================
 
+    def _release_stop_events(self) -> None:
+        """Clear latched stop events while the motor stands (datasheet §8.1.2), as Trinamic's
+        TMC4361 TMCL firmware does in every pass of its main loop (TMCL-LITE-1111,
+        ``SystemControl``: a STOPL, STOPR, VSTOPL or VSTOPR event with VACTUAL = 0 is read
+        and cleared).
+
+        The chip latches a stop event whenever an enabled switch becomes active, also at
+        standstill (a polarity or swap change, a switch passing by), and locks that direction
+        until the event is cleared, even after the switch is released; an active switch (or
+        a virtual limit still passed) keeps it locked through its STATUS flag.  The main loop
+        runs between any two host requests, so the firmware here clears the events before
+        each motion command and each register access (writing 1 clears only those bits).
+        """
+        if not self._read(Reg.VACTUAL):
+            self._write(Reg.EVENTS, _STOP_EVENTS)
+
     def start_velocity(self, speed: int) -> None:
+        self._release_stop_events()
         self._write_ramp(positioning=False)
         self._set_mode(positioning=False)
-        self._write(Reg.VMAX, self._velocity_register(speed))
+        self._write(Reg.VMAX, self._vmax_register(speed, False))
 
     def start_positioning(self, target: int, top_speed: int) -> None:
+        self._release_stop_events()
         self._write_ramp(positioning=True)
-        self._write(Reg.VMAX, self._velocity_register(top_speed))
+        self._write(Reg.VMAX, self._vmax_register(top_speed, True))
         self._set_mode(positioning=True)
         self._write(Reg.XTARGET, target)
 

@@ -191,32 +191,26 @@ A_IDLE, A_WAIT, A_STOP, A_NORAMP, A_START, A_SPEED, A_FALL, A_POSITION = range(8
 # == closed forms ==============================================================================
 
 
-def _g1(n: int, quantum: int) -> int:
-    """Sum of floor(k / quantum) for k in 0..n-1."""
-    m, r = divmod(n, quantum)
-    return quantum * m * (m - 1) // 2 + m * r
-
-
-def _g2(n: int, quantum: int) -> int:
-    """Sum of k * floor(k / quantum) for k in 0..n-1."""
-    m, r = divmod(n, quantum)
-    q2 = quantum * quantum
-    full = q2 * (m - 1) * m * (2 * m - 1) // 6 + quantum * (quantum - 1) // 2 * m * (m - 1) // 2
-    return full + m * (r * m * quantum + r * (r - 1) // 2)
-
-
 def quanta_sums(q0: int, i: int, quantum: int) -> tuple[int, int, int]:
     """For ticks 1..i of a bow phase whose next tick has phase counter ``q0``:
 
     (c_i, sum of c_k, sum of (i - k + 1) * c_k), where c_k counts the quantum ticks among
     ticks 1..k (a quantum falls on every tick whose phase counter is a multiple of quantum).
+
+    The quanta fall on ticks k_j = k_1 + j * quantum; quantum j adds 1 to every c_k with
+    k >= k_j, so the sums are sums over j of M - j * quantum and of its triangle numbers
+    (M = i - k_1 + 1): closed forms in small integers.
     """
-    base = (q0 - 1) // quantum
-    c_i = (q0 + i - 1) // quantum - base
-    g1 = _g1(q0 + i, quantum) - _g1(q0, quantum)
-    s1 = g1 - i * base
-    s2 = (i + q0) * g1 - (_g2(q0 + i, quantum) - _g2(q0, quantum)) - base * i * (i + 1) // 2
-    return c_i, s1, s2
+    first = -q0 % quantum + 1  # k_1
+    if i < first:
+        return 0, 0, 0
+    n = (i - first) // quantum + 1
+    M = i - first + 1
+    pairs = n * (n - 1)
+    s1 = n * M - quantum * pairs // 2
+    s2 = (6 * n * M * (M + 1) - 3 * quantum * (2 * M + 1) * pairs
+          + quantum * quantum * pairs * (2 * n - 1)) // 12
+    return n, s1, s2
 
 
 def first_nonneg(margin, limit: int) -> int:
@@ -373,9 +367,11 @@ class Ramp:
         if P.profile == 0:
             return (A_NORAMP,)
         if P.positioning:
-            if self.braking:
-                return (A_FALL, Variant.TO_TARGET, 0, False)
             n = ctx.target - self.x
+            if self.braking:
+                if n * self.s < 0:  # the final approach passed the target: a U-turn (§6.6)
+                    return (A_FALL, Variant.TO_ZERO, 0, True)
+                return (A_FALL, Variant.TO_TARGET, 0, False)
             direction = sign(n)
             V = P.V
             if (direction < 0 and ctx.blocked_neg) or (direction > 0 and ctx.blocked_pos):
@@ -640,8 +636,9 @@ class Ramp:
             if w <= goal:
                 w, next_stage, ended = goal, Stage.CRUISE, False
         elif continuous:
-            if w < 0:
+            if w < 0:  # through 0: motion continues to XTARGET (§6.6), a new approach
                 self.s = -self.s
+                self.braking = False
                 self.a = min(g, P.AMAX)
                 self.slope = RISE
                 self.stage = Stage.HOLD if self.a >= P.AMAX else Stage.UP
@@ -934,6 +931,16 @@ class Ramp:
                 return 1
             return min(max(1, (rem0 - d) // self.w + 1), limit + 1)
 
+        if self.P.profile == 1:  # the trapezoid's braking distance depends on |v| alone
+            state_after = self._state_after
+            braking = self._trapezoid_braking
+
+            def brakes_at(i: int) -> int:
+                w, _, dist = state_after(seg, i)
+                return braking(w) - rem0 + dist - 1
+
+            return first_nonneg(brakes_at, limit)
+
         def brakes(i: int) -> int:
             twin = self.copy()
             dist = twin._advance_segment(i, seg)
@@ -967,15 +974,17 @@ class Ramp:
                 return False
         return want == self.w and self.a == 0
 
-    def horizon(self, ctx: Context, limit: int, positions: tuple[int, ...] = ()) -> int:
+    def horizon(self, ctx: Context, limit: int, positions: tuple[int, ...] = (),
+                plan: tuple[tuple, tuple[int, int, int] | None] | None = None) -> int:
         """First tick (1..limit) that :meth:`tick` must do; limit + 1 if none.
 
         ``positions``: further unwrapped microstep positions whose arrival the caller wants
-        to handle itself (switch marks, compare positions, virtual stops, ...).
+        to handle itself (switch marks, compare positions, virtual stops, ...).  ``plan``:
+        :meth:`segment_for` of this state and ``ctx``, if the caller has it already.
         """
         if limit < 1:
             return 1
-        action, seg = self.segment_for(ctx)
+        action, seg = self.segment_for(ctx) if plan is None else plan
         kind = action[0]
         if kind == A_IDLE:
             return limit + 1
@@ -1075,11 +1084,13 @@ class Ramp:
             return position * S - self.p if position > self.x else None
         return self.p - ((position + 1) * S - 1) if position < self.x else None
 
-    def advance(self, ctx: Context, k: int) -> None:
-        """Jump ``k`` ticks that :meth:`horizon` found to be plain continuation."""
+    def advance(self, ctx: Context, k: int,
+                plan: tuple[tuple, tuple[int, int, int] | None] | None = None) -> None:
+        """Jump ``k`` ticks that :meth:`horizon` found to be plain continuation (``plan``: as
+        for :meth:`horizon`)."""
         if k <= 0:
             return
-        action, seg = self.segment_for(ctx)
+        action, seg = self.segment_for(ctx) if plan is None else plan
         kind = action[0]
         if kind == A_IDLE:
             return
@@ -1093,4 +1104,5 @@ class Ramp:
 
 
 #: The slots that make up the motion state (what a tick may change).
-_STATE_SLOTS = tuple(name for name in Ramp.__slots__ if name not in ("P", "_distances"))
+MOTION_SLOTS = _STATE_SLOTS = tuple(name for name in Ramp.__slots__
+                                    if name not in ("P", "_distances"))
