@@ -24,7 +24,7 @@ from tmcl_server.clock import Clock, VirtualClock, seconds_to_ns
 from tmcl_server.dispatch import Interface, ReplySink
 from tmcl_server.module import READ_ONLY_OPCODES, TMCLModule
 from tmcl_server.protocol import AnyReply, ChecksumError, FrameAssembler, Request, decode_request
-from tmcl_spec.numbers import NS_PER_MS
+from tmcl_spec.numbers import NS_PER_MS, NS_PER_S
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +106,7 @@ PROGRAM_CHUNK_NS = 500_000
 RECORDER_SAMPLES_PER_TURN = 16
 #: On a virtual clock a running program asks to be run this often (its instructions and events
 #: happen at the same instants whatever the turn; a real clock's turns are 10 ms).
-VIRTUAL_PROGRAM_SLICE_NS = 1_000_000_000
+VIRTUAL_PROGRAM_SLICE_NS = 60 * NS_PER_S
 #: On a real clock a busy program runs this much before a request is served: one TMCL
 #: instruction (docs/interpreter.md), as a module's main loop between two host requests.
 REQUEST_TURN_NS = 10_000
