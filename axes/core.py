@@ -223,6 +223,17 @@ class ChipDriver(ABC):
     def actual_speed(self) -> int:
         """AP 3: signed speed now."""
 
+    def speed_on(self, chip: ChipModel) -> int:
+        """AP 3 as the firmware would read it from ``chip``, a look-ahead copy of its own (to
+        find when a speed crosses a value; the copy is not used afterwards).  A driver whose
+        :meth:`actual_speed` keeps state of its own overrides this."""
+        own = self.chip
+        self.chip = chip
+        try:
+            return self.actual_speed()
+        finally:
+            self.chip = own
+
     @abstractmethod
     def levels(self) -> tuple[bool, bool, bool]:
         """Logical (left, right, home) switch levels as the chip reports them."""

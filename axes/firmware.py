@@ -770,15 +770,58 @@ class AxisFirmware(Axis):
             return FOREVER  # switch levels and flags change only at the chip's notable instants
         if number == AP.POSITION_REACHED:
             return self._first_time_at_position((self._target,), ahead)
+        if number == AP.ACTUAL_SPEED and self._rotating():
+            # a rotation's ramp only ever heads for its speed: the same speed at both ends of
+            # the stretch to the next notable instant means the same speed all along it
+            self._sync()
+            if self.driver.speed_on(ahead.chip.clone()) == self._actual_speed():
+                return ahead.time_ns
         return 0  # a moving quantity
 
     def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
         if self._keys:
             number = self._keys.get(number, number)
-        if number != AP.ACTUAL_POSITION:
-            return 0
         ahead = self._lookahead()
-        return FOREVER if ahead is None else self._first_time_at_position(values, ahead)
+        if number == AP.ACTUAL_POSITION:
+            return FOREVER if ahead is None else self._first_time_at_position(values, ahead)
+        if number == AP.ACTUAL_SPEED and self._rotating():
+            return FOREVER if ahead is None else self._first_time_speed_crosses(values, ahead)
+        return 0
+
+    def _rotating(self) -> bool:
+        """Velocity mode (ROR, ROL, MST) with no reference search: the speed only ever moves
+        towards the speed asked for, monotonically, until the next notable instant."""
+        return not self._positioning and self._rfs is None
+
+    def _first_time_speed_crosses(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
+        """The first time AP 3 compares otherwise with one of ``values`` than now (reaches it,
+        or passes it), or the next notable instant: the speed being monotonic there, a copy
+        of the chip is bisected over the clock ticks."""
+        self._sync()
+        speed = self._actual_speed()
+        if speed in values:
+            return 0
+        above = [speed > value for value in values]
+
+        def compares_otherwise(chip: ChipModel) -> bool:
+            now = self.driver.speed_on(chip)
+            return any(now == value or (now > value) != side
+                       for value, side in zip(values, above, strict=True))
+
+        if not compares_otherwise(ahead.chip.clone()):
+            return ahead.time_ns
+        low, high = self.chip.clone(), ahead.chip.t
+        while high - low.t > 1:
+            middle = (low.t + high) // 2
+            probe = low.clone()
+            probe.run(middle, LOOKAHEAD_BUDGET)
+            if probe.t < middle:  # stopped short (its work budget): no promise beyond here
+                return probe.ns_at(probe.t)
+            if compares_otherwise(probe.clone()):
+                high = middle
+            else:
+                low = probe
+        return low.ns_at(high)
 
     def _first_time_at_position(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
         """The first time AP 1 equals one of ``values``, or the chip's next notable instant

@@ -188,6 +188,22 @@ Back:
     JC GT, Back
     JA Loop
 """),
+    Shape("speed", 200, """
+    // a speed against a threshold: slow ramps, polled until the speed passes a value
+Loop:
+    SAP 5, 0, 2000
+    ROR 0, 50000
+Up:
+    GAP 3, 0
+    COMP 40000
+    JC LT, Up
+    ROR 0, -50000
+Down:
+    GAP 3, 0
+    COMP -40000
+    JC GT, Down
+    JA Loop
+"""),
     Shape("monitor", 1000, """
     // a field program's shape: three axes moved, a monitor loop checking a limit setting
     // and each axis's "position reached" with several exits, a host-set state variable

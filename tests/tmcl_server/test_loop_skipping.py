@@ -28,7 +28,7 @@ MS = 1_000_000
 READS = [
     "GAP 8, 0", "GAP 1, 0", "GAP 1, 1", "GAP 3, 0", "GAP 10, 0", "GAP 11, 0", "GAP 4, 0",
     "GAP 250, 0", "GIO 0, 0", "GIO 1, 1", "GIO 2, 2", "GGP 0, 2", "GGP 132, 0", "GAP 206, 0",
-    "GAP 209, 0", "GAP 8, 1", "RFS STATUS, 0",
+    "GAP 209, 0", "GAP 8, 1", "RFS STATUS, 0", "GAP 3, 1", "GAP 1, 1",
 ]
 #: Writes that change nothing once they are in force (and some that always change).
 WRITES = [
@@ -82,6 +82,7 @@ class World:
     #: (time ms, action): toggle input 0 / set analogue 1 / host GAP / host SAP / move the switch.
     actions: list[tuple[int, str, int]] = field(default_factory=list)
     end_ms: int = 300
+    core: str = "tmc4210"
 
 
 @st.composite
@@ -89,11 +90,12 @@ def worlds(draw: st.DrawFn) -> World:
     actions = draw(st.lists(st.tuples(st.integers(1, 299), st.sampled_from(
         ["input", "analog", "gap", "sap", "sgp", "switch", "ror"]), st.integers(-50000, 50000)),
         max_size=6))
-    return World(draw(st.none() | st.integers(-50000, 50000)), sorted(actions))
+    return World(draw(st.none() | st.integers(-50000, 50000)), sorted(actions),
+                 core=draw(st.sampled_from(["tmc4210", "tmc4361a"])))
 
 
 def run(source: str, world: World, skip: bool) -> list[object]:
-    module = TMCLModule(kind="tmcm-6212")
+    module = TMCLModule(kind="tmcm-6212", chip_core=world.core)
     sim = Simulation([module], VirtualClock())
     module.program.interpreter.skip_loops = skip
     seen: list[object] = []
@@ -171,9 +173,31 @@ Out:
 """
 
 
+POLL_SPEED = """
+    SAP 5, 0, 20000
+    ROR 0, 8000
+Up:
+    GAP 3, 0
+    COMP 6000
+    JC LT, Up
+    GAP 1, 0
+    AGP 9, 2
+    ROR 0, -3000
+Down:
+    GAP 3, 0
+    COMP -1000
+    JC GT, Down
+    GAP 1, 0
+    AGP 10, 2
+    STOP
+"""
+
+
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(programs(), worlds())
 @example(POLL_TARGET, World(None, [(20, "gap", 0), (300, "sap", 30000)], 600))
+@example(POLL_SPEED, World(None, [(100, "gap", 0), (500, "gap", 0)], 900))
+@example(POLL_SPEED, World(None, [(100, "gap", 0), (500, "gap", 0)], 900, "tmc4361a"))
 def test_skipping_loops_is_exactly_as_stepping(source: str, world: World) -> None:
     fast, slow = run(source, world, skip=True), run(source, world, skip=False)
     assert fast[:-1] == slow[:-1]  # the last entry: how many passes were skipped
