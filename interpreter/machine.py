@@ -987,7 +987,10 @@ def _boundaries(code: list[Instruction], path: list[int], calls: list[_Call], mo
                 source = (index, 0) if index in moving else None
                 writes(_ACC, source)
                 writes(_ZERO, source)
-    if any(before[register] != after[register] for register in first_read):
+    # What the next pass reads before writing must be what this one found, and not come from a
+    # moving read (equal now by chance, it would differ in the passes skipped).
+    if any(before[register] != after[register] or register in symbolic
+           for register in first_read):
         return None
     return {index: tuple(sorted(values)) for index, values in boundaries.items()}
 
