@@ -904,6 +904,7 @@ class Fuzzer:
                 if len(self.stall_list) < 200:
                     self.stall_list.append({
                         "latency_ms": round(latency * 1000, 1), "stream": link.name,
+                        "at_monotonic_s": round(now, 4),  # to match a server-side log
                         "server_waited_for_cpu_ms": round(self.starved_ms, 1),
                         "frame": exp.frame.hex(" "), "round": self.stats.rounds,
                         "program": self.model.program_started,
