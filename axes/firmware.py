@@ -329,13 +329,29 @@ class AxisFirmware(Axis):
 
     # == motion ================================================================================
 
+    def conclude_move(self) -> None:
+        self._sync()
+        self._conclude_move()
+
+    def _conclude_move(self) -> None:
+        """A command ends the move in flight.  If it had reached its target (AP 8 reads 1: a
+        TMC4361A brakes inside the target step for a few hundred microseconds after XACTUAL
+        = XTARGET, a TMC4210 for a few clocks), its "target reached" is announced now, as
+        the firmware's poll of the chip's target flag would see it, not lost with the move."""
+        if self._positioning and self._awaiting_arrival and self._position == self._target:
+            self._awaiting_arrival = False
+            if self._rfs is None:
+                self._emit(AxisEventKind.TARGET_REACHED)
+
     def _start_velocity(self, speed: int) -> None:
+        self._conclude_move()
         self.driver.start_velocity(speed)
         self._positioning = False
         self._awaiting_arrival = False
         self._motion_started()
 
     def _start_positioning(self, target: int, top_speed: int) -> None:
+        self._conclude_move()
         self._target = target
         self.driver.start_positioning(target, top_speed)
         self._positioning = True
@@ -371,6 +387,7 @@ class AxisFirmware(Axis):
         self._command()
         self._abort_search()
         self._velocity_command = self._params[AP.TARGET_SPEED] = 0
+        self._conclude_move()
         self.driver.ramp_stop()
         self._positioning = False
         self._awaiting_arrival = False
@@ -386,6 +403,7 @@ class AxisFirmware(Axis):
 
     def _hard_stop(self) -> None:
         """Stop within one chip tick, at once (switch, stall, deviation, heartbeat)."""
+        self._conclude_move()
         self.driver.hard_stop()
         self._invalidate()  # a look-ahead made before (a timer's stall check) would move on
         self._positioning = False
@@ -711,6 +729,7 @@ class AxisFirmware(Axis):
 
     def _set_position(self, value: int) -> None:
         """AP 1 write: the position counts from ``value`` now; a move in flight stops."""
+        self._conclude_move()
         if self.driver.set_position(value):
             self._positioning = False
         self._target = value
@@ -922,6 +941,7 @@ class AxisFirmware(Axis):
         choose ramp or soft positioning, at once for a move in flight, else for the next."""
         if self._params[AP.RAMP_MODE] == 2:
             if self._positioning and self._rfs is None:
+                self._conclude_move()
                 self.driver.ramp_stop()
                 self._positioning = False
                 self._awaiting_arrival = False

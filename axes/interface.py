@@ -104,6 +104,13 @@ class AxisControl(ABC):
     def move_to(self, target: int) -> None:
         """MVP: positioning mode towards an absolute target."""
 
+    def conclude_move(self) -> None:
+        """A command is about to start another move.  If the move in flight has reached its
+        target already (AP 8 reads 1 while the chip still brakes inside the target step),
+        its "target reached" is due now and the next :meth:`advance_to` returns it, so that
+        it is not lost with the move.  The default: an axis that reports arrival at rest."""
+        return
+
     @abstractmethod
     def emergency_stop(self) -> None:
         """Stop at once (heartbeat timeout, deviation, stall)."""

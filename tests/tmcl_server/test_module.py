@@ -293,6 +293,26 @@ def test_target_reached_event_once_and_always(bench: Bench):
     assert bench.status(138, 2, 0, 1) == WRONG_TYPE
 
 
+@pytest.mark.parametrize("core", ["tmc4210", "tmc4361a"])
+def test_a_host_that_moves_on_when_ap8_reads_1_gets_every_138_reply(core: str):
+    """A TMC4361A enters the target step still braking (XACTUAL = XTARGET, AP 8 = 1, AP 3
+    not yet 0): a host (or program) that starts the next move then must still get the
+    reply of 138 for the move it saw arrive, as the firmware's target flag shows it."""
+    bench = Bench(TMCLModule(kind="tmcm-6212", chip_core=core))
+    bench.ok(Opcode.SAP, 4, 0, 50000)
+    bench.ok(Opcode.SAP, 5, 0, 40000)
+    assert bench.ok(138, 1, 0, 0b1) == 0b1  # every move of motor 0 from now on
+    moves = 0
+    for target in (100000, 0, 100000, 0):
+        bench.ok(Opcode.MVP, 0, 0, target)
+        moves += 1
+        while bench.ok(Opcode.GAP, 8, 0) != 1:  # poll as a host loop does, 50 µs apart
+            bench.advance(0.00005)
+        assert bench.ok(Opcode.GAP, 1, 0) == target
+    bench.ok(Opcode.MVP, 0, 0, 50000)  # the last one is superseded at once, too
+    assert [(r.status, r.opcode, r.value) for r in bench.sink.replies] == [(128, 138, 1)] * moves
+
+
 def test_serial_heartbeat_stops_motors(bench: Bench):
     bench.ok(Opcode.SGP, GP.SERIAL_HEARTBEAT, 0, 200)
     bench.ok(Opcode.ROR, 0, 0, 5000)

@@ -688,8 +688,12 @@ class ModuleCore:
 
         A type-0 request covers the next MVP that moves a motor of its mask (all the motors
         of its mask that this one MVP moves); type 1 covers every MVP (docs/protocol.md).
+        A move that has reached its target but not yet come to rest ends with its own
+        "target reached" (and 138 reply) before the new move's watch replaces its own.
         """
         for axis in axes:
+            self.axes[axis].conclude_move()
+            self.axis(axis)  # hands on what that announced, to the old watch
             self._reach_watch.pop(axis, None)
         if self._reach_request is None:
             return
