@@ -313,6 +313,70 @@ def test_a_host_that_moves_on_when_ap8_reads_1_gets_every_138_reply(core: str):
     assert [(r.status, r.opcode, r.value) for r in bench.sink.replies] == [(128, 138, 1)] * moves
 
 
+@pytest.mark.parametrize("kind,core", [("tmcm-6212", "tmc4210"), ("tmcm-6212", "tmc4361a"),
+                                       ("tmcm-6110", None)])
+def test_polling_ap8_through_a_move_reads_what_the_chip_brought_up_to_time_reads(
+        kind: str, core: str | None, monkeypatch: pytest.MonkeyPatch):
+    """AP 8 is answered from the look-ahead while the position is short of the target (no
+    run of the chip to every poll): every poll, position and event is what bringing the
+    chip up to each poll gives, and the chip runs far less often."""
+    from axes.firmware import AxisFirmware
+
+    def run(shortcut: bool) -> tuple[list[tuple[int, ...]], list[tuple[int, str]], int]:
+        if not shortcut:
+            monkeypatch.setattr(AxisFirmware, "_short_of_target", lambda self: False)
+        module = TMCLModule(kind=kind, chip_core=core) if core else TMCLModule(kind=kind)
+        bench = Bench(module)
+        events: list[tuple[int, str]] = []
+        module.listeners.append(lambda e: events.append((e.time_ns, e.kind)))
+        runs = 0
+        chip = module.axes[0].chip
+        original = type(chip).run
+
+        def counting(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+            nonlocal runs
+            runs += 1
+            return original(self, *args, **kwargs)
+
+        monkeypatch.setattr(type(chip), "run", counting)
+        polls = []
+        for target in (30000, -5000, 12345):
+            bench.ok(Opcode.MVP, 0, 0, target)
+            for i in range(4000):  # a host polling until the move is done
+                bench.advance(0.0013 + (i % 7) * 0.0004)
+                polls.append((bench.ok(Opcode.GAP, 8, 0), bench.ok(Opcode.GAP, 8, 0)))
+                if polls[-1][0]:
+                    break
+            polls.append((bench.ok(Opcode.GAP, 1, 0), bench.ok(Opcode.GAP, 3, 0)))
+        monkeypatch.undo()
+        return polls, events, runs
+
+    fast, slow = run(True), run(False)
+    assert fast[:2] == slow[:2]
+    assert fast[0].count((1, 1)) == 3 and fast[0].count((0, 0)) > 300
+    assert fast[2] * 3 < slow[2], (fast[2], slow[2])
+
+    # the instant AP 8 rises, to 5 µs, found by reading the chip brought up to time ...
+    module = TMCLModule(kind=kind, chip_core=core) if core else TMCLModule(kind=kind)
+    bench = Bench(module)
+    bench.ok(Opcode.MVP, 0, 0, 30000)
+    while abs(30000 - bench.ok(Opcode.GAP, 1, 0)) > 100:
+        bench.advance(0.001)
+    monkeypatch.setattr(AxisFirmware, "_short_of_target", lambda self: False)
+    while bench.ok(Opcode.GAP, 8, 0) == 0:
+        bench.advance(0.000005)
+    monkeypatch.undo()
+    rise = bench.simulation.now_ns
+    # ... is where the answer from the look-ahead rises too
+    module = TMCLModule(kind=kind, chip_core=core) if core else TMCLModule(kind=kind)
+    bench = Bench(module)
+    bench.ok(Opcode.MVP, 0, 0, 30000)
+    bench.simulation.advance_to_ns(rise - 5000)
+    assert bench.ok(Opcode.GAP, 8, 0) == 0
+    bench.simulation.advance_to_ns(rise)
+    assert bench.ok(Opcode.GAP, 8, 0) == 1
+
+
 def test_serial_heartbeat_stops_motors(bench: Bench):
     bench.ok(Opcode.SGP, GP.SERIAL_HEARTBEAT, 0, 200)
     bench.ok(Opcode.ROR, 0, 0, 5000)
