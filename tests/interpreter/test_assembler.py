@@ -15,9 +15,10 @@ from interpreter.assembler import INCLUDE_DIR, AssemblyError, assemble, assemble
 from interpreter.cli import main as tmcl_asm
 from interpreter.disassembler import disassemble, listing
 from interpreter.interrupts import INTERRUPT_VECTORS
-from interpreter.isa import PROGRAM_MEMORY_SIZE, Instruction, decode_program, encode_program
+from interpreter.isa import Instruction, decode_program, encode_program
+from tests.helpers.instructions import canonical_instructions
 from tmcl_spec import tmcl_ide
-from tmcl_spec.commands import OPERANDS, Opcode
+from tmcl_spec.commands import Opcode
 from tmcl_spec.tmcm6212 import AXIS_PARAMETERS, BANK0_PARAMETERS, BANK3_PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -156,28 +157,7 @@ def test_errors_point_at_file_line_and_column(source: str, where: str, message: 
 
 # -- disassembler ---------------------------------------------------------------------------
 
-def _instruction() -> st.SearchStrategy[Instruction]:
-    """Any canonical instruction: operands only in the fields the mnemonic has."""
-    def build(opcode: Opcode, data: st.DataObject) -> Instruction:
-        fields = {"type": 0, "motor": 0, "value": 0}
-        for spec in OPERANDS[opcode]:
-            if spec.symbols is not None:
-                members = list(spec.symbols)
-                if opcode == Opcode.CALC:
-                    members = members[:-1]
-                fields[spec.slot] = int(data.draw(st.sampled_from(members)))
-            elif spec.address:
-                fields[spec.slot] = data.draw(st.integers(0, PROGRAM_MEMORY_SIZE - 1))
-            elif spec.slot == "value":
-                fields[spec.slot] = data.draw(st.integers(-(2**31), 2**31 - 1))
-            else:
-                fields[spec.slot] = data.draw(st.integers(0, 255))
-        return Instruction(int(opcode), fields["type"], fields["motor"], fields["value"])
-
-    return st.builds(lambda op, data: build(op, data), st.sampled_from(list(OPERANDS)), st.data())
-
-
-@given(st.lists(_instruction(), max_size=40))
+@given(st.lists(canonical_instructions(), max_size=40))
 def test_disassembly_assembles_to_the_same_program(program: list[Instruction]) -> None:
     assert assemble(disassemble(program)).instructions == program
 

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import pytest
 from hypothesis import given
-from hypothesis import strategies as st
 
 from interpreter.assembler import AssemblyError, LimitError, assemble
 from interpreter.disassembler import format_instruction
-from interpreter.isa import PROGRAM_MEMORY_SIZE, Instruction
+from interpreter.isa import Instruction
 from interpreter.syntax import MAX_NESTING, MAX_TOKENS
+from tests.helpers.instructions import canonical_instructions
 from tmcl_server.decode import Vocabulary
 from tmcl_server.tool.line import LineError, parse_command
 from tmcl_spec.commands import OPERAND_NAMES, OPERANDS, Opcode
@@ -45,21 +45,9 @@ def test_a_line_means_the_same_in_a_program_and_on_the_command_line(line: str, e
     assert sent(line) == expected
 
 
-@given(st.sampled_from(list(OPERANDS)), st.data())
-def test_the_disassemblers_lines_with_or_without_commas_send_what_they_store(opcode: Opcode,
-                                                                              data: st.DataObject) -> None:
-    fields = {"type": 0, "motor": 0, "value": 0}
-    for spec in OPERANDS[opcode]:
-        if spec.symbols is not None:
-            members = [m for m in spec.symbols if not (opcode == Opcode.CALC and m.name == "SWAP")]
-            fields[spec.slot] = int(data.draw(st.sampled_from(members)))
-        elif spec.address:
-            fields[spec.slot] = data.draw(st.integers(0, PROGRAM_MEMORY_SIZE - 1))
-        elif spec.slot == "value":
-            fields[spec.slot] = data.draw(st.integers(-(2**31), 2**31 - 1))
-        else:
-            fields[spec.slot] = data.draw(st.integers(0, 255))
-    ins = Instruction(int(opcode), fields["type"], fields["motor"], fields["value"])
+@given(canonical_instructions())
+def test_the_disassemblers_lines_with_or_without_commas_send_what_they_store(
+        ins: Instruction) -> None:
     line = format_instruction(ins)
     for text in (line, line.replace(",", "")):
         assert stored(text) == ins, text
