@@ -41,6 +41,37 @@ def _p(number: int, name: str, access: str, lo: int = INT32_MIN, hi: int = INT32
     return ParamSpec(number, name, access, lo, hi, default, allowed)
 
 
+def tmc262_rows(v_max: int) -> tuple[ParamSpec, ...]:
+    """The TMC262 driver's rows (chopper, smartEnergy, stallGuard2), alike in the manual of
+    every module built on that driver (the TMC429 modules here, the TMCM-1111); ``v_max``:
+    the bound of the speeds among them (181, 182) in the module's units."""
+    return (
+        _p(162, "Chopper blank time", "RW", 0, 3, 2),
+        _p(163, "Chopper mode", "RW", *_BOOL),
+        _p(164, "Chopper hysteresis decrement", "RW", 0, 3, 0),
+        _p(165, "Chopper hysteresis end", "RW", 0, 15, 2),
+        _p(166, "Chopper hysteresis start", "RW", 0, 8, 3),
+        _p(167, "Chopper off time", "RW", 0, 15, 5),
+        _p(168, "smartEnergy current minimum", "RW", *_BOOL),
+        _p(169, "smartEnergy current down step", "RW", 0, 3, 0),
+        _p(170, "smartEnergy hysteresis", "RW", 0, 15, 0),
+        _p(171, "smartEnergy current up step", "RW", 0, 3, 0),
+        _p(172, "smartEnergy hysteresis start", "RW", 0, 15, 0),
+        _p(173, "stallGuard2 filter enable", "RW", *_BOOL),
+        _p(174, "stallGuard2 threshold", "RW", -64, 63, 0),
+        _p(175, "Slope control high side", "RW", 0, 3, 3),
+        _p(176, "Slope control low side", "RW", 0, 3, 3),
+        _p(177, "Short protection disable", "RW", *_BOOL),
+        _p(178, "Short detection timer", "RW", 0, 3, 0),
+        _p(179, "Vsense", "RW", *_BOOL, 1),
+        _p(180, "smartEnergy actual current", "R", 0, 31),
+        _p(181, "Stop on stall", "RW", 0, v_max, 0),
+        _p(182, "smartEnergy threshold speed", "RW", 0, v_max, 0),
+        _p(183, "smartEnergy slow run current", "RW", 0, 255, 0),
+        _p(184, "Random TOff mode", "RW", *_BOOL),
+    )
+
+
 #: Rows every TMC429 module has (pytrinamic names them for all three).  "E": STAP/RSAP store
 #: them (PyStepRocker's access letters).
 COMMON_AXIS_ROWS: tuple[ParamSpec, ...] = (
@@ -69,29 +100,7 @@ COMMON_AXIS_ROWS: tuple[ParamSpec, ...] = (
     _p(154, "Pulse divisor", "RWE", 0, DIVIDER_MAX, 2),
     _p(160, "Step interpolation enable", "RW", *_BOOL),
     _p(161, "Double step enable", "RW", *_BOOL),
-    _p(162, "Chopper blank time", "RW", 0, 3, 2),
-    _p(163, "Chopper mode", "RW", *_BOOL),
-    _p(164, "Chopper hysteresis decrement", "RW", 0, 3, 0),
-    _p(165, "Chopper hysteresis end", "RW", 0, 15, 2),
-    _p(166, "Chopper hysteresis start", "RW", 0, 8, 3),
-    _p(167, "Chopper off time", "RW", 0, 15, 5),
-    _p(168, "smartEnergy current minimum", "RW", *_BOOL),
-    _p(169, "smartEnergy current down step", "RW", 0, 3, 0),
-    _p(170, "smartEnergy hysteresis", "RW", 0, 15, 0),
-    _p(171, "smartEnergy current up step", "RW", 0, 3, 0),
-    _p(172, "smartEnergy hysteresis start", "RW", 0, 15, 0),
-    _p(173, "stallGuard2 filter enable", "RW", *_BOOL),
-    _p(174, "stallGuard2 threshold", "RW", -64, 63, 0),
-    _p(175, "Slope control high side", "RW", 0, 3, 3),
-    _p(176, "Slope control low side", "RW", 0, 3, 3),
-    _p(177, "Short protection disable", "RW", *_BOOL),
-    _p(178, "Short detection timer", "RW", 0, 3, 0),
-    _p(179, "Vsense", "RW", *_BOOL, 1),
-    _p(180, "smartEnergy actual current", "R", 0, 31),
-    _p(181, "Stop on stall", "RW", 0, V_MAX, 0),
-    _p(182, "smartEnergy threshold speed", "RW", 0, V_MAX, 0),
-    _p(183, "smartEnergy slow run current", "RW", 0, 255, 0),
-    _p(184, "Random TOff mode", "RW", *_BOOL),
+    *tmc262_rows(V_MAX),
     _p(193, "Reference search mode", "RWE", 1, 136, 1, REFERENCE_SEARCH_MODES),
     _p(194, "Reference search speed", "RWE", 0, V_MAX, 500),
     _p(195, "Reference switch speed", "RWE", 0, V_MAX, 50),
