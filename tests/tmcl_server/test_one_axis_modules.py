@@ -25,10 +25,10 @@ from pytrinamic.connections.can_tmcl_interface import CanTmclInterface
 from pytrinamic.modules import TMCM1111, TMCM1140, TMCM1141, TMCM1160, TMCM1161
 from pytrinamic.tmcl import TMCLReplyStatusError
 
+from tests.helpers.pytrinamic_classes import check_identity_and_parameters, names
 from tmcl_server.embed import SimulatorThread
-from tmcl_spec.commands import Opcode, Status
+from tmcl_spec.commands import Status
 from tmcl_spec.modules import module_type
-from tmcl_spec.parameters import AP
 
 PYTRINAMIC: dict[str, Any] = {"tmcm-1140": TMCM1140, "tmcm-1141": TMCM1141,
                               "tmcm-1160": TMCM1160, "tmcm-1161": TMCM1161,
@@ -61,11 +61,6 @@ class VirtualCanTmclInterface(CanTmclInterface):
         self.close()
 
 
-def names(cls: type) -> dict[str, int]:
-    """A pytrinamic parameter class's names -> numbers."""
-    return {name: value for name, value in vars(cls).items() if not name.startswith("_")}
-
-
 class Rig:
     """One simulated module with every endpoint, and the way to reach it by ``path``."""
 
@@ -92,10 +87,6 @@ def rig(tmp_path: Path, kind: str) -> Iterator[Rig]:
         yield rig
 
 
-def _writable_value(spec: Any) -> int:
-    return max(spec.allowed) if spec.allowed else spec.maximum
-
-
 # == identity and parameters ===================================================================
 
 
@@ -105,23 +96,8 @@ def test_version_and_every_parameter_the_class_lists(rig: Rig, kind: str, path: 
     with rig.connect(path) as iface:
         module = PYTRINAMIC[kind](iface)
         assert module.name == profile.name
-        assert iface.get_version_string() == VERSIONS[kind]
-        assert iface.send(Opcode.GET_FIRMWARE_VERSION, 1, 0, 0).value == profile.version_number
-        assert len(module.motors) == profile.number_of_axes == 1
-        motor = module.motors[0]
-        for name, number in names(motor.AP).items():
-            value = motor.get_axis_parameter(number, signed=True)
-            spec = profile.axis_parameters[number]
-            assert spec.readable and spec.minimum <= value <= spec.maximum, name
-            if spec.writable and number not in (AP.TARGET_POSITION, AP.ACTUAL_POSITION,
-                                                AP.TARGET_SPEED, AP.ENCODER_POSITION):
-                motor.set_axis_parameter(number, _writable_value(spec))
-                assert motor.get_axis_parameter(number, signed=True) == _writable_value(spec), name
-                motor.set_axis_parameter(number, value)
-        for number in names(module.GP0).values():
-            iface.get_global_parameter(number, 0)  # raises unless the firmware has it
-        for name, number in names(module.GP3).items():
-            assert iface.get_global_parameter(number, 3) == 0, name
+        assert profile.number_of_axes == 1
+        check_identity_and_parameters(iface, module, profile, VERSIONS[kind])
         with pytest.raises(TMCLReplyStatusError) as error:
             iface.get_axis_parameter(189, 0)  # no module of these has a row 189
         assert error.value.reply.status == Status.WRONG_TYPE

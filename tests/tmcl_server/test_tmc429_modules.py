@@ -16,6 +16,7 @@ from pytrinamic.modules import TMCM1110, TMCM3110, TMCM6110
 from pytrinamic.tmcl import TMCLReplyStatusError
 
 from interpreter.assembler import assemble
+from tests.helpers.pytrinamic_classes import check_identity_and_parameters, names
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.module import TMCLModule
 from tmcl_server.protocol import Request
@@ -26,11 +27,6 @@ from tmcl_spec.parameters import AP
 PYTRINAMIC = {"tmcm-1110": TMCM1110, "tmcm-3110": TMCM3110, "tmcm-6110": TMCM6110}
 VERSIONS = {"tmcm-1110": "1110V109", "tmcm-3110": "3110V114", "tmcm-6110": "6110V146"}
 MODULES = sorted(PYTRINAMIC)
-
-
-def names(cls: type) -> dict[str, int]:
-    """A pytrinamic parameter class's names -> numbers."""
-    return {name: value for name, value in vars(cls).items() if not name.startswith("_")}
 
 
 def connect(sim: SimulatorThread, path: str):
@@ -63,23 +59,7 @@ def test_version_and_every_parameter_the_pytrinamic_class_names(sim, kind, path)
     with connect(sim, path) as iface:
         module = PYTRINAMIC[kind](iface)
         profile = module_type(kind)
-        assert iface.get_version_string() == VERSIONS[kind]
-        assert iface.send(Opcode.GET_FIRMWARE_VERSION, 1, 0, 0).value == profile.version_number
-        assert len(module.motors) == profile.number_of_axes
-        for motor in module.motors:
-            for name, number in names(motor.AP).items():
-                value = motor.get_axis_parameter(number, signed=True)
-                spec = profile.axis_parameters[number]
-                assert spec.readable and spec.minimum <= value <= spec.maximum, name
-                if spec.writable and number not in (AP.TARGET_POSITION, AP.ACTUAL_POSITION,
-                                                    AP.TARGET_SPEED, AP.ENCODER_POSITION):
-                    motor.set_axis_parameter(number, spec.maximum)
-                    assert motor.get_axis_parameter(number, signed=True) == spec.maximum, name
-                    motor.set_axis_parameter(number, value)
-        for number in names(module.GP0).values():
-            iface.get_global_parameter(number, 0)  # raises unless the firmware has it
-        for name, number in names(module.GP3).items():
-            assert iface.get_global_parameter(number, 3) == 0, name
+        check_identity_and_parameters(iface, module, profile, VERSIONS[kind])
         with pytest.raises(TMCLReplyStatusError) as error:
             iface.get_axis_parameter(AP.UNIT_MODE, 0)  # the TMCM-6212's, not these modules'
         assert error.value.reply.status == Status.WRONG_TYPE
