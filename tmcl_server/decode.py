@@ -17,13 +17,19 @@ from pathlib import Path
 from typing import Any
 
 from tmcl_server.protocol import FRAME_LENGTH, Reply, Request, checksum
-from tmcl_spec.commands import OPERANDS, TYPE_SYMBOLS, ApplicationStatus, Opcode, Status
+from tmcl_spec.commands import (
+    AXIS_PARAMETER_COMMANDS,
+    GLOBAL_PARAMETER_COMMANDS,
+    OPERANDS,
+    TYPE_SYMBOLS,
+    ApplicationStatus,
+    Opcode,
+    Status,
+)
 from tmcl_spec.modules import MODULE_TYPES, ModuleType, module_type
 from tmcl_spec.names import ParameterNames, names_of
 from tmcl_spec.numbers import to_int32
 
-_AXIS_PARAMETER_COMMANDS = frozenset({Opcode.SAP, Opcode.GAP, Opcode.STAP, Opcode.RSAP, Opcode.AAP})
-_GLOBAL_PARAMETER_COMMANDS = frozenset({Opcode.SGP, Opcode.GGP, Opcode.STGP, Opcode.RSGP, Opcode.AGP})
 #: Commands whose request value is written (shown as ``= value``).
 _WRITES = frozenset({Opcode.SAP, Opcode.SGP, Opcode.SIO, Opcode.SCO, Opcode.WRITE_MC})
 #: Commands whose reply value is a reading (shown after the status).
@@ -54,7 +60,7 @@ class Vocabulary:
             bank: names_of(table) for bank, table in self.type.global_parameters.items()}
 
     def parameter_name(self, opcode: int, number: int, bank: int) -> str | None:
-        if opcode in _AXIS_PARAMETER_COMMANDS:
+        if opcode in AXIS_PARAMETER_COMMANDS:
             return self.axis.name(number)
         names = self.banks.get(bank)
         return names.name(number) if names is not None else None
@@ -97,9 +103,9 @@ def describe_request(opcode: int, type_: int, motor: int, value: int,
                      words: Vocabulary | None = None) -> str:
     """A command as text, e.g. ``SAP 4 MaxPositioningSpeed m0 = 51200``, ``MVP ABS m0 51200``."""
     words = words or vocabulary()
-    if opcode in _AXIS_PARAMETER_COMMANDS or opcode in _GLOBAL_PARAMETER_COMMANDS:
+    if opcode in AXIS_PARAMETER_COMMANDS or opcode in GLOBAL_PARAMETER_COMMANDS:
         name = words.parameter_name(opcode, type_, motor)
-        where = f"m{motor}" if opcode in _AXIS_PARAMETER_COMMANDS else f"b{motor}"
+        where = f"m{motor}" if opcode in AXIS_PARAMETER_COMMANDS else f"b{motor}"
         text = f"{_OPCODE_NAMES[opcode]} {type_}{' ' + name if name else ''} {where}"
         return f"{text} = {value}" if opcode in _WRITES else text
     if opcode == Opcode.SIO:

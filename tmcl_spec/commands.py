@@ -166,6 +166,11 @@ COORD_MOTOR_MASK_FLAG = 0x80
 USER_FUNCTIONS = frozenset(range(Opcode.UF0, Opcode.UF7 + 1))
 #: Commands whose replies GP 255 never suppresses (§5.1).
 ALWAYS_REPLIED = frozenset({Opcode.GAP, Opcode.GGP, Opcode.GIO})
+#: Commands whose type is an axis parameter number (the motor field names the axis) and
+#: whose type is a global parameter number (the motor field names the bank).
+AXIS_PARAMETER_COMMANDS = frozenset({Opcode.SAP, Opcode.GAP, Opcode.STAP, Opcode.RSAP, Opcode.AAP})
+GLOBAL_PARAMETER_COMMANDS = frozenset({Opcode.SGP, Opcode.GGP, Opcode.STGP, Opcode.RSGP,
+                                       Opcode.AGP})
 #: Commands that only read: they store nothing and cannot create or move an internal event.
 READ_ONLY_OPCODES = frozenset({int(Opcode.GAP), int(Opcode.GGP), int(Opcode.GIO),
                                int(Opcode.GET_FIRMWARE_VERSION)})

@@ -47,7 +47,9 @@ from tmcl_server.tool.line import LineError, parse_command
 from tmcl_server.tool.progress import Progress
 from tmcl_server.upload import UploadError, load_program, upload
 from tmcl_spec.commands import (
+    AXIS_PARAMETER_COMMANDS,
     FACTORY_RESET_KEY,
+    GLOBAL_PARAMETER_COMMANDS,
     TYPE_SYMBOLS,
     ApplicationStatus,
     CodeProtection,
@@ -59,8 +61,6 @@ from tmcl_spec.modules import ModuleType, module_type
 from tmcl_spec.numbers import to_int32
 from tmcl_spec.parameters import AP, BANK_USER_VARIABLES, GP
 
-_AXIS_COMMANDS = frozenset({Opcode.SAP, Opcode.GAP, Opcode.STAP, Opcode.RSAP, Opcode.AAP})
-_GLOBAL_COMMANDS = frozenset({Opcode.SGP, Opcode.GGP, Opcode.STGP, Opcode.RSGP, Opcode.AGP})
 #: How often waits poll the module (wall seconds).
 POLL_S = 0.05
 
@@ -85,9 +85,9 @@ def parse_type(opcode: int, text: str, motor: int, words: Vocabulary) -> int:
     if stripped.lstrip("-").isdigit() or stripped.lower().startswith("0x"):
         return parse_number(stripped, "the type")
     names = None
-    if opcode in _AXIS_COMMANDS:
+    if opcode in AXIS_PARAMETER_COMMANDS:
         names = words.axis
-    elif opcode in _GLOBAL_COMMANDS:
+    elif opcode in GLOBAL_PARAMETER_COMMANDS:
         names = words.banks.get(motor)
         if names is None:
             raise UsageError(f"{words.type.name} has no global parameter bank {motor}")

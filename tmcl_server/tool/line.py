@@ -34,10 +34,17 @@ from interpreter.syntax import (
     split_operands,
 )
 from tmcl_server.decode import Vocabulary
-from tmcl_spec.commands import OPERAND_NAMES, OPERANDS, TYPE_SYMBOLS, Field, Opcode, mnemonic_syntax
+from tmcl_spec.commands import (
+    AXIS_PARAMETER_COMMANDS,
+    GLOBAL_PARAMETER_COMMANDS,
+    OPERAND_NAMES,
+    OPERANDS,
+    TYPE_SYMBOLS,
+    Field,
+    Opcode,
+    mnemonic_syntax,
+)
 
-_AXIS_COMMANDS = frozenset({Opcode.SAP, Opcode.GAP, Opcode.STAP, Opcode.RSAP, Opcode.AAP})
-_GLOBAL_COMMANDS = frozenset({Opcode.SGP, Opcode.GGP, Opcode.STGP, Opcode.RSGP, Opcode.AGP})
 #: Names people type for the control commands, besides the Opcode names.
 ALIASES = {"GETVERSION": Opcode.GET_FIRMWARE_VERSION, "VERSION": Opcode.GET_FIRMWARE_VERSION,
            "RUN": Opcode.RUN_APPLICATION, "STOPAPP": Opcode.STOP_APPLICATION,
@@ -86,9 +93,9 @@ class _Names:
 
     def __call__(self, name: str, where: Location, spec: Field, done: dict[str, int]) -> int:
         tables = None
-        if spec.slot == "type" and self.opcode in _AXIS_COMMANDS:
+        if spec.slot == "type" and self.opcode in AXIS_PARAMETER_COMMANDS:
             tables = self.words.axis
-        elif spec.slot == "type" and self.opcode in _GLOBAL_COMMANDS:
+        elif spec.slot == "type" and self.opcode in GLOBAL_PARAMETER_COMMANDS:
             bank = done.get("motor", 0)
             tables = self.words.banks.get(bank)
             if tables is None:
