@@ -759,49 +759,29 @@ class Interpreter:
     # -- commands that go to the module --------------------------------------------------------
 
     def _module_command(self, op: int, ty: int, motor: int, va: int, t: int) -> int:
-        if self._probe_calls is not None:
-            return self._probed_command(op, ty, motor, va, t, self._probe_calls)
-        if op == _AGP:
-            _, _, replan = self.port.execute(t, _SGP, ty, motor, self.accumulator)
+        """A command for the module; while a pass is analysed (:meth:`_probe`) it is recorded
+        with whether it changed the module and how long its answer stays the same."""
+        if op == _AGP:  # the accumulator variants send the plain command with its value
+            op, va = _SGP, self.accumulator
         elif op == _AAP:
-            _, _, replan = self.port.execute(t, _SAP, ty, motor, self.accumulator)
-        elif op == _ACO:
-            replan = False
-            if motor != MOTOR_ALL:
-                _, _, replan = self.port.execute(t, _SCO, ty, motor, self.accumulator)
-        else:
-            status, value, replan = self.port.execute(t, op, ty, motor, va)
-            if status == STATUS_OK and (
-                    (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
-                    or (op == _RFS and ty == _RFS_STATUS)):
-                self.accumulator = self.zero_source = wrap32(value)
-        self.pc += 1
-        return _YIELD if replan or self._hold_ns else _CONTINUE
-
-
-    def _probed_command(self, op: int, ty: int, motor: int, va: int, t: int,
-                        calls: list[_Call]) -> int:
-        """:meth:`_module_command` while a pass is analysed: each command is recorded with
-        whether it changed the module and how long its answer stays the same."""
-        if op == _AGP:
-            request = (_SGP, ty, motor, self.accumulator)
-        elif op == _AAP:
-            request = (_SAP, ty, motor, self.accumulator)
+            op, va = _SAP, self.accumulator
         elif op == _ACO:
             if motor == MOTOR_ALL:
                 self.pc += 1
-                return _CONTINUE
-            request = (_SCO, ty, motor, self.accumulator)
+                return _YIELD if self._hold_ns else _CONTINUE
+            op, va = _SCO, self.accumulator
+        calls = self._probe_calls
+        if calls is None:
+            status, value, replan = self.port.execute(t, op, ty, motor, va)
         else:
-            request = (op, ty, motor, va)
-        status, value, changed, steady = self.port.probe(t, *request)
-        calls.append(_Call(t, status, value, changed, steady, request))
-        if (op not in (_AGP, _AAP, _ACO) and status == STATUS_OK and (
+            status, value, replan, steady = self.port.probe(t, op, ty, motor, va)
+            calls.append(_Call(t, status, value, replan, steady, (op, ty, motor, va)))
+        if status == STATUS_OK and (
                 (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
-                or (op == _RFS and ty == _RFS_STATUS))):
+                or (op == _RFS and ty == _RFS_STATUS)):
             self.accumulator = self.zero_source = wrap32(value)
         self.pc += 1
-        return _YIELD if changed or self._hold_ns else _CONTINUE
+        return _YIELD if replan or self._hold_ns else _CONTINUE
 
     # == loops that change nothing (docs/scheduling.md) =========================================
 
