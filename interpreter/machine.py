@@ -59,6 +59,13 @@ _RFS_STATUS = RfsType.STATUS.value
 #: Commands that, in a program, load the value they read into the accumulator.
 _LOADS_ACCUMULATOR = frozenset({Opcode.GAP.value, Opcode.GGP.value, Opcode.GIO.value, _GCO})
 
+
+def _loads_accumulator(op: int, ty: int, motor: int) -> bool:
+    """Whether a command's answer goes to the accumulator (when it succeeds): the reads, but
+    not GCO of all coordinates, and RFS STATUS."""
+    return ((op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
+            or (op == _RFS and ty == _RFS_STATUS))
+
 _ERROR_BITS: dict[int, int] = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
                ErrorFlag.ESD: 16}
 _ALL_ERRORS = sum(_ERROR_BITS.values())
@@ -776,7 +783,7 @@ class Interpreter:
         else:
             status, value, replan, steady = self.port.probe(t, op, ty, motor, va)
             calls.append(_Call(t, status, value, replan, steady, (op, ty, motor, va)))
-        if status == STATUS_OK and (
+        if status == STATUS_OK and (  # _loads_accumulator, inlined: every command runs it
                 (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
                 or (op == _RFS and ty == _RFS_STATUS)):
             self.accumulator = self.zero_source = wrap32(value)
@@ -961,9 +968,7 @@ def _boundaries(code: list[Instruction], path: list[int], calls: list[_Call], mo
             return None  # CALCX, subroutines, interrupts, error flags: not analysed
         else:
             index, call = next(pending)
-            if call.status == STATUS_OK and (
-                    (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
-                    or (op == _RFS and ty == _RFS_STATUS)):
+            if call.status == STATUS_OK and _loads_accumulator(op, ty, motor):
                 source = (index, 0) if index in moving else None
                 writes(_ACC, source)
                 writes(_ZERO, source)
