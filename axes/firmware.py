@@ -272,7 +272,13 @@ class AxisFirmware(Axis):
         self.driver.read_position()
         if (self._params[AP.SMARTENERGY_HYSTERESIS_START] or self._coolstep.scale is not None
                 or (self.motor_driver is not None and self.motor_driver.regulating)):
-            self._update_coolstep()
+            self._update_coolstep()  # _coolstep_follows_reads, inlined: every read runs it
+
+    def _coolstep_follows_reads(self) -> bool:
+        """coolStep regulates (or is set up to): its current follows every read's load."""
+        return bool(self._params[AP.SMARTENERGY_HYSTERESIS_START]
+                    or self._coolstep.scale is not None
+                    or (self.motor_driver is not None and self.motor_driver.regulating))
 
     def _emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
         self._pending.append(AxisEvent(self._now_ns, self.index, kind, active))
@@ -599,12 +605,13 @@ class AxisFirmware(Axis):
             return
         self._coolstep.update(self._params, self._mechanical(), speed, self._load())
 
+    def _encoder_counts_per_rev(self) -> int:
+        """The world's encoder, or the module's own where the world names none."""
+        return self.board.world.encoder_counts_per_rev or self.builtin_encoder_counts
+
     def _mechanical_per_count(self) -> float:
-        """World units (1/256 of a full step) per encoder count: the world's encoder, or the
-        module's own where the world names none."""
-        world = self.board.world
-        counts = world.encoder_counts_per_rev or self.builtin_encoder_counts
-        return world.motor_fullsteps_per_rev * 256 / counts
+        """World units (1/256 of a full step) per encoder count."""
+        return self.board.world.motor_fullsteps_per_rev * 256 / self._encoder_counts_per_rev()
 
     def _encoder_counts(self) -> int:
         world = self.board.world
@@ -615,9 +622,8 @@ class AxisFirmware(Axis):
     def _absolute_encoder(self) -> int:
         """AP 215 (sensOstep modules): the rotor's angle within one turn, in encoder counts
         (0..counts per revolution - 1), whatever AP 209 was set to."""
-        world = self.board.world
-        counts = world.encoder_counts_per_rev or self.builtin_encoder_counts
-        return int(self._mechanical() // self._mechanical_per_count()) % counts
+        return (int(self._mechanical() // self._mechanical_per_count())
+                % self._encoder_counts_per_rev())
 
     def _counts_per_microstep(self) -> float:
         """Encoder counts per unit of AP 209: AP 210 counts per revolution of AP 202 full
@@ -850,8 +856,7 @@ class AxisFirmware(Axis):
         chip, as :meth:`steady_until` does).  A host or program polling AP 8 through a long
         move then costs a comparison a poll, not a run of the chip's ramp to every poll.
         Not while coolStep regulates, whose readings follow the reads (:meth:`_read_position`)."""
-        if (self._params[AP.SMARTENERGY_HYSTERESIS_START] or self._coolstep.scale is not None
-                or (self.motor_driver is not None and self.motor_driver.regulating)):
+        if self._coolstep_follows_reads():
             return False
         ahead = self._lookahead()
         if ahead is None:
