@@ -17,9 +17,9 @@ EXAMPLE = ROOT / "scripts" / "example_pytrinamic.py"
 
 
 def extras_installed_by_serve_script() -> list[str]:
-    script = (ROOT / "scripts" / "serve.sh").read_text()
-    match = re.search(r'^SERVE_EXTRAS="([\w,]+)"$', script, re.M)
-    assert match, "serve.sh must install the project with the extras the examples need"
+    script = (ROOT / "scripts" / "serve.py").read_text()
+    match = re.search(r'^SERVE_EXTRAS = "([\w,]+)"$', script, re.M)
+    assert match, "serve.py must install the project with the extras the examples need"
     return match.group(1).split(",")
 
 
@@ -58,7 +58,7 @@ def readme_block(first_line: str) -> str:
 
 
 @pytest.mark.skipif(not (ROOT / ".venv" / "bin" / "activate").exists(),
-                    reason="the block uses the .venv that scripts/serve.sh or test.sh makes")
+                    reason="the block uses the .venv that scripts/serve.py or test.py makes")
 def test_record_and_plot_block_runs_when_pasted_as_one(tmp_path):
     """The README's block, run as pasted: it waits for its server and writes nothing into the
     checkout (the recording and the picture go to a temporary folder)."""
