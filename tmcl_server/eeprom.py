@@ -19,6 +19,7 @@ import json
 import logging
 import os
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -126,6 +127,7 @@ class Eeprom:
         #: Set while a TMCL program's command runs: its stores may be coalesced.
         self.deferring = False
         self._schedule: Callable[[float, Callable[[], None]], object] | None = None
+        self._clock: Callable[[], float] = time.monotonic
         self._dirty = False  # a coalesced store is not on disk yet
         self._last_write = float("-inf")
         #: The last write failed (logged once until a write succeeds again).
@@ -243,19 +245,21 @@ class Eeprom:
 
     # -- write scheduling ---------------------------------------------------------------------
 
-    def coalesce(self, schedule: Callable[[float, Callable[[], None]], object]) -> None:
+    def coalesce(self, schedule: Callable[[float, Callable[[], None]], object],
+                 clock: Callable[[], float] | None = None) -> None:
         """Coalesce program stores: ``schedule(delay_s, callback)`` runs a callback later (the
-        server's event loop); :meth:`flush` must run before the process ends."""
+        server's event loop), ``clock()`` tells the seconds the interval is measured in (the
+        wall's monotonic clock unless a test gives its own); :meth:`flush` must run before the
+        process ends."""
         self._schedule = schedule
+        self._clock = clock or time.monotonic
 
     def _persist(self) -> None:
         """A store happened: write the file now, or once the flush interval is over when a
         program stores in quick succession (the file stays atomic either way)."""
         self.stores += 1
         if self._schedule is not None and self.deferring and self.persistent:
-            import time
-
-            wait = self._last_write + FLUSH_INTERVAL_S - time.monotonic()
+            wait = self._last_write + FLUSH_INTERVAL_S - self._clock()
             if wait > 0 or self._dirty:
                 if not self._dirty:
                     self._dirty = True
@@ -268,9 +272,7 @@ class Eeprom:
         if self.persistent:
             self.file_writes += 1
         if self._schedule is not None:
-            import time
-
-            self._last_write = time.monotonic()
+            self._last_write = self._clock()
         self._save()
 
     def flush(self) -> None:
