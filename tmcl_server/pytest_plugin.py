@@ -20,6 +20,11 @@ in this order, by the factory's ``clock=`` argument, ``@pytest.mark.tmcl_sim(clo
 The marker's other keywords (``modules=3``, ``request_time=0.01``, ...) are defaults for
 every simulator the test makes; ``faults=["noreply:opcode=GAP"]`` injects faults from the start,
 ``with tmcl_sim.fault("delay", ms=50): ...`` for a block (docs/faults.md).
+
+The package installs this plugin into every pytest run of its environment, also of projects
+that never use a fixture: importing it loads nothing of the simulator (the fixtures import
+it when a test asks for one), so it adds about a millisecond to pytest's start
+(``scripts/bench_startup.py --plugin``).
 """
 
 from __future__ import annotations
@@ -27,11 +32,12 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from tmcl_server.embed import SimulatorThread
+if TYPE_CHECKING:
+    from tmcl_server.embed import SimulatorThread
 
 CLOCKS = ("virtual", "lockstep", "real")
 INI_CLOCK = "tmcl_sim_clock"
@@ -91,6 +97,8 @@ def tmcl_sim_factory(request: pytest.FixtureRequest,
     sleeper: _SleepAdvancesTime | None = None
 
     def make(**kwargs: Any) -> SimulatorThread:
+        from tmcl_server.embed import SimulatorThread
+
         nonlocal sleeper
         for key, value in defaults.items():
             kwargs.setdefault(key, value)
