@@ -27,7 +27,7 @@ from tmcl_spec.commands import (
     Status,
 )
 from tmcl_spec.modules import MODULE_TYPES, ModuleType, module_type
-from tmcl_spec.names import ParameterNames, names_of
+from tmcl_spec.names import ParameterNames, module_names
 from tmcl_spec.numbers import to_int32
 
 #: Commands whose request value is written (shown as ``= value``).
@@ -55,9 +55,9 @@ class Vocabulary:
     def __init__(self, kind: ModuleType | str | None = None) -> None:
         self.type = module_type() if kind is None else (
             module_type(kind) if isinstance(kind, str) else kind)
-        self.axis: ParameterNames = names_of(self.type.axis_parameters)
-        self.banks: dict[int, ParameterNames] = {
-            bank: names_of(table) for bank, table in self.type.global_parameters.items()}
+        self.axis: ParameterNames
+        self.banks: dict[int, ParameterNames]
+        self.axis, self.banks = module_names(self.type)
 
     def parameter_name(self, opcode: int, number: int, bank: int) -> str | None:
         if opcode in AXIS_PARAMETER_COMMANDS:
