@@ -28,6 +28,7 @@ import os
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 MIN_PYTHON = (3, 11)
@@ -127,7 +128,7 @@ def setup_key(extras: str) -> str:
         path = ROOT / name
         digest.update(path.read_bytes() if path.exists() else b"")
         digest.update(b"\0")
-    digest.update(("{}\n{}\n".format(extras, os.environ.get("PYTHON", ""))).encode())
+    digest.update(f"{extras}\n{os.environ.get('PYTHON', '')}\n".encode())
     return digest.hexdigest()
 
 
@@ -140,7 +141,7 @@ def _venv_version() -> str | None:
     return probe([str(python)]) if python.exists() else None
 
 
-def _run(who: str, command: list[str], failure: str) -> None:
+def _run(command: list[str], failure: str) -> None:
     """A set-up step whose output goes straight to the terminal (pip's progress as it comes)."""
     try:
         status = subprocess.call(command)
@@ -170,7 +171,7 @@ def ensure_venv(who: str, extras: str) -> Path:
         say(who, "setting up .venv again: pyproject.toml, the extras or PYTHON changed")
     else:
         say(who, f"creating .venv with {name} ...")
-        _run(who, [*command, "-m", "venv", "--clear", str(VENV)],
+        _run([*command, "-m", "venv", "--clear", str(VENV)],
              "creating .venv failed (on Debian/Ubuntu: sudo apt-get install python3-venv)")
         for old in VENV.glob(".setup-*"):
             old.unlink()
@@ -178,7 +179,7 @@ def ensure_venv(who: str, extras: str) -> Path:
         raise SetupError(f"creating .venv left no {python.relative_to(ROOT)}")
     say(who, f"installing tmcl-sim with the extras {extras} into .venv (a minute or two the first "
              "time) ...")
-    _run(who, [str(python), "-m", "pip", "install", "-e", f"{ROOT}[{extras}]"],
+    _run([str(python), "-m", "pip", "install", "-e", f"{ROOT}[{extras}]"],
          "pip install failed")
     stamp.write_text(f"{key}\nusing .venv (Python {version}, set up with {name})\n",
                      encoding="utf-8")
@@ -203,7 +204,7 @@ def hand_over(program: Path, arguments: list[str]) -> int:
             continue
 
 
-def main_guard(who: str, run) -> int:  # type: ignore[no-untyped-def]
+def main_guard(who: str, run: Callable[[], int]) -> int:
     """Run a script's body: a SetupError is one line and exit status 1."""
     try:
         return run()

@@ -35,7 +35,7 @@ def names_a_port(arguments: list[str]) -> bool:
 def server_arguments(arguments: list[str]) -> list[str]:
     if bootstrap.windows() or names_a_port(arguments):
         return list(arguments)
-    return ["--pty", DEFAULT_PTY, *list(arguments)]
+    return ["--pty", DEFAULT_PTY, *arguments]
 
 
 def main() -> int:

@@ -41,7 +41,7 @@ def report_missing() -> None:
         if missing:
             how = ("; install with: sudo apt-get install " + " ".join(packages)
                    if shutil.which("apt-get") else "")
-            bootstrap.say(WHO, "{} tests skipped: {} missing{}".format(what, " or ".join(missing), how))
+            bootstrap.say(WHO, f"{what} tests skipped: {' or '.join(missing)} missing{how}")
 
 
 def step(command: list[str]) -> None:
