@@ -159,18 +159,23 @@ def test_a_burst_torn_at_its_end_on_the_pty_is_one_request_per_frame(tmp_path):
 @pytest.mark.parametrize("loop", LOOPS)
 def test_a_real_pause_on_an_idle_server_drops_the_fragment(loop, tmp_path):
     """The other direction: more than 5 ms of silence after 4 bytes, on TCP and on the pty, and
-    the next whole frame is a request of its own (one reply, nothing for the fragment)."""
+    the next whole frame is a request of its own (one reply, nothing for the fragment).  The
+    next frame goes once the trace shows both fragments dropped: a loaded machine may read
+    them late, and the 5 ms count from the server's read (bytes waiting by then continue it)."""
     link = tmp_path / "tty"
-    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], pty=[str(link)], loop=loop) as sim, \
-            open_pty(link) as port:
+    trace = tmp_path / "trace.txt"
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], pty=[str(link)], loop=loop,
+                         trace=str(trace)) as sim, open_pty(link) as port:
         client = RawClient(sim.tcp)
         try:
-            for pause in (0.02, 0.05):
+            for round_, pause in enumerate((0.02, 0.05), 1):
                 client.send_raw(bytes([1, Opcode.SAP, 4, 0]))
                 os.write(port, bytes([1, Opcode.SAP, 4, 0]))
-                # The pause the rule is about, with room for a loaded machine that runs the
-                # server's 5 ms check late (bytes waiting by then would continue the frame).
-                time.sleep(pause)
+                time.sleep(pause)  # the pause the rule is about (the stimulus)
+                deadline = time.monotonic() + 60
+                while (trace.read_text() if trace.exists() else "").count("torn frame: 4 of 9") < 2 * round_:
+                    assert time.monotonic() < deadline, "the fragments were not dropped"
+                    time.sleep(0.01)
                 client.send_raw(GAP)
                 os.write(port, GAP)
                 assert_all_gap_replies(client.recv_exact(9), 1)
