@@ -125,8 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "mode=usb")
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
     parser.add_argument("--max-connections", type=_positive_int, default=256, metavar="N",
-                        help="clients each TCP endpoint serves at once; a new one past it "
-                             "closes the client silent longest (default 256)")
+                        help="clients each TCP and socketcand endpoint serves at once; past it "
+                             "a newcomer is refused unless a connection is idle "
+                             "(docs/robustness.md, Connection limits; default 256)")
     parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
                         help="open a virtual serial port and link PATH to it (repeatable); "
                              "mode usb answers any address like the module's USB port, rs485 "
