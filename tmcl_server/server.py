@@ -214,8 +214,8 @@ class Server:
     async def start(self) -> dict[str, list[str]]:
         self._loop = asyncio.get_running_loop()
         self.simulation.on_change = self._reschedule
-        for module in self.simulation.modules:  # a program's store loop: one write per interval
-            module.eeprom.coalesce(self._loop.call_later)
+        for module in self.simulation.modules:  # stores: a journal append, snapshots in a thread
+            module.eeprom.start_journal(self._loop.call_later)
         limit_repeats()  # what a host can make us log, at most one line per call site in 5 s
         try:
             self.observers.start(self._loop)
@@ -253,13 +253,8 @@ class Server:
             except Exception:  # keep closing the others
                 log.exception("closing %s failed", transport.kind)
         self.transports.clear()
-        for module in self.simulation.modules:  # stores a program made and not yet written
-            try:
-                module.eeprom.flush()
-            except OSError:
-                log.exception("module %d: writing the EEPROM file failed", module.slot)
-        for module in self.simulation.modules[:1]:  # and every file on disk (one syncer)
-            module.eeprom.wait_durable()
+        for module in self.simulation.modules:  # the last snapshot; the journals go
+            module.eeprom.flush()
         if self._can_bus is not None and self._can_bus.timing is not None:
             self._can_bus.timing.close()
         self.observers.close()
