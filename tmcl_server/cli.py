@@ -156,6 +156,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mqtt-faults", action="store_true",
                         help="let MQTT clients inject faults (sim/fault, sim/power_cycle); off by "
                              "default: every client of the broker could silence the module")
+    parser.add_argument("--mqtt-commands", action="store_true",
+                        help="let MQTT clients send TMCL commands that change the module (SAP, "
+                             "STAP, MVP, programs, 137, ...); off by default, since every client "
+                             "of the broker could drive it; reads are always served")
     parser.add_argument("--state-dir", metavar="DIR",
                         help="keep each module's EEPROM in DIR/module-<address>/ "
                              "(default: nothing persists)")
@@ -367,7 +371,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         processing_time=args.processing_time, max_connections=args.max_connections,
                         skip_loops=not args.step_every_instruction,
                         trace_max=args.trace_max, record_max=args.record_max,
-                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults)
+                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults,
+                        mqtt_commands=args.mqtt_commands)
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given

@@ -113,6 +113,9 @@ class ServerConfig:
     http_token: str | None = None
     #: MQTT clients may inject faults (``sim/fault``, ``sim/power_cycle``): off unless asked.
     mqtt_faults: bool = False
+    #: MQTT clients may send commands that change the module (SAP, STAP, MVP, programs, 137,
+    #: ...): off unless asked; reads (GAP, GGP, GIO, the version) are always served.
+    mqtt_commands: bool = False
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":

@@ -12,36 +12,11 @@ import time
 from collections.abc import Callable
 from typing import Any, cast
 
+from tmcl_server.transports.admission import Pace
+
+__all__ = ["ConnectionGate", "Pace"]
+
 log = logging.getLogger("tmcl_server.dashboard.web")
-
-
-class Pace:
-    """At most ``rate`` turns a second on average, ``burst`` at once (a generic cell rate
-    algorithm): :meth:`delay` says how long the caller must wait for its turn and books it,
-    so waiting callers go in the order they asked and the rate holds however many ask."""
-
-    def __init__(self, rate: float, burst: int = 1, clock: Callable[[], float] = time.monotonic) -> None:
-        self.interval = 1.0 / rate
-        self.tolerance = (max(1, burst) - 1) * self.interval
-        self._clock = clock
-        #: When the next turn is due if nobody waits (the "theoretical arrival time").
-        self._due = 0.0
-
-    def delay(self, longest: float | None = None) -> float | None:
-        """The wait for the next turn, booked; None (and nothing booked) if it would be longer
-        than ``longest``."""
-        now = self._clock()
-        due = max(self._due, now)
-        wait = max(0.0, due - self.tolerance - now)
-        if longest is not None and wait > longest:
-            return None
-        self._due = due + self.interval
-        return wait
-
-    async def turn(self) -> None:
-        wait = self.delay()
-        if wait:
-            await asyncio.sleep(wait)
 
 
 class _GatedConnection(asyncio.Protocol):

@@ -14,12 +14,14 @@
 * Every refusal and eviction is counted, and logged through a rate-limited logger (one line
   per kind every 5 s, with the count held back: :mod:`tmcl_server.lograte`).
 
-No asyncio here: a listener's protocol objects implement :class:`Admitted`, and the listener
-asks :meth:`Admission.admit` in ``connection_made``.
+A listener's protocol objects implement :class:`Admitted`, and the listener asks
+:meth:`Admission.admit` in ``connection_made``.  :class:`Pace` bounds the rate of queued
+work (the dashboard's requests, the MQTT bridge's inbox).
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
 from collections.abc import Callable
@@ -128,3 +130,32 @@ class Admission:
         """The connection closed (or is being closed): its slot is free."""
         self._newcomers.pop(connection, None)
         self._established.discard(connection)
+
+
+class Pace:
+    """At most ``rate`` turns a second on average, ``burst`` at once (a generic cell rate
+    algorithm): :meth:`delay` says how long the caller must wait for its turn and books it,
+    so waiting callers go in the order they asked and the rate holds however many ask."""
+
+    def __init__(self, rate: float, burst: int = 1, clock: Callable[[], float] = time.monotonic) -> None:
+        self.interval = 1.0 / rate
+        self.tolerance = (max(1, burst) - 1) * self.interval
+        self._clock = clock
+        #: When the next turn is due if nobody waits (the "theoretical arrival time").
+        self._due = 0.0
+
+    def delay(self, longest: float | None = None) -> float | None:
+        """The wait for the next turn, booked; None (and nothing booked) if it would be longer
+        than ``longest``."""
+        now = self._clock()
+        due = max(self._due, now)
+        wait = max(0.0, due - self.tolerance - now)
+        if longest is not None and wait > longest:
+            return None
+        self._due = due + self.interval
+        return wait
+
+    async def turn(self) -> None:
+        wait = self.delay()
+        if wait:
+            await asyncio.sleep(wait)
