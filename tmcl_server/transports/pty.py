@@ -15,6 +15,7 @@ import contextlib
 import errno
 import logging
 import os
+import stat
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING
 from tmcl_server.platform import (
     bytes_waiting,
     lock_exclusively,
+    open_no_follow,
     open_raw_pty,
     require_pseudo_terminals,
 )
@@ -78,7 +80,11 @@ class LinkLock:
             raise FileNotFoundError(f"cannot create the pty link {link}: directory "
                                     f"{link.parent} does not exist")
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = open_no_follow(self.path, os.O_RDWR | os.O_CREAT)  # N5: a planted link
+            if not stat.S_ISREG(os.fstat(fd).st_mode):  # a FIFO or device planted there
+                os.close(fd)
+                raise OSError(errno.EEXIST, "is not a regular file: refusing it as the lock",
+                              str(self.path))
             try:
                 lock_exclusively(fd)
             except BlockingIOError:
