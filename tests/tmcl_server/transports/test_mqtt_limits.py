@@ -7,11 +7,10 @@ from __future__ import annotations
 import asyncio
 import json
 
-import pytest
-
 from tests.conftest import RawClient
-from tests.helpers.mosquitto import Broker, missing_reason
+from tests.helpers.mosquitto import missing_reason
 from tests.helpers.requirements import needs
+from tests.tmcl_server.transports import test_mqtt
 from tests.tmcl_server.transports.test_mqtt import json_of, probing, start_sim
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_server.transports.mqtt import bridge as bridge_module
@@ -20,12 +19,8 @@ from tmcl_spec.parameters import AP
 
 pytestmark = needs(missing_reason())
 
-
-@pytest.fixture
-def broker(tmp_path):
-    b = Broker(tmp_path)
-    yield b
-    b.stop()
+#: A throwaway mosquitto per test (test_mqtt's fixture).
+broker = test_mqtt.broker
 
 
 def _bridge(sim):
