@@ -488,10 +488,6 @@ class Eeprom:
                           "the stores for the next start", self.path, exc)
         journal.close(remove)
 
-    def wait_durable(self, timeout: float = 30.0) -> bool:
-        """Block until the snapshots handed to the thread are written (a server's shutdown)."""
-        return WRITER.wait(timeout)
-
     # -- access -------------------------------------------------------------------------------
 
     def get(self, section: str, key: int | str, default: Any = None) -> Any:
