@@ -35,8 +35,10 @@ it, then the link is resynchronised and the module reset with 137); a reply late
 reply) is a stall (``stalls_net_of_cpu_wait`` counts those still late once the reply's own
 CPU wait is taken out: what the server's event-loop thread waited for a CPU between when the
 reply was due and when it was read, from schedstat; ``stalls_net_of_both_cpu_waits`` also
-takes out what the fuzzer itself waited meanwhile); no reply for ``--hang-s`` is a hang (the server is killed
-and restarted);
+takes out what the fuzzer itself waited meanwhile, and ``stalls_net_server_busy`` counts
+those of ``stalls_net_of_cpu_wait`` during which the server's thread ran for more than half
+of ``--stall-ms``: late by its own work rather than by the kernel's pty buffers or the
+fuzzer's reading); no reply for ``--hang-s`` is a hang (the server is killed and restarted);
 a server that exits, or a ``Traceback`` in its standard error, is a crash.  The seed fixes
 every frame and pause sent; only the server's timing differs between runs.
 
@@ -434,7 +436,7 @@ class Expect:
     end: int = 0  # stream offset of the frame's last byte
     sent: float = 0.0
     #: (the server's, our own) time waited for a CPU so far, when the frame was sent
-    waits_at_sent: tuple[int, int] = (0, 0)
+    waits_at_sent: tuple[int, int, int] = (0, 0, 0)
 
 
 def expect_for(frame: bytes, rs485: bool, model: ModuleModel) -> tuple[Expect | None, bool]:
@@ -700,6 +702,9 @@ class Stats:
     #: ... and also once what the fuzzer waited for a CPU meanwhile is taken out (the two
     #: waits may overlap, so this count errs towards excusing)
     stalls_net_both: int = 0
+    #: ... of stalls_net, those during which the server's loop thread ran more than half of
+    #: --stall-ms (its own work made them late, not the kernel's pty buffers or our reading)
+    stalls_net_busy: int = 0
     max_net_latency_ms: float = 0.0
     max_latency_ms: float = 0.0
     latencies: list[float] = field(default_factory=list)  # a sample for percentiles
@@ -725,8 +730,8 @@ class Fuzzer:
         self.starved_ms = 0.0  # how long the server waited for a CPU between our last two reads
         self.delay_at_read = 0
         #: cpu_waits() at our last read and at the one before it
-        self.waits_at_read: tuple[int, int] = (0, 0)
-        self.waits_prev_read: tuple[int, int] = (0, 0)
+        self.waits_at_read: tuple[int, int, int] = (0, 0, 0)
+        self.waits_prev_read: tuple[int, int, int] = (0, 0, 0)
         self.torn_mismatches: list[dict[str, Any]] = []
         self.round_delay_start = 0
         self.stall_list: list[dict[str, Any]] = []
@@ -872,7 +877,7 @@ class Fuzzer:
             except OSError as exc:
                 raise Hang(f"write failed: {exc}") from exc
             now = time.monotonic()
-            waits: tuple[int, int] | None = None
+            waits: tuple[int, int, int] | None = None
             for exp in queue:
                 if not exp.sent and exp.end <= base + written:
                     exp.sent = now
@@ -909,10 +914,14 @@ class Fuzzer:
         self.waits_prev_read, self.waits_at_read = self.waits_at_read, waits
         return self.consume(link, queue, now, prev, rnd, log)
 
-    def cpu_waits(self) -> tuple[int, int]:
+    def cpu_waits(self) -> tuple[int, int, int]:
         """How long the server's event-loop thread and our own thread have waited for a CPU
-        so far (schedstat, ns): a reply's share of them is no lateness of the server's."""
-        return (self.server.run_delay_ns() if self.server is not None else 0, own_run_delay_ns())
+        so far, and how long the server's thread has run (schedstat, ns): a reply's share of
+        the waits is no lateness of the server's, and what the server ran says whether it was
+        busy meanwhile or had nothing to do (the kernel's pty buffers, our own reading)."""
+        if self.server is None:
+            return 0, own_run_delay_ns(), 0
+        return self.server.run_delay_ns(), own_run_delay_ns(), self.server.cpu_ns()
 
     def consume(self, link: Link, queue: deque[Expect], now: float, prev: float,
                 rnd: Round | None, log: Any) -> float:
@@ -946,11 +955,14 @@ class Fuzzer:
             base = exp.waits_at_sent if exp.sent and exp.sent >= prev_in else self.waits_prev_read
             server_wait = max(0, self.waits_at_read[0] - base[0]) / 1e9
             own_wait = max(0, self.waits_at_read[1] - base[1]) / 1e9
+            server_ran = max(0, self.waits_at_read[2] - base[2]) / 1e9
             net = latency - server_wait  # the fuzzer's own wait is reported, not taken out
             if net > self.stats.max_net_latency_ms / 1000:
                 self.stats.max_net_latency_ms = net * 1000
             if net * 1000 > self.args.stall_ms:
                 self.stats.stalls_net += 1
+                if server_ran * 1000 > self.args.stall_ms / 2:  # it was busy for most of it
+                    self.stats.stalls_net_busy += 1
                 if (net - own_wait) * 1000 > self.args.stall_ms:  # nor were we late to read it
                     self.stats.stalls_net_both += 1
             if latency * 1000 > self.args.stall_ms:
@@ -966,6 +978,7 @@ class Fuzzer:
                         "server_waited_for_cpu_ms": round(self.starved_ms, 1),
                         "reply_cpu_wait_ms": {"server": round(server_wait * 1000, 1),
                                               "fuzzer": round(own_wait * 1000, 1)},
+                        "server_ran_ms": round(server_ran * 1000, 1),
                         "net_latency_ms": round(net * 1000, 1),
                         "frame": exp.frame.hex(" "), "round": self.stats.rounds,
                         "program": self.model.program_started,
@@ -1191,6 +1204,7 @@ class Fuzzer:
             "stalls_starved": s.stalls_starved,
             "stalls_net_of_cpu_wait": s.stalls_net,
             "stalls_net_of_both_cpu_waits": s.stalls_net_both,
+            "stalls_net_server_busy": s.stalls_net_busy,
             "max_latency_net_of_cpu_wait_ms": round(s.max_net_latency_ms, 1),
             "stall_ms": self.args.stall_ms, "max_latency_ms": round(s.max_latency_ms, 1),
             "latency_ms_p50": pct(0.5), "latency_ms_p99": pct(0.99), "hangs": len(self.hangs),
