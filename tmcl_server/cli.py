@@ -126,8 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
     parser.add_argument("--max-connections", type=_positive_int, default=256, metavar="N",
                         help="clients each TCP and socketcand endpoint serves at once; past it "
-                             "a newcomer is refused unless a connection is idle "
-                             "(docs/robustness.md, Connection limits; default 256)")
+                             "a newcomer is refused unless a connection is idle (default 256; "
+                             f"{doc('robustness.md')}, Connection limits)")
     parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
                         help="open a virtual serial port and link PATH to it (repeatable); "
                              "mode usb answers any address like the module's USB port, rs485 "
