@@ -207,7 +207,7 @@ class DashboardTransport(Transport):
         try:
             return await self._admitted(request, handler, refusal)
         finally:
-            gate.answered(request.transport, upgraded=request.path == "/ws")
+            gate.answered(request.transport, upgraded=refusal is None and request.path == "/ws")
 
     async def _admitted(self, request: web.Request, handler: Any,
                         refusal: str | None) -> web.StreamResponse:
