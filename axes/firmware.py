@@ -8,29 +8,26 @@ half of the firmware that speaks the chip's SPI datagrams (``axes/chips/tmc42x/t
 the TMC4210).  The mechanics and the input stage are the :class:`axes.board.AxisBoard`.
 
 Time: the axis keeps the simulated time it was last advanced to.  To find its next event it
-runs a *copy* of the chip forward (:meth:`AxisFirmware._lookahead`); :meth:`advance_to` then
-adopts that copy at the event instant, so each stretch of motion is computed once.  Every
-modelling choice is explained in docs/motion.md.
+runs a *copy* of the chip forward (the look-ahead, axes/forecast.py, which also answers loop
+skipping's questions); :meth:`advance_to` then adopts that copy at the event instant, so each
+stretch of motion is computed once.  Every modelling choice is explained in docs/motion.md.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 
 from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
-from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind, AxisStatus
+from axes.forecast import AxisForecast, Lookahead
+from axes.interface import Axis, AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld, LoadZone, Switch
 from tmcl_spec.numbers import NS_PER_MS, to_int32
-from tmcl_spec.parameters import AP, ParamSpec
+from tmcl_spec.parameters import AP, Motion, ParamSpec
 
-#: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
-#: it the look-ahead stops short and the axis looks again from there when that time comes.
-LOOKAHEAD_BUDGET = 2_000
 #: How often the firmware samples stallGuard while it could stall but does not yet.
 STALL_POLL_NS = NS_PER_MS
 
@@ -89,22 +86,14 @@ _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_
 #: encoder set, a rotation, a ramp-mode stop): the others change nothing when written unchanged.
 _ACTION_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.TARGET_SPEED,
                                 AP.ENCODER_POSITION, AP.RAMP_MODE})
-#: Live parameters that change only at the chip's notable instants (switch edges are marks):
-#: steady between two events even while the axis moves.
-_LEVEL_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
-                               AP.HOME_SWITCH, AP.ERROR_FLAGS})
+#: How the rows the firmware keeps (AxisFirmware._params, not read from the chip) may move:
+#: a command changes them, or the firmware at one of its events (AP 196/197).
+_KEPT_MOTIONS = frozenset({Motion.SETTING, Motion.EVENTS})
 #: Parameters whose writes re-plan the stop switches.
 _STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, AP.SOFT_STOP_FLAG,
                               AP.REFERENCE_SWITCH_TOLERANCE, AP.VIRTUAL_STOP_LEFT,
                               AP.VIRTUAL_STOP_RIGHT, AP.VIRTUAL_STOP_ENABLE,
                               AP.VIRTUAL_STOP_MODE})
-
-
-@dataclass(slots=True)
-class _Lookahead:
-    chip: ChipModel
-    stop: Stop | None  # None: nothing happened up to the horizon
-    time_ns: int
 
 
 class AxisFirmware(Axis):
@@ -138,6 +127,11 @@ class AxisFirmware(Axis):
         self.motor_driver: MotorDriverLink | None = self.driver.motor_driver
         #: Chip-specific parameters the driver reads from its chip (e.g. AP 135, AP 138).
         self._chip_live: frozenset[int] = frozenset(self.driver.live_parameters & known)
+        motions = {self._keys.get(n, n): spec.motion for n, spec in parameters.items()
+                   if spec.motion is not None}
+        self._check_motions(motions)
+        #: The look-ahead, and the forecasts loop skipping asks for (axes/forecast.py).
+        self.forecast = AxisForecast(self, motions)
         #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
         self._encoder_prescaler = AP.FULLSTEPS not in known
         #: AP 212 counts microsteps with a prescaler (the TMC429 modules) and on the TMC4361
@@ -147,12 +141,6 @@ class AxisFirmware(Axis):
                                          or AP.STOP_DECELERATION in known)
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
-        #: The chip's next notable instant (None: nothing ahead), once computed since the last
-        #: change (``_lookahead_known``).
-        self._lookahead_cache: _Lookahead | None = None
-        #: The last crossing found: (the look-ahead it holds for, values, time).
-        self._crossing: tuple[_Lookahead, tuple[int, ...], int] | None = None
-        self._lookahead_known = False
         self._target = 0  # AP 0, 32 bit
         self._positioning = False
         self._awaiting_arrival = False
@@ -186,23 +174,46 @@ class AxisFirmware(Axis):
         """AP 1, as of the last read from the chip."""
         return self.driver.position
 
+    def _check_motions(self, motions: Mapping[int, Motion]) -> None:
+        """The table's motion column and what the firmware does agree (F2 in axes/forecast.py):
+        a row the firmware reads from the chip is not a setting, and a row it keeps changes
+        only by a command or at one of its events.  Refused otherwise, at construction."""
+        for number, motion in motions.items():
+            live = number in _LIVE_PARAMETERS or number in self._chip_live
+            if motion is Motion.SETTING if live else motion not in _KEPT_MOTIONS:
+                raise ValueError(f"axis parameter {number}: the table says it {motion.value}, "
+                                 f"but the firmware {'reads it from the chip' if live else 'keeps it'}")
+
     # == time ==================================================================================
 
     def _invalidate(self) -> None:
-        self._lookahead_known = False
+        self.forecast.known = False  # AxisForecast.invalidate, inlined: every command runs it
 
-    def _lookahead(self) -> _Lookahead | None:
-        """Run a copy of the chip to its next notable instant (or the horizon)."""
-        if self._lookahead_known:
-            return self._lookahead_cache
-        twin = self.chip.clone()
-        horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + self.driver.horizon_ns()
-        stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
-        at_rest = stop is None and twin.at_rest()
-        result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))
-        self._lookahead_cache = result
-        self._lookahead_known = True
-        return result
+    def _lookahead(self) -> Lookahead | None:
+        return self.forecast.lookahead()
+
+    # the forecast's view of the axis (axes.forecast.ForecastedAxis)
+
+    def present_ns(self) -> int:
+        return self._now_ns
+
+    def sync(self) -> None:
+        self._sync()
+
+    def actual_speed(self) -> int:
+        return self._actual_speed()
+
+    def target_position(self) -> int:
+        return self._target
+
+    def in_velocity_mode(self) -> bool:
+        return self._rotating()
+
+    def error_flags(self) -> int:
+        return self._errors
+
+    def coolstep_follows_reads(self) -> bool:
+        return self._coolstep_follows_reads()
 
     def _timer_due(self) -> int | None:
         """The firmware's own next deadline (standby current, stallGuard sampling)."""
@@ -752,7 +763,7 @@ class AxisFirmware(Axis):
                 self._sync()
                 return self.driver.read_parameter(number)
             return self._params[number]  # configuration: no need to bring the chip up to date
-        if number == AP.POSITION_REACHED and self._short_of_target():
+        if number == AP.POSITION_REACHED and self.forecast.short_of_target():
             return 0
         self._sync()
         if number == AP.TARGET_POSITION:
@@ -781,115 +792,22 @@ class AxisFirmware(Axis):
             return self._absolute_encoder()
         return self._params[number]
 
-    # == what stays as it is (the interpreter's loop skipping, docs/scheduling.md) ================
+    # == what stays as it is (loop skipping, axes/forecast.py) ===================================
 
     def steady_until(self, number: int) -> int:
         if self._keys:
             number = self._keys.get(number, number)
-        if number not in _LIVE_PARAMETERS and number not in self._chip_live:
-            return FOREVER  # a setting: only a command changes it
-        if number == AP.ERROR_FLAGS and self._errors:
-            return 0  # reading clears the flags
-        ahead = self._lookahead()
-        if ahead is None:
-            return FOREVER  # at rest: what it reads changes only at an event or a command
-        if number in _LEVEL_PARAMETERS:
-            return FOREVER  # switch levels and flags change only at the chip's notable instants
-        if number == AP.POSITION_REACHED:
-            return self._first_time_at_position((self._target,), ahead)
-        if number == AP.ACTUAL_SPEED and self._rotating():
-            # a rotation's ramp only ever heads for its speed: the same speed at both ends of
-            # the stretch to the next notable instant means the same speed all along it
-            self._sync()
-            if self.driver.speed_on(ahead.chip.clone()) == self._actual_speed():
-                return ahead.time_ns
-        return 0  # a moving quantity
+        return self.forecast.steady_until(number)
 
     def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
         if self._keys:
             number = self._keys.get(number, number)
-        ahead = self._lookahead()
-        if number == AP.ACTUAL_POSITION:
-            return FOREVER if ahead is None else self._first_time_at_position(values, ahead)
-        if number == AP.ACTUAL_SPEED and self._rotating():
-            return FOREVER if ahead is None else self._first_time_speed_crosses(values, ahead)
-        return 0
+        return self.forecast.first_time_at(number, values)
 
     def _rotating(self) -> bool:
         """Velocity mode (ROR, ROL, MST) with no reference search: the speed only ever moves
         towards the speed asked for, monotonically, until the next notable instant."""
         return not self._positioning and self._rfs is None
-
-    def _first_time_speed_crosses(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
-        """The first time AP 3 compares otherwise with one of ``values`` than now (reaches it,
-        or passes it), or the next notable instant: the speed being monotonic there, a copy
-        of the chip is bisected over the clock ticks."""
-        self._sync()
-        speed = self._actual_speed()
-        if speed in values:
-            return 0
-        above = [speed > value for value in values]
-
-        def compares_otherwise(chip: ChipModel) -> bool:
-            now = self.driver.speed_on(chip)
-            return any(now == value or (now > value) != side
-                       for value, side in zip(values, above, strict=True))
-
-        if not compares_otherwise(ahead.chip.clone()):
-            return ahead.time_ns
-        low, high = self.chip.clone(), ahead.chip.t
-        while high - low.t > 1:
-            middle = (low.t + high) // 2
-            probe = low.clone()
-            probe.run(middle, LOOKAHEAD_BUDGET)
-            if probe.t < middle:  # stopped short (its work budget): no promise beyond here
-                return probe.ns_at(probe.t)
-            if compares_otherwise(probe.clone()):
-                high = middle
-            else:
-                low = probe
-        return low.ns_at(high)
-
-    def _short_of_target(self) -> bool:
-        """AP 8 reads 0 now for certain, without bringing the chip up to now: the position
-        first meets the target later than now (found once per look-ahead with a copy of the
-        chip, as :meth:`steady_until` does).  A host or program polling AP 8 through a long
-        move then costs a comparison a poll, not a run of the chip's ramp to every poll.
-        Not while coolStep regulates, whose readings follow the reads (:meth:`_read_position`)."""
-        if self._coolstep_follows_reads():
-            return False
-        ahead = self._lookahead()
-        if ahead is None:
-            return False  # at rest: the plain read is cheap
-        return self._now_ns < self._first_time_at_position((self._target,), ahead)
-
-    def _first_time_at_position(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
-        """The first time AP 1 equals one of ``values``, or the chip's next notable instant
-        if it does not before: a copy of the chip runs with a mark at each value's motor
-        position (AP 1 and the motor position move together, step by step).  Kept while the
-        look-ahead it was found for holds."""
-        cached = self._crossing
-        if cached is not None and cached[0] is ahead and cached[1] == values:
-            return cached[2]
-        self._sync()
-        if not self.chip.steps_reach_motor():
-            return 0  # AP 1 counts steps that do not move the motor: no marks to set
-        here = self.driver.position
-        marks = [self.chip.motor_position + to_int32(value - here) for value in values]
-        if self.chip.motor_position in marks:
-            return 0
-        twin = self.chip.clone()
-        board = self.board
-        saved = board.firmware_marks
-        board.firmware_marks = saved + marks
-        until = twin.ticks_at(ahead.time_ns)
-        try:  # it stops early at a mark (or, conservatively, at anything else)
-            twin.run(until, LOOKAHEAD_BUDGET)
-        finally:
-            board.firmware_marks = saved
-        result = twin.ns_at(twin.t) if twin.t < until else ahead.time_ns
-        self._crossing = (ahead, values, result)
-        return result
 
     def set_parameter(self, number: int, value: int) -> bool:
         if self._keys:
