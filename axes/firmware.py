@@ -21,10 +21,11 @@ from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
 from axes.forecast import AxisForecast, Lookahead
-from axes.interface import Axis, AxisEvent, AxisEventKind, AxisStatus
+from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
+from axes.rig import RiggedAxis
 from axes.stallguard import CoolStep
-from axes.world import AxisWorld, LoadZone, Switch
+from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_MS, to_int32
 from tmcl_spec.parameters import AP, Motion, ParamSpec
 
@@ -96,7 +97,7 @@ _STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, A
                               AP.VIRTUAL_STOP_MODE})
 
 
-class AxisFirmware(Axis):
+class AxisFirmware(RiggedAxis):
     """One TMCL axis: axis parameters in, datagrams to its chip (through the driver) out.
 
     A core's axis class subclasses it with the :class:`axes.interface.Axis` constructor and
@@ -894,82 +895,20 @@ class AxisFirmware(Axis):
         if self._rfs is not None:
             self._rfs_step(self._rfs)
 
-    # == the world =============================================================================
+    # == the rig's hooks (axes/rig.py: the world and the faults around the axis) ==================
 
-    @property
-    def world(self) -> AxisWorld:
-        return self.board.world
+    def _motor_position(self) -> int:
+        return self.chip.motor_position
 
-    def set_world(self, world: AxisWorld) -> None:
-        """Replace the whole world of this axis (switch edges happen now)."""
+    def _rig_begin(self) -> None:
         self._command()
-        self._rebase_encoder()
-        self.board.set_world(world)
-        self.board.set_stuck(world.stuck, self.chip.motor_position)
-        self._rebase_encoder()
-        self._pins_changed()
-        self._check_stall()
-        self._after_command()
 
-    def set_switch(self, name: str, switch: Switch | None) -> None:
-        self._command()
-        self.board.set_switch(name, switch)
-        self._pins_changed()
-        self._after_command()
+    def _rig_end(self) -> None:
+        self._after_command()  # a new load or stuck mechanics may stall the motor now
 
-    def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
-        self._command()
-        self.board.world.load_zones = list(zones)
-        if free_load is not None:  # a value of its own: blocked if it is 0 (axes/world.py)
-            self.board.world.free_load, self.board.world.free_blocked = free_load, None
-        self.board.world_changed()
-        self._check_stall()
-        self._after_command()
-
-    def set_encoder_slip(self, slip: float) -> None:
-        if not 0.0 <= slip <= 1.0:
-            raise ValueError("slip must be between 0 and 1")
-        self._command()
-        self._rebase_encoder()
-        self.board.world.encoder_slip = slip
-        self._after_command()
-
-    def set_stuck(self, stuck: bool, load: int | None = None) -> None:
-        """A fault of the mechanics: from now on the motor no longer follows its steps (or
-        follows them again).  The chip keeps counting; the mechanics, the switches they actuate
-        and the encoder stay where they stopped, so the encoder deviates (AP 212 catches it).
-        ``load``: what stallGuard2 reads meanwhile (0 for a blocked rotor; None: the world's)."""
-        self._command()
-        world = self.board.world
-        world.stuck = stuck
-        world.stuck_load = load if stuck else None
-        self.board.set_stuck(stuck, self.chip.motor_position)
-        self.board.world_changed()
-        self._check_stall()
-        self._after_command()
-
-    def break_switch(self, name: str, level: bool | None) -> None:
-        """A broken switch: its input stays at the electrical ``level`` wherever the axis is
-        (before swap and polarity, AP 14/24/25); None repairs it."""
-        self._command()
-        if level is None:
-            self.board.world.broken_switches.pop(name, None)
-        else:
-            self.board.world.broken_switches[name] = level
-        self.board.world_changed()
-        self._pins_changed()
-        self._after_command()
-
-    def place_mechanics(self, mechanical: int) -> None:
-        """After a module restart: the mechanics stand at ``mechanical`` (world units) while
-        the fresh counters (AP 1, the encoder) start from 0, so the world's switches and load
-        zones stay where they are."""
-        self._command()
-        self.board.place(mechanical, self.chip.motor_position)
+    def _encoder_placed(self, mechanical: int) -> None:
         self._encoder_mech_base = mechanical
         self._encoder_offset = 0
-        self._pins_changed()
-        self._after_command()
 
     def register_access(self, address: int, value: int | None = None) -> int:
         """Commands 146/147: one raw datagram to the chip (None reads).
