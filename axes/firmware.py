@@ -20,6 +20,7 @@ from collections.abc import Callable, Mapping
 from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
+from axes.encoder import Encoder
 from axes.forecast import AxisForecast, Lookahead
 from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearch, reference_plan, reference_point
@@ -55,10 +56,6 @@ FIRMWARE_DEFAULTS: dict[int, int] = {
 #: disable and polarity parameters the firmware acts on.
 _LIMIT_SWITCH_BITS = {AP.RIGHT_LIMIT_SWITCH: (AP.RIGHT_DISABLE, AP.RIGHT_POLARITY),
                       AP.LEFT_LIMIT_SWITCH: (AP.LEFT_DISABLE, AP.LEFT_POLARITY)}
-#: An encoder prescaler's (AP 210 on modules without AP 202) unit: AP 209 = counts * p / 512;
-#: its low five bits select special encoder functions (not modelled).
-PRESCALER_UNIT = 512
-PRESCALER_FUNCTION_BITS = 0x1F
 
 
 # == the axis ==================================================================================
@@ -133,13 +130,13 @@ class AxisFirmware(RiggedAxis):
         self._check_motions(motions)
         #: The look-ahead, and the forecasts loop skipping asks for (axes/forecast.py).
         self.forecast = AxisForecast(self, motions)
-        #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
-        self._encoder_prescaler = AP.FULLSTEPS not in known
-        #: AP 212 counts microsteps with a prescaler (the TMC429 modules) and on the TMC4361
-        #: modules (whose own numbering has a DSTOP; the chip compares ENC_POS_DEV, in
-        #: microsteps); else encoder counts (the TMCM-6212).
-        self._deviation_in_microsteps = (self._encoder_prescaler
-                                         or AP.STOP_DECELERATION in known)
+        # AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps);
+        # AP 212 counts microsteps with a prescaler (the TMC429 modules) and on the TMC4361
+        # modules (whose own numbering has a DSTOP; the chip compares ENC_POS_DEV, in
+        # microsteps); else encoder counts (the TMCM-6212).
+        prescaler = AP.FULLSTEPS not in known
+        self.encoder = Encoder(self.board, self._params, prescaler=prescaler,
+                               deviation_in_microsteps=prescaler or AP.STOP_DECELERATION in known)
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
         self._target = 0  # AP 0, 32 bit
@@ -151,8 +148,6 @@ class AxisFirmware(RiggedAxis):
         self._errors = 0
         self._standstill_since: int | None = 0
         self._standby = False
-        self._encoder_offset = 0  # encoder counts added to what the mechanics give
-        self._encoder_mech_base = 0  # mechanical position at which slip was last rebased
         self._stall_watch = False
         self._motion_origin = 0  # motor position where the motion last started
         #: The current scale coolStep regulates (axes/stallguard.py).
@@ -550,7 +545,7 @@ class AxisFirmware(RiggedAxis):
         self._rfs_state = 0
         self.driver.configure_stops(searching=False)
         self._set_position(0)
-        self._set_encoder(0)
+        self.encoder.set(0, self.chip.motor_position)
         self._emit(AxisEventKind.REFERENCE_SEARCH_DONE)
 
     # == stallGuard, encoder, current ==========================================================
@@ -617,95 +612,22 @@ class AxisFirmware(RiggedAxis):
             return
         self._coolstep.update(self._params, self._mechanical(), speed, self._load())
 
-    def _encoder_counts_per_rev(self) -> int:
-        """The world's encoder, or the module's own where the world names none."""
-        return self.board.world.encoder_counts_per_rev or self.builtin_encoder_counts
-
-    def _mechanical_per_count(self) -> float:
-        """World units (1/256 of a full step) per encoder count."""
-        return self.board.world.motor_fullsteps_per_rev * 256 / self._encoder_counts_per_rev()
-
-    def _encoder_counts(self) -> int:
-        world = self.board.world
-        mech = self._mechanical()
-        seen = (mech - self._encoder_mech_base) * (1.0 - world.encoder_slip)
-        return self._encoder_offset + int(seen // self._mechanical_per_count())
-
-    def _absolute_encoder(self) -> int:
-        """AP 215 (sensOstep modules): the rotor's angle within one turn, in encoder counts
-        (0..counts per revolution - 1), whatever AP 209 was set to."""
-        return (int(self._mechanical() // self._mechanical_per_count())
-                % self._encoder_counts_per_rev())
-
-    def _counts_per_microstep(self) -> float:
-        """Encoder counts per unit of AP 209: AP 210 counts per revolution of AP 202 full
-        steps, or (modules without AP 202) AP 209 = counts * AP 210 / 512, a prescaler."""
-        if self._encoder_prescaler:
-            prescaler = self._params[AP.ENCODER_RESOLUTION] & ~PRESCALER_FUNCTION_BITS
-            return PRESCALER_UNIT / prescaler if prescaler > 0 else 0.0
-        resolution = self._params[AP.ENCODER_RESOLUTION]
-        microsteps = self._params[AP.FULLSTEPS] << self._params[AP.MICROSTEPS]
-        return resolution / microsteps if microsteps else 0.0
-
-    def _encoder_position(self) -> int:
-        ratio = self._counts_per_microstep()
-        return to_int32(round(self._encoder_counts() / ratio)) if ratio else 0
-
-    def _set_encoder(self, microsteps: int) -> None:
-        counts = round(microsteps * self._counts_per_microstep())
-        self._encoder_offset += counts - self._encoder_counts()
-
-    def _rebase_encoder(self) -> None:
-        """Keep the encoder reading continuous when slip or the mechanics mapping change."""
-        self._encoder_offset = self._encoder_counts()
-        self._encoder_mech_base = self._mechanical()
-
-    def _deviation(self) -> float:
-        """|AP 1 - AP 209| in the unit of AP 212: encoder counts, or microsteps (the TMC429
-        and TMC4361 modules)."""
-        gap = abs(self._position - self._encoder_position())
-        return gap if self._deviation_in_microsteps else gap * self._counts_per_microstep()
-
-    def _deviation_limit_steps(self, limit: int) -> float:
-        """AP 212 in microsteps of AP 1."""
-        return limit if self._deviation_in_microsteps else limit / self._counts_per_microstep()
-
     def _check_deviation(self) -> None:
         limit = self._params[AP.MAX_DEVIATION]
-        if limit and self._standstill_since is None and self._deviation() > limit:
+        if limit and self._standstill_since is None and self.encoder.deviation(
+                self._position, self.chip.motor_position) > limit:
             self._abort_search()
             self._hard_stop()
             self._errors |= ERROR_DEVIATION
             self._emit(AxisEventKind.DEVIATION)
-
-    def _deviation_mark(self, direction: int) -> int | None:
-        """Motor position where the deviation will first exceed AP 212 (slip > 0, or stuck).
-
-        The estimate is refined at the mark itself: if the limit is not yet exceeded there, a
-        new mark at least one step further is set, so the event lands on the exact step.
-        """
-        limit = self._params[AP.MAX_DEVIATION]
-        ratio = self._counts_per_microstep()
-        world = self.board.world
-        slip = 1.0 if self.board.stuck else world.encoder_slip  # stuck: the encoder sees nothing
-        if not limit or not ratio or slip <= 0:
-            return None
-        per_count = self._mechanical_per_count()
-        encoder_per_step = (1.0 - slip) * self.board.scale / per_count / ratio
-        rate = direction * (1.0 - encoder_per_step)  # change of AP1 - AP209 per step
-        if rate == 0:
-            return None
-        deviation = self._position - self._encoder_position()
-        steps = self._deviation_limit_steps(limit)
-        room = (steps - deviation) / rate if rate > 0 else (steps + deviation) / -rate
-        return self.chip.motor_position + direction * max(1, int(room))
 
     def _update_marks(self) -> None:
         marks = []
         direction = self.driver.heading()
         if direction:
             self._travel_direction = direction
-            mark = self._deviation_mark(direction)
+            mark = self.encoder.deviation_mark(self._position, self.chip.motor_position,
+                                               direction)
             if mark is not None:
                 marks.append(mark)
         if self._positioning and self._awaiting_arrival:
@@ -782,7 +704,7 @@ class AxisFirmware(RiggedAxis):
             flags, self._errors = self._errors, 0
             return flags
         if number == AP.ENCODER_POSITION:
-            return self._encoder_position()
+            return self.encoder.position(self.chip.motor_position)
         if number == AP.SMARTENERGY_ACTUAL_CURRENT:
             return self._current_scale()
         if number == AP.MEASURED_SPEED:  # the driver's step-rate measurement: a magnitude
@@ -790,7 +712,7 @@ class AxisFirmware(RiggedAxis):
         if number == AP.DRIVER_ERROR_FLAGS and self.motor_driver is not None:
             return self.motor_driver.flags()
         if number == AP.ABSOLUTE_ENCODER:
-            return self._absolute_encoder()
+            return self.encoder.absolute(self.chip.motor_position)
         return self._params[number]
 
     # == what stays as it is (loop skipping, axes/forecast.py) ===================================
@@ -829,7 +751,7 @@ class AxisFirmware(RiggedAxis):
             self._start_velocity(value)
             self._params[number] = value
         elif number == AP.ENCODER_POSITION:
-            self._set_encoder(value)
+            self.encoder.set(value, self.chip.motor_position)
         else:
             self._params[number] = value
             self._parameter_side_effects(number)
@@ -907,8 +829,19 @@ class AxisFirmware(RiggedAxis):
         self._after_command()  # a new load or stuck mechanics may stall the motor now
 
     def _encoder_placed(self, mechanical: int) -> None:
-        self._encoder_mech_base = mechanical
-        self._encoder_offset = 0
+        self.encoder.placed(mechanical)
+
+    def _rebase_encoder(self) -> None:
+        self.encoder.rebase(self.chip.motor_position)
+
+    @property
+    def builtin_encoder_counts(self) -> int:
+        """Counts per turn of the module's own encoder (set by the module from its type)."""
+        return self.encoder.builtin_counts
+
+    @builtin_encoder_counts.setter
+    def builtin_encoder_counts(self, counts: int) -> None:
+        self.encoder.builtin_counts = counts
 
     def register_access(self, address: int, value: int | None = None) -> int:
         """Commands 146/147: one raw datagram to the chip (None reads).
@@ -932,6 +865,7 @@ class AxisFirmware(RiggedAxis):
             position_reached=self._position == self._target,
             home_switch=home, left_switch=left, right_switch=right, load=self._load(),
             error_flags=self._errors, current=self.current, standby=self._standby,
-            encoder_position=self._encoder_position(), reference_search=self._rfs_state,
+            encoder_position=self.encoder.position(self.chip.motor_position),
+            reference_search=self._rfs_state,
             mechanical_position=self._mechanical(),
         )
