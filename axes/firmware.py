@@ -23,7 +23,7 @@ from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, St
 from axes.encoder import Encoder
 from axes.forecast import AxisForecast, Lookahead
 from axes.interface import AxisEvent, AxisEventKind, AxisStatus
-from axes.reference_search import ReferenceSearch, reference_plan, reference_point
+from axes.reference_search import ReferenceSearcher
 from axes.rig import RiggedAxis
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld
@@ -143,8 +143,8 @@ class AxisFirmware(RiggedAxis):
         self._positioning = False
         self._awaiting_arrival = False
         self._velocity_command = 0
-        self._rfs: ReferenceSearch | None = None
-        self._rfs_state = 0
+        #: The reference search (axes/reference_search.py).
+        self.homing = ReferenceSearcher(self)
         self._errors = 0
         self._standstill_since: int | None = 0
         self._standby = False
@@ -302,14 +302,13 @@ class AxisFirmware(RiggedAxis):
             self.driver.continue_move(self._target)
         if (stop in (Stop.ARRIVED, Stop.STOPPED) or switch_stopped) and not moving:
             self._standstill_since = self._now_ns
-            if not self._positioning and self._rfs is None:
+            if not self._positioning and not self.homing.active:
                 self._target = self._position  # MVP REL after a rotation starts from here
             if self._positioning and self._awaiting_arrival and self._position == self._target:
                 self._awaiting_arrival = False
-                if self._rfs is None:
+                if not self.homing.active:
                     self._emit(AxisEventKind.TARGET_REACHED)
-        if self._rfs is not None:
-            self._rfs_step(self._rfs)
+        self.homing.step()
         self._check_stall()
         self._check_deviation()
         self._update_marks()
@@ -353,7 +352,7 @@ class AxisFirmware(RiggedAxis):
         the firmware's poll of the chip's target flag would see it, not lost with the move."""
         if self._positioning and self._awaiting_arrival and self._position == self._target:
             self._awaiting_arrival = False
-            if self._rfs is None:
+            if not self.homing.active:
                 self._emit(AxisEventKind.TARGET_REACHED)
 
     def _start_velocity(self, speed: int) -> None:
@@ -373,21 +372,21 @@ class AxisFirmware(RiggedAxis):
         if self._position == self._target and not self.driver.moving():
             self._awaiting_arrival = False
             self._standstill_since = self._now_ns
-            if self._rfs is None:
+            if not self.homing.active:
                 self._emit(AxisEventKind.TARGET_REACHED)
 
     def _rotating_at(self, velocity: int) -> bool:
         """Already doing what ROR ``velocity`` asks, with nothing for it to reset (the
         firmware's own records: a raw register write is noticed at the next real command)."""
         return (self._velocity_command == velocity and self._params[AP.TARGET_SPEED] == velocity
-                and not self._positioning and self._rfs is None and self._errors == 0
+                and not self._positioning and not self.homing.active and self._errors == 0
                 and self._standstill_since is None)
 
     def rotate(self, velocity: int) -> bool:
         if self._rotating_at(velocity):
             return False
         self._command()
-        self._abort_search()
+        self.homing.abort()
         self._velocity_command = self._params[AP.TARGET_SPEED] = velocity
         self._start_velocity(velocity)
         self._after_command()
@@ -395,10 +394,10 @@ class AxisFirmware(RiggedAxis):
 
     def stop(self) -> bool:
         if (self._velocity_command == 0 and self._params[AP.TARGET_SPEED] == 0
-                and not self._positioning and self._rfs is None and self._errors == 0):
+                and not self._positioning and not self.homing.active and self._errors == 0):
             return False  # already stopping (or stopped) in velocity mode: nothing to change
         self._command()
-        self._abort_search()
+        self.homing.abort()
         self._velocity_command = self._params[AP.TARGET_SPEED] = 0
         self._conclude_move()
         self.driver.ramp_stop()
@@ -410,7 +409,7 @@ class AxisFirmware(RiggedAxis):
 
     def emergency_stop(self) -> None:
         self._command()
-        self._abort_search()
+        self.homing.abort()
         self._hard_stop()
         self._after_command()
 
@@ -428,7 +427,7 @@ class AxisFirmware(RiggedAxis):
 
     def move_to(self, target: int) -> None:
         self._command()
-        self._abort_search()
+        self.homing.abort()
         self._start_positioning(to_int32(target), self._params[AP.MAX_SPEED])
         self._after_command()
 
@@ -442,111 +441,64 @@ class AxisFirmware(RiggedAxis):
         self._update_marks()
         self._invalidate()
 
-    # == reference search ======================================================================
+    # == reference search (axes/reference_search.py) =============================================
 
     def reference_search(self, action: int) -> int:
+        homing = self.homing
         if action == 2:
             self._sync()
-            return self._rfs_state
+            return homing.state
         self._command()
         if action == 1:
-            if self._rfs is not None:
-                self._abort_search()
+            if homing.active:
+                homing.abort()
                 self.stop()
             return 0
-        plan, inverted = reference_plan(self._params[AP.RFS_MODE])
-        self._abort_search()
-        self._rfs = ReferenceSearch(plan, inverted)
+        search = homing.plan(self._params[AP.RFS_MODE])
+        homing.abort()
         self._errors = 0
-        self.driver.configure_stops(searching=True)
-        self._rfs_enter()
+        homing.begin(search)
         self._after_command()
         return 0
 
-    def _abort_search(self) -> None:
-        if self._rfs is not None:
-            self._rfs = None
-            self._rfs_state = 0
-            self.driver.configure_stops(searching=False)
+    # the search's view of the axis (axes.reference_search.SearchingAxis)
 
-    def _search_level(self, search: ReferenceSearch, switch: str) -> bool:
-        left, right, home = self._levels
-        if switch == "home":
-            return home != search.inverted_home
-        return left if switch == "left" else right
+    def setting(self, number: int) -> int:
+        return self._params[number]
 
-    def _rfs_enter(self) -> None:
-        """Start the current phase, or finish phases whose condition already holds."""
-        search = self._rfs
-        while search is not None:
-            self._rfs_state = search.index + 1
-            phase = search.phase
-            if phase.kind == "finish":
-                self._rfs_finish_move(search)
-                return
-            want_active = phase.kind != "leave"
-            if self._search_level(search, phase.switch) == want_active:
-                self._rfs_phase_done(search)
-                search = self._rfs
-                continue
-            fast = phase.kind == "seek"
-            speed = self._params[AP.RFS_SPEED if fast else AP.RFS_SWITCH_SPEED]
-            search.direction = phase.direction
-            if phase.reverse_on and self._search_level(search, phase.reverse_on):
-                self._rfs_reverse(search)
-            self._start_velocity(search.direction * speed)
-            return
+    def record_setting(self, number: int, value: int) -> None:
+        self._params[number] = value
 
-    def _rfs_phase_done(self, search: ReferenceSearch) -> None:
-        phase = search.phase
-        if phase.record:
-            search.points[phase.record] = self._position
+    def switch_levels(self) -> tuple[bool, bool, bool]:
+        return self._levels
+
+    def actual_position(self) -> int:
+        return self._position
+
+    def start_velocity(self, speed: int) -> None:
+        self._start_velocity(speed)
+
+    def hard_stop(self) -> None:
         self._hard_stop()
-        search.index += 1
 
-    def _rfs_step(self, search: ReferenceSearch) -> None:
-        """React to switch levels during a search (called at every notable instant)."""
-        phase = search.phase
-        if phase.kind == "finish":
-            if not self._awaiting_arrival and self._position == self._target:
-                self._rfs_complete()
-            return
-        if (phase.reverse_on and not search.reversed_once
-                and self._search_level(search, phase.reverse_on)):
-            self._rfs_reverse(search)
-            self._hard_stop()
-            self._start_velocity(search.direction * self._params[AP.RFS_SPEED])
-            self._update_marks()
-            return
-        want_active = phase.kind != "leave"
-        if self._search_level(search, phase.switch) == want_active:
-            self._rfs_phase_done(search)
-            self._rfs_enter()
+    def start_positioning(self, target: int, top_speed: int) -> None:
+        self._start_positioning(target, top_speed)
 
-    def _rfs_reverse(self, search: ReferenceSearch) -> None:
-        """Modes 5/6 hit the limit switch: search the other way, and calibrate that way too."""
-        search.reversed_once = True
-        search.direction = -search.direction
-        for phase in search.phases[search.index + 1:]:
-            phase.direction = -phase.direction
+    def arrived(self) -> bool:
+        return not self._awaiting_arrival and self._position == self._target
 
-    def _rfs_finish_move(self, search: ReferenceSearch) -> None:
-        zero, distance = reference_point(search.points)
-        search.points["zero"] = zero
-        if distance is not None:
-            self._params[AP.SWITCH_DISTANCE] = distance
-        self._start_positioning(zero, self._params[AP.RFS_SWITCH_SPEED])
-        if not self._awaiting_arrival:
-            self._rfs_complete()
+    def update_marks(self) -> None:
+        self._update_marks()
 
-    def _rfs_complete(self) -> None:
-        self._params[AP.LAST_REFERENCE] = self._position
-        self._rfs = None
-        self._rfs_state = 0
-        self.driver.configure_stops(searching=False)
+    def configure_stops(self, searching: bool) -> None:
+        self.driver.configure_stops(searching=searching)
+
+    def zero_counters(self) -> None:
         self._set_position(0)
         self.encoder.set(0, self.chip.motor_position)
-        self._emit(AxisEventKind.REFERENCE_SEARCH_DONE)
+
+    def emit(self, kind: AxisEventKind) -> None:
+        self._emit(kind)
 
     # == stallGuard, encoder, current ==========================================================
 
@@ -584,7 +536,7 @@ class AxisFirmware(RiggedAxis):
             stalled = (self._driver_stalled(motor_driver) if motor_driver is not None
                        else self._load() == 0)
             if stalled and abs(self._actual_speed()) >= threshold:
-                self._abort_search()
+                self.homing.abort()
                 self._hard_stop()
                 self._errors |= ERROR_STALL
                 self._emit(AxisEventKind.STALL)
@@ -616,7 +568,7 @@ class AxisFirmware(RiggedAxis):
         limit = self._params[AP.MAX_DEVIATION]
         if limit and self._standstill_since is None and self.encoder.deviation(
                 self._position, self.chip.motor_position) > limit:
-            self._abort_search()
+            self.homing.abort()
             self._hard_stop()
             self._errors |= ERROR_DEVIATION
             self._emit(AxisEventKind.DEVIATION)
@@ -730,7 +682,7 @@ class AxisFirmware(RiggedAxis):
     def _rotating(self) -> bool:
         """Velocity mode (ROR, ROL, MST) with no reference search: the speed only ever moves
         towards the speed asked for, monotonically, until the next notable instant."""
-        return not self._positioning and self._rfs is None
+        return not self._positioning and not self.homing.active
 
     def set_parameter(self, number: int, value: int) -> bool:
         if self._keys:
@@ -741,12 +693,12 @@ class AxisFirmware(RiggedAxis):
             return False  # a setting written with the value it has: as on the chip, no change
         self._command()
         if number == AP.TARGET_POSITION:
-            self._abort_search()
+            self.homing.abort()
             self._start_positioning(to_int32(value), self._params[AP.MAX_SPEED])
         elif number == AP.ACTUAL_POSITION:
             self._set_position(to_int32(value))
         elif number == AP.TARGET_SPEED:
-            self._abort_search()
+            self.homing.abort()
             self._velocity_command = value
             self._start_velocity(value)
             self._params[number] = value
@@ -769,15 +721,15 @@ class AxisFirmware(RiggedAxis):
     def _parameter_side_effects(self, number: int) -> None:
         if number in _LIMIT_SWITCH_BITS:
             self._derive_limit_switch(number)
-            self.driver.configure_stops(searching=self._rfs is not None)
+            self.driver.configure_stops(searching=self.homing.active)
             number = _LIMIT_SWITCH_BITS[number][1]  # and the polarity, below
         if self.motor_driver is not None and number in self.motor_driver.parameters:
             self.motor_driver.configure(number)
         if number in _RAMP_PARAMETERS:
-            if self._rfs is None:
+            if not self.homing.active:
                 self.driver.limits_changed(self._positioning, self._velocity_command)
         elif number in _STOP_PARAMETERS:
-            self.driver.configure_stops(searching=self._rfs is not None)
+            self.driver.configure_stops(searching=self.homing.active)
         elif number == AP.RAMP_MODE:
             self._ramp_mode_written()
         elif number in (AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY):
@@ -802,7 +754,7 @@ class AxisFirmware(RiggedAxis):
         """AP 138 (TMC429 modules): 2 (velocity) stops a move on a ramp, as MST does; 0/1
         choose ramp or soft positioning, at once for a move in flight, else for the next."""
         if self._params[AP.RAMP_MODE] == 2:
-            if self._positioning and self._rfs is None:
+            if self._positioning and not self.homing.active:
                 self._conclude_move()
                 self.driver.ramp_stop()
                 self._positioning = False
@@ -814,8 +766,7 @@ class AxisFirmware(RiggedAxis):
     def _pins_changed(self) -> None:
         self.chip.set_pins(*self.board.pins(self.chip.motor_position))
         self._check_levels()
-        if self._rfs is not None:
-            self._rfs_step(self._rfs)
+        self.homing.step()
 
     # == the rig's hooks (axes/rig.py: the world and the faults around the axis) ==================
 
@@ -866,6 +817,6 @@ class AxisFirmware(RiggedAxis):
             home_switch=home, left_switch=left, right_switch=right, load=self._load(),
             error_flags=self._errors, current=self.current, standby=self._standby,
             encoder_position=self.encoder.position(self.chip.motor_position),
-            reference_search=self._rfs_state,
+            reference_search=self.homing.state,
             mechanical_position=self._mechanical(),
         )
