@@ -1,16 +1,16 @@
 """The TMCL firmware layer of one axis, whatever motion-controller chip is under it.
 
-:class:`AxisFirmware` implements :class:`axes.interface.Axis`: the axis parameters, the
-reference-search state machine (plans in axes/reference_search.py), stallGuard, the encoder
-and its deviation, the motor current, the events a host or a program sees, and time.  It
-reaches its chip only through a *driver* (:class:`axes.core.ChipDriver`), the chip-specific
-half of the firmware that speaks the chip's SPI datagrams (``axes/chips/tmc42x/tmc4210_firmware.py`` for
-the TMC4210).  The mechanics and the input stage are the :class:`axes.board.AxisBoard`.
-
-Time: the axis keeps the simulated time it was last advanced to.  To find its next event it
-runs a *copy* of the chip forward (the look-ahead, axes/forecast.py, which also answers loop
-skipping's questions); :meth:`advance_to` then adopts that copy at the event instant, so each
-stretch of motion is computed once.  Every modelling choice is explained in docs/motion.md.
+:class:`AxisFirmware` is what the TMCL commands and axis parameters mean for an axis (SAP/GAP,
+ROR/MVP/MST, RFS, stall and deviation stops, the current, the events a host or a program
+sees), over a *driver* (:class:`axes.core.ChipDriver`): the chip-specific half of the
+firmware, which speaks the chip's SPI datagrams (``axes/chips/tmc42x/tmc4210_firmware.py``).
+What it relies on lives in files of its own: the look-ahead and loop skipping's forecasts
+(axes/forecast.py), the reference search (axes/reference_search.py), the encoder
+(axes/encoder.py), stallGuard2 and coolStep (axes/stallguard.py), and the world and faults
+around it on its :class:`axes.board.AxisBoard` (axes/rig.py).  Time: the axis keeps the
+simulated time it was last advanced to; :meth:`advance_to` adopts the look-ahead's copy of
+the chip at each event, so each stretch of motion is computed once.  Every modelling choice
+is explained in docs/motion.md.
 """
 
 from __future__ import annotations
@@ -56,9 +56,6 @@ FIRMWARE_DEFAULTS: dict[int, int] = {
 #: disable and polarity parameters the firmware acts on.
 _LIMIT_SWITCH_BITS = {AP.RIGHT_LIMIT_SWITCH: (AP.RIGHT_DISABLE, AP.RIGHT_POLARITY),
                       AP.LEFT_LIMIT_SWITCH: (AP.LEFT_DISABLE, AP.LEFT_POLARITY)}
-
-
-# == the axis ==================================================================================
 
 
 _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
@@ -144,7 +141,7 @@ class AxisFirmware(RiggedAxis):
         self._awaiting_arrival = False
         self._velocity_command = 0
         #: The reference search (axes/reference_search.py).
-        self.homing = ReferenceSearcher(self)
+        self.homing = ReferenceSearcher(self, self._params)
         self._errors = 0
         self._standstill_since: int | None = 0
         self._standby = False
@@ -192,9 +189,6 @@ class AxisFirmware(RiggedAxis):
 
     def present_ns(self) -> int:
         return self._now_ns
-
-    def sync(self) -> None:
-        self._sync()
 
     def actual_speed(self) -> int:
         return self._actual_speed()
@@ -252,7 +246,7 @@ class AxisFirmware(RiggedAxis):
                 self._react(ahead.stop)
             elif timer is not None and timer <= t_ns:
                 self._now_ns = max(self._now_ns, timer)
-                self._sync()
+                self.sync()
                 self._on_timer()
             else:
                 break
@@ -263,7 +257,7 @@ class AxisFirmware(RiggedAxis):
         events, self._pending = self._pending, []
         return events
 
-    def _sync(self) -> None:
+    def sync(self) -> None:
         """Bring the chip up to ``_now_ns`` and read the position (before any command)."""
         chip = self.driver.chip
         until = chip.ticks_at(self._now_ns)
@@ -287,7 +281,7 @@ class AxisFirmware(RiggedAxis):
                     or self._coolstep.scale is not None
                     or (self.motor_driver is not None and self.motor_driver.regulating))
 
-    def _emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
+    def emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
         self._pending.append(AxisEvent(self._now_ns, self.index, kind, active))
 
     # == reacting to the chip ==================================================================
@@ -307,18 +301,18 @@ class AxisFirmware(RiggedAxis):
             if self._positioning and self._awaiting_arrival and self._position == self._target:
                 self._awaiting_arrival = False
                 if not self.homing.active:
-                    self._emit(AxisEventKind.TARGET_REACHED)
+                    self.emit(AxisEventKind.TARGET_REACHED)
         self.homing.step()
         self._check_stall()
         self._check_deviation()
-        self._update_marks()
+        self.update_marks()
 
     def _on_timer(self) -> None:
         if (self._standstill_since is not None and not self._standby and self._now_ns
                 >= self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS):
             self._standby = True
             self._current_changed()
-            self._emit(AxisEventKind.CURRENT_CHANGED, False)
+            self.emit(AxisEventKind.CURRENT_CHANGED, False)
         self._check_stall()
 
     def _check_levels(self) -> None:
@@ -327,7 +321,7 @@ class AxisFirmware(RiggedAxis):
                 (AxisEventKind.LEFT_SWITCH, AxisEventKind.RIGHT_SWITCH, AxisEventKind.HOME_SWITCH),
                 self._levels, levels, strict=True):
             if old != new:
-                self._emit(kind, new)
+                self.emit(kind, new)
         self._levels = levels
 
     def _motion_started(self) -> None:
@@ -336,13 +330,13 @@ class AxisFirmware(RiggedAxis):
         if self._standby:
             self._standby = False
             self._current_changed()
-            self._emit(AxisEventKind.CURRENT_CHANGED, True)
+            self.emit(AxisEventKind.CURRENT_CHANGED, True)
         self._errors = 0
 
     # == motion ================================================================================
 
     def conclude_move(self) -> None:
-        self._sync()
+        self.sync()
         self._conclude_move()
 
     def _conclude_move(self) -> None:
@@ -353,16 +347,16 @@ class AxisFirmware(RiggedAxis):
         if self._positioning and self._awaiting_arrival and self._position == self._target:
             self._awaiting_arrival = False
             if not self.homing.active:
-                self._emit(AxisEventKind.TARGET_REACHED)
+                self.emit(AxisEventKind.TARGET_REACHED)
 
-    def _start_velocity(self, speed: int) -> None:
+    def start_velocity(self, speed: int) -> None:
         self._conclude_move()
         self.driver.start_velocity(speed)
         self._positioning = False
         self._awaiting_arrival = False
         self._motion_started()
 
-    def _start_positioning(self, target: int, top_speed: int) -> None:
+    def start_positioning(self, target: int, top_speed: int) -> None:
         self._conclude_move()
         self._target = target
         self.driver.start_positioning(target, top_speed)
@@ -373,7 +367,7 @@ class AxisFirmware(RiggedAxis):
             self._awaiting_arrival = False
             self._standstill_since = self._now_ns
             if not self.homing.active:
-                self._emit(AxisEventKind.TARGET_REACHED)
+                self.emit(AxisEventKind.TARGET_REACHED)
 
     def _rotating_at(self, velocity: int) -> bool:
         """Already doing what ROR ``velocity`` asks, with nothing for it to reset (the
@@ -388,7 +382,7 @@ class AxisFirmware(RiggedAxis):
         self._command()
         self.homing.abort()
         self._velocity_command = self._params[AP.TARGET_SPEED] = velocity
-        self._start_velocity(velocity)
+        self.start_velocity(velocity)
         self._after_command()
         return True
 
@@ -410,10 +404,10 @@ class AxisFirmware(RiggedAxis):
     def emergency_stop(self) -> None:
         self._command()
         self.homing.abort()
-        self._hard_stop()
+        self.hard_stop()
         self._after_command()
 
-    def _hard_stop(self) -> None:
+    def hard_stop(self) -> None:
         """Stop within one chip tick, at once (switch, stall, deviation, heartbeat)."""
         self._conclude_move()
         self.driver.hard_stop()
@@ -423,22 +417,22 @@ class AxisFirmware(RiggedAxis):
         self._velocity_command = 0
         if self._standstill_since is None:
             self._standstill_since = self._now_ns
-        self._update_marks()
+        self.update_marks()
 
     def move_to(self, target: int) -> None:
         self._command()
         self.homing.abort()
-        self._start_positioning(to_int32(target), self._params[AP.MAX_SPEED])
+        self.start_positioning(to_int32(target), self._params[AP.MAX_SPEED])
         self._after_command()
 
     def _command(self) -> None:
         """Every host command first brings the chip to the present."""
-        self._sync()
+        self.sync()
         self._invalidate()
 
     def _after_command(self) -> None:
         self._check_stall()
-        self._update_marks()
+        self.update_marks()
         self._invalidate()
 
     # == reference search (axes/reference_search.py) =============================================
@@ -446,7 +440,7 @@ class AxisFirmware(RiggedAxis):
     def reference_search(self, action: int) -> int:
         homing = self.homing
         if action == 2:
-            self._sync()
+            self.sync()
             return homing.state
         self._command()
         if action == 1:
@@ -463,32 +457,14 @@ class AxisFirmware(RiggedAxis):
 
     # the search's view of the axis (axes.reference_search.SearchingAxis)
 
-    def setting(self, number: int) -> int:
-        return self._params[number]
-
-    def record_setting(self, number: int, value: int) -> None:
-        self._params[number] = value
-
     def switch_levels(self) -> tuple[bool, bool, bool]:
         return self._levels
 
     def actual_position(self) -> int:
         return self._position
 
-    def start_velocity(self, speed: int) -> None:
-        self._start_velocity(speed)
-
-    def hard_stop(self) -> None:
-        self._hard_stop()
-
-    def start_positioning(self, target: int, top_speed: int) -> None:
-        self._start_positioning(target, top_speed)
-
     def arrived(self) -> bool:
         return not self._awaiting_arrival and self._position == self._target
-
-    def update_marks(self) -> None:
-        self._update_marks()
 
     def configure_stops(self, searching: bool) -> None:
         self.driver.configure_stops(searching=searching)
@@ -496,9 +472,6 @@ class AxisFirmware(RiggedAxis):
     def zero_counters(self) -> None:
         self._set_position(0)
         self.encoder.set(0, self.chip.motor_position)
-
-    def emit(self, kind: AxisEventKind) -> None:
-        self._emit(kind)
 
     # == stallGuard, encoder, current ==========================================================
 
@@ -509,13 +482,8 @@ class AxisFirmware(RiggedAxis):
         """AP 206: the stallGuard2 reading, after threshold (AP 174) and filter (AP 173)."""
         if self.motor_driver is not None:
             return self.motor_driver.load()
-        threshold = self._params[AP.STALLGUARD_THRESHOLD]
-        if not self._params[AP.STALLGUARD_FILTER]:
-            return stallguard.reading(self.board.world.load_at(self._mechanical()), threshold)
-        # at rest the driver holds what it measured over the last full steps it travelled
-        return stallguard.filtered_reading(self.board.world.load_at, self._mechanical(),
-                                           self.driver.heading() or self._travel_direction,
-                                           threshold)
+        return stallguard.load_reading(self._params, self.board.world.load_at, self._mechanical(),
+                                       self.driver.heading() or self._travel_direction)
 
     def _actual_speed(self) -> int:
         return self.driver.actual_speed()
@@ -537,9 +505,9 @@ class AxisFirmware(RiggedAxis):
                        else self._load() == 0)
             if stalled and abs(self._actual_speed()) >= threshold:
                 self.homing.abort()
-                self._hard_stop()
+                self.hard_stop()
                 self._errors |= ERROR_STALL
-                self._emit(AxisEventKind.STALL)
+                self.emit(AxisEventKind.STALL)
             elif stalled or stallguard.reading(self.board.world.load_at(self._mechanical()),
                                                self._params[AP.STALLGUARD_THRESHOLD]) == 0:
                 watching = True
@@ -569,11 +537,11 @@ class AxisFirmware(RiggedAxis):
         if limit and self._standstill_since is None and self.encoder.deviation(
                 self._position, self.chip.motor_position) > limit:
             self.homing.abort()
-            self._hard_stop()
+            self.hard_stop()
             self._errors |= ERROR_DEVIATION
-            self._emit(AxisEventKind.DEVIATION)
+            self.emit(AxisEventKind.DEVIATION)
 
-    def _update_marks(self) -> None:
+    def update_marks(self) -> None:
         marks = []
         direction = self.driver.heading()
         if direction:
@@ -594,11 +562,7 @@ class AxisFirmware(RiggedAxis):
         load, and AP 7 after the power-down delay."""
         if self._standby:
             return self._params[AP.STANDBY_CURRENT]
-        run = self._params[AP.MAX_CURRENT]
-        scale = self._coolstep_scale()
-        if scale is None:
-            return run
-        return run * (scale + 1) // ((run >> stallguard.CURRENT_SCALE_SHIFT) + 1)
+        return stallguard.run_current(self._params[AP.MAX_CURRENT], self._coolstep_scale())
 
     def _coolstep_scale(self) -> int | None:
         """The current scale coolStep regulates to (0..31), None while it does not."""
@@ -631,16 +595,16 @@ class AxisFirmware(RiggedAxis):
         if self._keys:
             number = self._keys.get(number, number)
         if number == AP.ACTUAL_POSITION:  # first: what a program polls most
-            self._sync()
+            self.sync()
             return self.driver.position
         if number not in _LIVE_PARAMETERS:
             if number in self._chip_live:
-                self._sync()
+                self.sync()
                 return self.driver.read_parameter(number)
             return self._params[number]  # configuration: no need to bring the chip up to date
         if number == AP.POSITION_REACHED and self.forecast.short_of_target():
             return 0
-        self._sync()
+        self.sync()
         if number == AP.TARGET_POSITION:
             return self._target
         if number == AP.ACTUAL_SPEED:
@@ -694,13 +658,13 @@ class AxisFirmware(RiggedAxis):
         self._command()
         if number == AP.TARGET_POSITION:
             self.homing.abort()
-            self._start_positioning(to_int32(value), self._params[AP.MAX_SPEED])
+            self.start_positioning(to_int32(value), self._params[AP.MAX_SPEED])
         elif number == AP.ACTUAL_POSITION:
             self._set_position(to_int32(value))
         elif number == AP.TARGET_SPEED:
             self.homing.abort()
             self._velocity_command = value
-            self._start_velocity(value)
+            self.start_velocity(value)
             self._params[number] = value
         elif number == AP.ENCODER_POSITION:
             self.encoder.set(value, self.chip.motor_position)
@@ -742,7 +706,7 @@ class AxisFirmware(RiggedAxis):
         elif number in (AP.MAX_CURRENT, AP.STANDBY_CURRENT):
             self._current_changed()
             if self._standby:
-                self._emit(AxisEventKind.CURRENT_CHANGED, False)
+                self.emit(AxisEventKind.CURRENT_CHANGED, False)
 
     def _input_stage_from_parameters(self) -> None:
         """The module's input stage: switches swapped and inverted as the parameters say."""
@@ -808,7 +772,7 @@ class AxisFirmware(RiggedAxis):
 
     def status(self) -> AxisStatus:
         """A snapshot for telemetry (MQTT bridge, tests); clears nothing."""
-        self._sync()
+        self.sync()
         left, right, home = self._levels
         return AxisStatus(
             position=self._position, target=self._target, velocity=self._actual_speed(),

@@ -106,14 +106,6 @@ class ReferenceSearch:
 class SearchingAxis(Protocol):
     """What a reference search drives: the firmware's motion primitives and its records."""
 
-    def setting(self, number: int) -> int:
-        """An axis parameter's value (the search speeds, AP 194/195)."""
-        ...
-
-    def record_setting(self, number: int, value: int) -> None:
-        """The search's results: AP 196 (switch distance), AP 197 (last reference)."""
-        ...
-
     def switch_levels(self) -> tuple[bool, bool, bool]:
         """The logical left, right and home levels as of the last notable instant."""
         ...
@@ -152,8 +144,11 @@ class SearchingAxis(Protocol):
 class ReferenceSearcher:
     """The reference search of one axis: which phase runs (``state``: RFS STATUS)."""
 
-    def __init__(self, axis: SearchingAxis) -> None:
+    def __init__(self, axis: SearchingAxis, params: dict[int, int]) -> None:
         self._axis = axis
+        #: The firmware's parameter values: the search speeds (AP 194/195) are read, its
+        #: results (AP 196 switch distance, AP 197 last reference) written here.
+        self._params = params
         self.search: ReferenceSearch | None = None
         #: RFS STATUS: 0 while no search runs, else the phase's number (1-based).
         self.state = 0
@@ -201,7 +196,7 @@ class ReferenceSearcher:
                 search = self.search
                 continue
             fast = phase.kind == "seek"
-            speed = axis.setting(AP.RFS_SPEED if fast else AP.RFS_SWITCH_SPEED)
+            speed = self._params[AP.RFS_SPEED if fast else AP.RFS_SWITCH_SPEED]
             search.direction = phase.direction
             if phase.reverse_on and self._level(search, phase.reverse_on):
                 self._reverse(search)
@@ -230,7 +225,7 @@ class ReferenceSearcher:
                 and self._level(search, phase.reverse_on)):
             self._reverse(search)
             axis.hard_stop()
-            axis.start_velocity(search.direction * axis.setting(AP.RFS_SPEED))
+            axis.start_velocity(search.direction * self._params[AP.RFS_SPEED])
             axis.update_marks()
             return
         want_active = phase.kind != "leave"
@@ -251,14 +246,14 @@ class ReferenceSearcher:
         zero, distance = reference_point(search.points)
         search.points["zero"] = zero
         if distance is not None:
-            axis.record_setting(AP.SWITCH_DISTANCE, distance)
-        axis.start_positioning(zero, axis.setting(AP.RFS_SWITCH_SPEED))
+            self._params[AP.SWITCH_DISTANCE] = distance
+        axis.start_positioning(zero, self._params[AP.RFS_SWITCH_SPEED])
         if axis.arrived():
             self._complete()
 
     def _complete(self) -> None:
         axis = self._axis
-        axis.record_setting(AP.LAST_REFERENCE, axis.actual_position())
+        self._params[AP.LAST_REFERENCE] = axis.actual_position()
         self.search = None
         self.state = 0
         axis.configure_stops(False)
