@@ -194,35 +194,36 @@ class LoopSkipper:
         """Run one pass instruction by instruction, recording what it asks the module, then
         skip the passes after it that are certain to do the same (exactly as stepping)."""
         program = self.program
-        head, start, executed = program.pc, program.time_ns, program.executed
-        before = program.registers()
         if program.interrupt_due():
             self._give_up()
             return CONTINUE
+        head, start, executed = program.pc, program.time_ns, program.executed
+        before = program.registers()
         calls: list[Call] = []
         path: list[int] = []
         ran = self._run_pass(limit, calls, path)
         if ran is None or ran[0] != CONTINUE or any(call.changed for call in calls):
             self._give_up()
             return CONTINUE if ran is None else ran[0]
-        waited = ran[1]
-        period, length = program.time_ns - start, program.executed - executed
-        after = program.registers()
-        steady = all(call.steady_until > call.time_ns for call in calls)
-        if steady and after == before:  # I2: the next passes do the same while answers hold
-            if not calls and not waited:
-                self._idle_loops[head] = (before, period, length)
-            horizons = tuple((call.time_ns - start, call.steady_until) for call in calls)
-            skipped = self._skip(period, length, limit, horizons, start)
-        else:
-            skipped = self._skip_to_flip(path, calls, before, after, start, period, length,
-                                         limit)
+        analysed = _Pass(head, start, program.time_ns - start, program.executed - executed,
+                         before, program.registers(), calls, path, ran[1])
+        repeats = analysed.repeats()
+        skipped = (self._skip_repeats(analysed, limit) if repeats
+                   else self._skip_to_flip(analysed, limit))
         if skipped:
             self._backoff = 1
-            self.countdown = 1 if steady and after == before else 2
+            self.countdown = 1 if repeats else 2
         else:
             self._give_up()
         return CONTINUE
+
+    def _skip_repeats(self, analysed: _Pass, limit: int) -> int:
+        """I2: the next passes do exactly the same while every answer holds (I3, I4)."""
+        if not analysed.calls and not analysed.waited:  # I9
+            self._idle_loops[analysed.head] = (analysed.before, analysed.period, analysed.length)
+        horizons = tuple((call.time_ns - analysed.start, call.steady_until)
+                         for call in analysed.calls)
+        return self._skip(analysed.period, analysed.length, limit, horizons, analysed.start)
 
     def _skip(self, period: int, length: int, limit: int,
               horizons: tuple[tuple[int, int], ...], start: int, real_passes: int = 0) -> int:
@@ -241,15 +242,15 @@ class LoopSkipper:
         program.loops_skipped += passes
         return passes
 
-    def _skip_to_flip(self, path: list[int], calls: list[Call], before: tuple[object, ...],
-                      after: tuple[object, ...], start: int, period: int, length: int,
-                      limit: int) -> int:
+    def _skip_to_flip(self, analysed: _Pass, limit: int) -> int:
         """A pass that reads moving values (positions) and only compares them: skip to the pass
         where a comparison could flip, the first time a value reaches one of its boundaries."""
-        moving = [index for index, call in enumerate(calls) if call.steady_until <= call.time_ns]
-        if any(calls[i].status != STATUS_OK or calls[i].request[0] != OP_GAP for i in moving):
+        calls, start = analysed.calls, analysed.start
+        moving = analysed.moving_reads()
+        if moving is None:
             return 0
-        found = boundaries(self.program.code, path, calls, set(moving), before, after)
+        found = boundaries(self.program.code, analysed.path, calls, moving, analysed.before,
+                           analysed.after)
         if found is None:
             return 0
         horizons = []
@@ -263,7 +264,39 @@ class LoopSkipper:
                 horizon = self.program.first_time_at(call.time_ns, opcode, type_, motor,
                                                      values) if values else FOREVER  # I5
             horizons.append((call.time_ns - start, horizon))
-        return self._skip(period, length, limit, tuple(horizons), start, real_passes=1)  # I7
+        return self._skip(analysed.period, analysed.length, limit, tuple(horizons), start,
+                          real_passes=1)  # I7
+
+
+@dataclass(slots=True)
+class _Pass:
+    """One pass of a loop, analysed: where and when it began, how long it took (ns and
+    instructions), the registers before and after, its module commands and its path."""
+
+    head: int
+    start: int
+    period: int
+    length: int
+    before: tuple[object, ...]
+    after: tuple[object, ...]
+    calls: list[Call]
+    path: list[int]
+    waited: bool
+
+    def moving_reads(self) -> set[int] | None:
+        """The indices of the calls whose answers are not steady, if all of them are GAPs
+        answered (the only moving values a flip is forecast for); None otherwise."""
+        moving = {index for index, call in enumerate(self.calls)
+                  if call.steady_until <= call.time_ns}
+        if any(self.calls[i].status != STATUS_OK or self.calls[i].request[0] != OP_GAP
+               for i in moving):
+            return None
+        return moving
+
+    def repeats(self) -> bool:
+        """I2: every answer steady and the registers as found: the next passes do the same."""
+        return self.after == self.before and all(call.steady_until > call.time_ns
+                                                 for call in self.calls)
 
 
 #: Registers of the pass analysis (the indices in Program.registers()).
@@ -275,13 +308,29 @@ class _PassShape:
     an offset), which the pass reads before writing, and the values each moving read is
     compared with (the boundaries of I5)."""
 
-    def __init__(self, moving: set[int]) -> None:
+    def __init__(self, calls: list[Call], moving: set[int]) -> None:
         self.moving = moving
+        self.pending = iter(enumerate(calls))  # the pass's module commands, in order
         #: register -> (index of the moving read, offset): the read's value + offset
         self.symbolic: dict[int, tuple[int, int]] = {}
         self.written: set[int] = set()
         self.first_read: set[int] = set()
         self.boundaries: dict[int, set[int]] = {index: set() for index in moving}
+
+    def follow(self, instruction: Instruction) -> bool:
+        """One instruction of the path; False if the pass is not of the analysable shape."""
+        op, ty, motor, va = instruction
+        handler = _FOLLOW.get(op)
+        if handler is not None:
+            return handler(self, ty, motor, va)
+        if op in INTERNAL_OPCODES:
+            return False  # CALCX, subroutines, interrupts, error flags: not analysed
+        index, call = next(self.pending)
+        if call.status == STATUS_OK and loads_accumulator(op, ty, motor):
+            source = (index, 0) if index in self.moving else None
+            self.writes(_ACC, source)
+            self.writes(_ZERO, source)
+        return True
 
     def reads(self, register: int) -> None:
         if register not in self.written:
@@ -294,8 +343,8 @@ class _PassShape:
         else:
             self.symbolic[register] = source
 
-    def calc(self, ty: int) -> bool:
-        """CALC: False if it computes with a moving value (not analysed)."""
+    def calc(self, ty: int, motor: int, va: int) -> bool:
+        """CALC: not analysed if it computes with a moving value."""
         if ty != CalcOp.LOAD:
             self.reads(_ACC)
             if _ACC in self.symbolic:
@@ -304,26 +353,53 @@ class _PassShape:
         self.writes(_ZERO)
         return True
 
-    def comp(self, value: int) -> None:
+    def comp(self, ty: int, motor: int, va: int) -> bool:
         self.reads(_ACC)
         source = self.symbolic.get(_ACC)
-        compared = None if source is None else (source[0], source[1] - value)
+        compared = None if source is None else (source[0], source[1] - va)
         self.writes(_CMP, compared)
         self.writes(_ZERO, compared)
+        return True
 
-    def jc(self, condition: int) -> None:
-        register = _ZERO if condition <= 1 else _CMP if condition <= 7 else _ERRORS
+    def jc(self, ty: int, motor: int, va: int) -> bool:
+        register = _ZERO if ty <= 1 else _CMP if ty <= 7 else _ERRORS
         self.reads(register)
         if register in self.symbolic:
             index, offset = self.symbolic[register]
             self.boundaries[index].add(-offset)
+        return True
 
-    def command(self, index: int, call: Call, op: int, ty: int, motor: int) -> None:
-        """A module command that is not an accumulator write (AAP, AGP, ACO)."""
-        if call.status == STATUS_OK and loads_accumulator(op, ty, motor):
-            source = (index, 0) if index in self.moving else None
-            self.writes(_ACC, source)
-            self.writes(_ZERO, source)
+    def jump(self, ty: int, motor: int, va: int) -> bool:
+        return True  # JA, and a WAIT TICKS that ended (I8): no register, no answer
+
+    def accumulator_write(self, ty: int, motor: int, va: int) -> bool:
+        """AAP, AGP: a command sending the accumulator (not analysed if it is moving)."""
+        self.reads(_ACC)
+        if _ACC in self.symbolic:
+            return False
+        next(self.pending)
+        return True
+
+    def aco(self, ty: int, motor: int, va: int) -> bool:
+        """ACO: as AAP, but ACO of all coordinates (motor 255) sends nothing to the module."""
+        self.reads(_ACC)
+        if _ACC in self.symbolic:
+            return False
+        if motor != MOTOR_ALL:
+            next(self.pending)
+        return True
+
+    def keeps_what_the_next_pass_reads(self, before: tuple[object, ...],
+                                       after: tuple[object, ...]) -> bool:
+        """I6: what the next pass reads before writing is what this one found, and does not
+        come from a moving read (equal now by chance, it would differ in the passes skipped)."""
+        return not any(before[register] != after[register] or register in self.symbolic
+                       for register in self.first_read)
+
+
+_FOLLOW = {OP_CALC: _PassShape.calc, OP_COMP: _PassShape.comp, OP_JC: _PassShape.jc,
+           OP_JA: _PassShape.jump, OP_WAIT: _PassShape.jump, OP_AAP: _PassShape.accumulator_write,
+           OP_AGP: _PassShape.accumulator_write, OP_ACO: _PassShape.aco}
 
 
 def boundaries(code: list[Instruction], path: list[int], calls: list[Call], moving: set[int],
@@ -333,33 +409,9 @@ def boundaries(code: list[Instruction], path: list[int], calls: list[Call], movi
     could decide otherwise (I5), if the pass depends on the moving reads only through COMP
     and JC and leaves every register it reads before writing as it found it (I6); None if the
     pass is not of that shape."""
-    shape = _PassShape(moving)
-    pending = iter(enumerate(calls))
-    for pc in path:
-        op, ty, motor, va = code[pc]
-        if op == OP_CALC:
-            if not shape.calc(ty):
-                return None
-        elif op == OP_COMP:
-            shape.comp(va)
-        elif op == OP_JC:
-            shape.jc(ty)
-        elif op in (OP_JA, OP_WAIT):
-            continue
-        elif op in (OP_AAP, OP_AGP, OP_ACO):
-            shape.reads(_ACC)
-            if _ACC in shape.symbolic:
-                return None
-            if not (op == OP_ACO and motor == MOTOR_ALL):
-                next(pending)
-        elif op in INTERNAL_OPCODES:
-            return None  # CALCX, subroutines, interrupts, error flags: not analysed
-        else:
-            index, call = next(pending)
-            shape.command(index, call, op, ty, motor)
-    # I6: what the next pass reads before writing must be what this one found, and not come
-    # from a moving read (equal now by chance, it would differ in the passes skipped).
-    if any(before[register] != after[register] or register in shape.symbolic
-           for register in shape.first_read):
+    shape = _PassShape(calls, moving)
+    if not all(shape.follow(code[pc]) for pc in path):
+        return None
+    if not shape.keeps_what_the_next_pass_reads(before, after):
         return None
     return {index: tuple(sorted(values)) for index, values in shape.boundaries.items()}
