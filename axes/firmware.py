@@ -190,20 +190,11 @@ class AxisFirmware(RiggedAxis):
     def present_ns(self) -> int:
         return self._now_ns
 
-    def actual_speed(self) -> int:
-        return self._actual_speed()
-
     def target_position(self) -> int:
         return self._target
 
-    def in_velocity_mode(self) -> bool:
-        return self._rotating()
-
     def error_flags(self) -> int:
         return self._errors
-
-    def coolstep_follows_reads(self) -> bool:
-        return self._coolstep_follows_reads()
 
     def _timer_due(self) -> int | None:
         """The firmware's own next deadline (standby current, stallGuard sampling)."""
@@ -273,9 +264,9 @@ class AxisFirmware(RiggedAxis):
         self.driver.read_position()
         if (self._params[AP.SMARTENERGY_HYSTERESIS_START] or self._coolstep.scale is not None
                 or (self.motor_driver is not None and self.motor_driver.regulating)):
-            self._update_coolstep()  # _coolstep_follows_reads, inlined: every read runs it
+            self._update_coolstep()  # coolstep_follows_reads, inlined: every read runs it
 
-    def _coolstep_follows_reads(self) -> bool:
+    def coolstep_follows_reads(self) -> bool:
         """coolStep regulates (or is set up to): its current follows every read's load."""
         return bool(self._params[AP.SMARTENERGY_HYSTERESIS_START]
                     or self._coolstep.scale is not None
@@ -298,10 +289,7 @@ class AxisFirmware(RiggedAxis):
             self._standstill_since = self._now_ns
             if not self._positioning and not self.homing.active:
                 self._target = self._position  # MVP REL after a rotation starts from here
-            if self._positioning and self._awaiting_arrival and self._position == self._target:
-                self._awaiting_arrival = False
-                if not self.homing.active:
-                    self.emit(AxisEventKind.TARGET_REACHED)
+            self._conclude_move()  # arrived and standing: "target reached"
         self.homing.step()
         self._check_stall()
         self._check_deviation()
@@ -485,7 +473,7 @@ class AxisFirmware(RiggedAxis):
         return stallguard.load_reading(self._params, self.board.world.load_at, self._mechanical(),
                                        self.driver.heading() or self._travel_direction)
 
-    def _actual_speed(self) -> int:
+    def actual_speed(self) -> int:
         return self.driver.actual_speed()
 
     def _check_stall(self) -> None:
@@ -503,7 +491,7 @@ class AxisFirmware(RiggedAxis):
             motor_driver = self.motor_driver
             stalled = (self._driver_stalled(motor_driver) if motor_driver is not None
                        else self._load() == 0)
-            if stalled and abs(self._actual_speed()) >= threshold:
+            if stalled and abs(self.actual_speed()) >= threshold:
                 self.homing.abort()
                 self.hard_stop()
                 self._errors |= ERROR_STALL
@@ -526,7 +514,7 @@ class AxisFirmware(RiggedAxis):
 
     def _update_coolstep(self) -> None:
         """Bring coolStep's current scale up to the present (called at every position read)."""
-        speed = abs(self._actual_speed()) if self._standstill_since is None else 0
+        speed = abs(self.actual_speed()) if self._standstill_since is None else 0
         if self.motor_driver is not None:
             self.motor_driver.regulate(speed)
             return
@@ -608,7 +596,7 @@ class AxisFirmware(RiggedAxis):
         if number == AP.TARGET_POSITION:
             return self._target
         if number == AP.ACTUAL_SPEED:
-            return self._actual_speed()
+            return self.actual_speed()
         if number == AP.POSITION_REACHED:
             return int(self._position == self._target)
         if number in (AP.LEFT_SWITCH, AP.RIGHT_SWITCH, AP.HOME_SWITCH):
@@ -624,7 +612,7 @@ class AxisFirmware(RiggedAxis):
         if number == AP.SMARTENERGY_ACTUAL_CURRENT:
             return self._current_scale()
         if number == AP.MEASURED_SPEED:  # the driver's step-rate measurement: a magnitude
-            return abs(self._actual_speed())
+            return abs(self.actual_speed())
         if number == AP.DRIVER_ERROR_FLAGS and self.motor_driver is not None:
             return self.motor_driver.flags()
         if number == AP.ABSOLUTE_ENCODER:
@@ -643,7 +631,7 @@ class AxisFirmware(RiggedAxis):
             number = self._keys.get(number, number)
         return self.forecast.first_time_at(number, values)
 
-    def _rotating(self) -> bool:
+    def in_velocity_mode(self) -> bool:
         """Velocity mode (ROR, ROL, MST) with no reference search: the speed only ever moves
         towards the speed asked for, monotonically, until the next notable instant."""
         return not self._positioning and not self.homing.active
@@ -689,24 +677,30 @@ class AxisFirmware(RiggedAxis):
             number = _LIMIT_SWITCH_BITS[number][1]  # and the polarity, below
         if self.motor_driver is not None and number in self.motor_driver.parameters:
             self.motor_driver.configure(number)
-        if number in _RAMP_PARAMETERS:
-            if not self.homing.active:
-                self.driver.limits_changed(self._positioning, self._velocity_command)
-        elif number in _STOP_PARAMETERS:
-            self.driver.configure_stops(searching=self.homing.active)
-        elif number == AP.RAMP_MODE:
-            self._ramp_mode_written()
-        elif number in (AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY):
-            self._input_stage_from_parameters()
-            self._pins_changed()
-        elif number == AP.MICROSTEPS:
-            self._rebase_encoder()
-            self.board.rescale(self.chip.motor_position, self._params[AP.MICROSTEPS])
-            self._rebase_encoder()
-        elif number in (AP.MAX_CURRENT, AP.STANDBY_CURRENT):
-            self._current_changed()
-            if self._standby:
-                self.emit(AxisEventKind.CURRENT_CHANGED, False)
+        follow = _SIDE_EFFECTS.get(number)
+        if follow is not None:
+            follow(self)
+
+    def _ramp_written(self) -> None:
+        if not self.homing.active:
+            self.driver.limits_changed(self._positioning, self._velocity_command)
+
+    def _stops_written(self) -> None:
+        self.driver.configure_stops(searching=self.homing.active)
+
+    def _input_stage_written(self) -> None:
+        self._input_stage_from_parameters()
+        self._pins_changed()
+
+    def _microsteps_written(self) -> None:
+        self._rebase_encoder()
+        self.board.rescale(self.chip.motor_position, self._params[AP.MICROSTEPS])
+        self._rebase_encoder()
+
+    def _current_written(self) -> None:
+        self._current_changed()
+        if self._standby:
+            self.emit(AxisEventKind.CURRENT_CHANGED, False)
 
     def _input_stage_from_parameters(self) -> None:
         """The module's input stage: switches swapped and inverted as the parameters say."""
@@ -775,7 +769,7 @@ class AxisFirmware(RiggedAxis):
         self.sync()
         left, right, home = self._levels
         return AxisStatus(
-            position=self._position, target=self._target, velocity=self._actual_speed(),
+            position=self._position, target=self._target, velocity=self.actual_speed(),
             mode=self.driver.mode_name(),
             position_reached=self._position == self._target,
             home_switch=home, left_switch=left, right_switch=right, load=self._load(),
@@ -784,3 +778,16 @@ class AxisFirmware(RiggedAxis):
             reference_search=self.homing.state,
             mechanical_position=self._mechanical(),
         )
+
+
+#: What the firmware does after a parameter is written, besides storing it (a motor driver's
+#: own parameters are configured first, AxisFirmware._parameter_side_effects).
+_SIDE_EFFECTS: dict[int, Callable[[AxisFirmware], None]] = {
+    **dict.fromkeys(_RAMP_PARAMETERS, AxisFirmware._ramp_written),
+    **dict.fromkeys(_STOP_PARAMETERS, AxisFirmware._stops_written),
+    AP.RAMP_MODE: AxisFirmware._ramp_mode_written,
+    **dict.fromkeys((AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY),
+                    AxisFirmware._input_stage_written),
+    AP.MICROSTEPS: AxisFirmware._microsteps_written,
+    **dict.fromkeys((AP.MAX_CURRENT, AP.STANDBY_CURRENT), AxisFirmware._current_written),
+}
