@@ -10,6 +10,7 @@ in docs/motion.md.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -42,6 +43,26 @@ def _middle(switch: str, direction: int) -> list[Phase]:
             Phase("enter", switch, -direction, "back2")]
 
 
+def _seek(switch: str, direction: int, reverse_on: str | None = None) -> Phase:
+    return Phase("seek", switch, direction, reverse_on=reverse_on)
+
+
+#: The phases of each base mode, from the near limit switch, the far one and the direction
+#: towards the near one (modes 1..4 with +64 mirror them: the right switch is the near one).
+_PLANS: dict[int, Callable[[str, str, int], list[Phase]]] = {
+    1: lambda near, far, down: [_seek(near, down), *_calibrate(near, down, "near")],
+    2: lambda near, far, down: [_seek(far, -down), *_calibrate(far, -down, "other"),
+                                _seek(near, down), *_calibrate(near, down, "near")],
+    3: lambda near, far, down: [_seek(far, -down), *_calibrate(far, -down, "other"),
+                                _seek(near, down), *_middle(near, down)],
+    4: lambda near, far, down: [_seek(near, down), *_middle(near, down)],
+    5: lambda near, far, down: [_seek("home", -1, "left"), *_calibrate("home", -1, "near")],
+    6: lambda near, far, down: [_seek("home", 1, "right"), *_calibrate("home", 1, "near")],
+    7: lambda near, far, down: [_seek("home", 1), *_middle("home", 1)],
+    8: lambda near, far, down: [_seek("home", -1), *_middle("home", -1)],
+}
+
+
 def reference_plan(mode: int) -> tuple[list[Phase], bool]:
     """The phases of RFS for AP 193 ``mode``, and whether the home switch is inverted."""
     inverted = mode >= 128
@@ -51,27 +72,10 @@ def reference_plan(mode: int) -> tuple[list[Phase], bool]:
     mirrored = 64 < base < 128
     base = base - 64 if mirrored else base
     near, far, down = ("right", "left", 1) if mirrored else ("left", "right", -1)
-    seek_near = Phase("seek", near, down)
-    seek_far = Phase("seek", far, -down)
-    if base == 1:
-        phases = [seek_near, *_calibrate(near, down, "near")]
-    elif base == 2:
-        phases = [seek_far, *_calibrate(far, -down, "other"), seek_near, *_calibrate(near, down, "near")]
-    elif base == 3:
-        phases = [seek_far, *_calibrate(far, -down, "other"), seek_near, *_middle(near, down)]
-    elif base == 4:
-        phases = [seek_near, *_middle(near, down)]
-    elif base == 5:
-        phases = [Phase("seek", "home", -1, reverse_on="left"), *_calibrate("home", -1, "near")]
-    elif base == 6:
-        phases = [Phase("seek", "home", 1, reverse_on="right"), *_calibrate("home", 1, "near")]
-    elif base == 7:
-        phases = [Phase("seek", "home", 1), *_middle("home", 1)]
-    elif base == 8:
-        phases = [Phase("seek", "home", -1), *_middle("home", -1)]
-    else:
+    plan = _PLANS.get(base)
+    if plan is None:
         raise ValueError(f"reference search mode {mode} is not defined")
-    return [*phases, Phase("finish", "", 0)], inverted
+    return [*plan(near, far, down), Phase("finish", "", 0)], inverted
 
 
 def reference_point(points: dict[str, int]) -> tuple[int, int | None]:
