@@ -81,9 +81,6 @@ _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_
 #: encoder set, a rotation, a ramp-mode stop): the others change nothing when written unchanged.
 _ACTION_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.TARGET_SPEED,
                                 AP.ENCODER_POSITION, AP.RAMP_MODE})
-#: How the rows the firmware keeps (AxisFirmware._params, not read from the chip) may move:
-#: a command changes them, or the firmware at one of its events (AP 196/197).
-_KEPT_MOTIONS = frozenset({Motion.SETTING, Motion.EVENTS})
 #: Parameters whose writes re-plan the stop switches.
 _STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, AP.SOFT_STOP_FLAG,
                               AP.REFERENCE_SWITCH_TOLERANCE, AP.VIRTUAL_STOP_LEFT,
@@ -173,7 +170,9 @@ class AxisFirmware(RiggedAxis):
         only by a command or at one of its events.  Refused otherwise, at construction."""
         for number, motion in motions.items():
             live = number in _LIVE_PARAMETERS or number in self._chip_live
-            if motion is Motion.SETTING if live else motion not in _KEPT_MOTIONS:
+            # a row the firmware keeps changes by a command, or at one of its events (AP 196)
+            kept = motion is Motion.SETTING or motion is Motion.EVENTS
+            if motion is Motion.SETTING if live else not kept:
                 raise ValueError(f"axis parameter {number}: the table says it {motion.value}, "
                                  f"but the firmware {'reads it from the chip' if live else 'keeps it'}")
 
@@ -183,7 +182,8 @@ class AxisFirmware(RiggedAxis):
         self.forecast.known = False  # AxisForecast.invalidate, inlined: every command runs it
 
     def _lookahead(self) -> Lookahead | None:
-        return self.forecast.lookahead()
+        forecast = self.forecast  # AxisForecast.lookahead's cache, inlined: a hot path
+        return forecast.cached if forecast.known else forecast.lookahead()
 
     # the forecast's view of the axis (axes.forecast.ForecastedAxis)
 

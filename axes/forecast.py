@@ -49,9 +49,6 @@ from tmcl_spec.parameters import AP, Motion
 #: it the look-ahead stops short and the axis looks again from there when that time comes.
 LOOKAHEAD_BUDGET = 2_000
 
-#: Rows that hold until something intervenes, whatever the axis does (F2).
-_HELD = frozenset({Motion.SETTING, Motion.PROGRAM})
-
 
 @dataclass(slots=True)
 class Lookahead:
@@ -104,7 +101,7 @@ class AxisForecast:
         self._motions = motions
         #: The chip's next notable instant (None: nothing ahead), once computed since the last
         #: change (``known``).
-        self._cached: Lookahead | None = None
+        self.cached: Lookahead | None = None
         self.known = False
         #: The last crossing found: (the look-ahead it holds for, values, time) (F5).
         self._crossing: tuple[Lookahead, tuple[int, ...], int] | None = None
@@ -116,7 +113,7 @@ class AxisForecast:
     def lookahead(self) -> Lookahead | None:
         """Run a copy of the chip to its next notable instant (or the horizon)."""
         if self.known:
-            return self._cached
+            return self.cached
         driver = self._axis.driver
         chip = driver.chip
         twin = chip.clone()
@@ -124,7 +121,7 @@ class AxisForecast:
         stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else Lookahead(twin, stop, twin.ns_at(twin.t))
-        self._cached = result
+        self.cached = result
         self.known = True
         return result
 
@@ -133,7 +130,7 @@ class AxisForecast:
     def steady_until(self, number: int) -> int:
         """How long GAP ``number`` (the firmware's numbering) keeps its answer (F2)."""
         motion = self._motions.get(number)
-        if motion in _HELD:
+        if motion is Motion.SETTING or motion is Motion.PROGRAM:  # (an Enum hashes slowly)
             return FOREVER  # only a command changes it
         if motion is Motion.ACCESS:
             # reading clears the error flags: steady only while there are none (F2)
