@@ -219,6 +219,8 @@ class Frame:
 
     data: bytes
     can_id: int | None = None
+    #: When it was captured (seconds, the log's own time base), where the capture says.
+    time: float | None = None
 
 
 @dataclass
@@ -492,7 +494,7 @@ def read_can_log(path: str | Path) -> Iterator[Frame]:
                 count += 1
                 if message.is_error_frame or message.is_remote_frame:
                     continue
-                yield Frame(bytes(message.data), message.arbitration_id)
+                yield Frame(bytes(message.data), message.arbitration_id, message.timestamp)
     except CaptureError:
         raise
     except Exception as exc:  # the readers raise what their parsers raise
