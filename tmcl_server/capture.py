@@ -79,13 +79,21 @@ class Capture:
     identity: dict[str, Any] | None = None
     #: What the reader left out, one line each (a last line cut short).
     notes: list[str] = field(default_factory=list)
-    _lines: Iterator[str] | None = None
+    #: Whether this is a capture of our own format (else a CAN log or a dump).
+    own: bool = False
 
     def frames(self) -> Iterator[CapturedFrame]:
-        if self._lines is not None:
-            yield from self._own_frames(self._lines)
-        else:
+        """The frames in order; each call reads the file again from the start."""
+        if not self.own:
             yield from _foreign_frames(self.path, self.kind)
+            return
+        try:
+            stream = self.path.open("r", encoding="utf-8", newline="")
+        except OSError as exc:
+            raise CaptureError(f"{self.path}: {exc.strerror or exc}") from None
+        stream.readline(MAX_LINE + 1)  # the header, read by open_capture
+        self.notes.clear()
+        yield from self._own_frames(_lines_of(stream, self.path))
 
     def _own_frames(self, lines: Iterator[str]) -> Iterator[CapturedFrame]:
         held: tuple[int, str] | None = None  # a line is judged once we know if it is the last
@@ -141,19 +149,25 @@ def open_capture(path: str | Path) -> Capture:
         raise CaptureError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
     try:
         stream = path.open("r", encoding="utf-8", newline="")
-        try:
-            first = stream.readline(MAX_LINE + 1)
-        except UnicodeDecodeError:
-            first = ""
     except OSError as exc:
         raise CaptureError(f"{path}: {exc.strerror or exc}") from None
-    header = _header(first)
-    if header is None:
+    try:
+        first = stream.readline(MAX_LINE + 1)
+    except UnicodeDecodeError:
+        first = ""  # not ours: a binary CAN log (.blf), or not a capture at all
+    except OSError as exc:
+        raise CaptureError(f"{path}: {exc.strerror or exc}") from None
+    finally:
         stream.close()
+    header = _header(first)
+    if header is None and f'"{FORMAT}"' in first:
+        raise CaptureError(f"{path}: its header line is cut short (the capture stopped before "
+                           "its first frame)")
+    if header is None:
         return Capture(path, "python-can log" if is_can_log(path) else "hex dump")
     _check_header(header, path)
     return Capture(path, f"{FORMAT} v{header['version']}", header.get("link"),
-                   header.get("identity"), _lines=_lines_of(stream, path))
+                   header.get("identity"), own=True)
 
 
 def _header(line: str) -> dict[str, Any] | None:
