@@ -69,9 +69,11 @@ from tmcl_spec.parameters import AP, GP
 #: on their own periods.  ``--tolerance`` overrides it.
 DEFAULT_TOLERANCE_S = 0.002
 #: A moving read is answered at instants this far apart across its window ...
-SAMPLE_STEP_NS = 250_000
-#: ... at most this many per read (spread evenly over a longer window).
-MAX_SAMPLES = 64
+SAMPLE_STEP_NS = 1_000_000
+#: ... at most this many per read (spread evenly over a longer window).  A value that moves
+#: one way across the window lies between the answers at its ends; the points between find
+#: where it turns (a speed's peak, see _bounds) at little cost (each is a request).
+MAX_SAMPLES = 16
 #: Where a capture has no instants (a hex dump): requests this far apart.
 UNTIMED_STEP_NS = NS_PER_MS
 
@@ -556,14 +558,33 @@ def _reply_fields(data: bytes | None, can: bool) -> Reply | None:
 
 def _within(module: bytes | None, answers: list[bytes | None], can: bool) -> bool:
     """Whether the module's reply is one the simulator gives somewhere in the window: the same
-    header (addresses, status, opcode) as one of its answers, the value between the least and
-    the greatest of those answers (a moving value passes every value between)."""
+    header (addresses, status, opcode) as one of its answers, the value within their bounds
+    (:func:`_bounds`: a moving value passes every value between)."""
     mine = _reply_fields(module, can)
     if mine is None:
         return module in answers
     values = [reply.value for reply in (_reply_fields(a, can) for a in answers)
               if reply is not None and reply[:4] == mine[:4]]
-    return bool(values) and min(values) <= mine.value <= max(values)
+    if not values:
+        return False
+    low, high = _bounds(values)
+    return low <= mine.value <= high
+
+
+def _bounds(values: list[int]) -> tuple[int, int]:
+    """The least and greatest value a moving quantity takes over the window, from its values
+    at the window's instants (in time order).  Between two instants it lies between their
+    values, except where it turns (a speed at its peak): past an answer greater (or less) than
+    both its neighbours it may go on by up to the largest step between neighbouring answers,
+    the change it makes in one interval at most (docs/capture.md)."""
+    low, high = min(values), max(values)
+    widest = max((abs(b - a) for a, b in zip(values, values[1:], strict=False)), default=0)
+    for before, here, after in zip(values, values[1:], values[2:], strict=False):
+        if here >= before and here >= after and (here > before or here > after):
+            high = max(high, here + widest)
+        if here <= before and here <= after and (here < before or here < after):
+            low = min(low, here - widest)
+    return low, high
 
 
 def _spread(answers: list[bytes | None], main: bytes | None, can: bool) -> str:
