@@ -31,6 +31,7 @@ import sys
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from itertools import pairwise
 from pathlib import Path
 from typing import Any, Literal, NoReturn
 
@@ -578,7 +579,7 @@ def _bounds(values: list[int]) -> tuple[int, int]:
     both its neighbours it may go on by up to the largest step between neighbouring answers,
     the change it makes in one interval at most (docs/capture.md)."""
     low, high = min(values), max(values)
-    widest = max((abs(b - a) for a, b in zip(values, values[1:], strict=False)), default=0)
+    widest = max((abs(b - a) for a, b in pairwise(values)), default=0)
     for before, here, after in zip(values, values[1:], values[2:], strict=False):
         if here >= before and here >= after and (here > before or here > after):
             high = max(high, here + widest)
