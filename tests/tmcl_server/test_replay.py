@@ -324,3 +324,26 @@ def test_a_world_with_a_switch_pressed_shows_in_the_switch_reads(tmp_path: Path)
     assert divergence.request == "GAP 11 LeftLimitSwitchState m0"
     assert (divergence.module, divergence.simulator) == ("→ 100 OK = 1", "→ 100 OK = 0")
     assert replay_capture(path, world=str(world)).divergences == []
+
+
+def test_the_pytest_helper_passes_a_matching_capture_and_fails_with_the_divergences(
+        tmp_path: Path, tmcl_replay) -> None:
+    def session(host: StandIn) -> None:
+        host.request(Opcode.SAP, AP.MAX_SPEED, 0, 51200)
+        host.request(Opcode.GAP, AP.MAX_SPEED, 0)
+
+    path = capture_of(tmp_path, session, 15, module_type="tmcm-1140")
+    assert tmcl_replay(path).summary.matched == 2
+    with pytest.raises(pytest.fail.Exception) as failed:
+        tmcl_replay(path, module_type="tmcm-6212")
+    assert str(path) in str(failed.value) and "SAP 4 MaxPositioningSpeed m0 = 51200: module " \
+        "→ 4 INVALID_VALUE; simulator → 100 OK" in str(failed.value)
+    with pytest.raises(pytest.fail.Exception, match=r"tmcl_replay: .*no such file"):
+        tmcl_replay(tmp_path / "missing.jsonl")
+
+
+def test_the_committed_capture_replays_beside_its_test(tmcl_replay) -> None:
+    """The round trip docs/capture.md shows: a capture committed beside the test, replayed
+    in CI by its relative path (this one was taken through the proxy from a simulator)."""
+    result = tmcl_replay("captures/move-polled.jsonl")
+    assert result.summary.requests > 20 and result.summary.diverged == 0
