@@ -260,6 +260,7 @@ class CaptureWriter:
     def __init__(self, stream: IO[str], link: str, identity: dict[str, Any] | None,
                  start_ns: int | None = None) -> None:
         self._stream = stream
+        self._quoted: dict[str, str] = {}
         #: The monotonic instant ``t`` counts from.
         self.start_ns = time.monotonic_ns() if start_ns is None else start_ns
         header = {"format": FORMAT, "version": VERSION,
@@ -274,10 +275,17 @@ class CaptureWriter:
 
     def frame(self, t_ns: int, direction: str, endpoint: str, address: int | None,
               data: bytes = b"") -> None:
+        """One frame's line (written by hand: this runs for every frame the proxy forwards)."""
+        quoted = self._quoted.get(endpoint)
+        if quoted is None:
+            if len(self._quoted) >= 1024:  # hosts that connect once each: keep it bounded
+                self._quoted.clear()
+            quoted = self._quoted[endpoint] = json.dumps(endpoint)
         seconds = (t_ns - self.start_ns) / NS_PER_S
-        self._write(f'{{"t": {seconds:.9f}, "dir": "{direction}", "endpoint": '
-                    f'{json.dumps(endpoint)}, "address": {"null" if address is None else address}'
-                    f', "bytes": "{data.hex()}"}}')
+        self._stream.write(f'{{"t": {seconds:.9f}, "dir": "{direction}", "endpoint": {quoted}, '
+                           f'"address": {"null" if address is None else address}, '
+                           f'"bytes": "{data.hex()}"}}\n')
+        self._stream.flush()
 
     def _write(self, line: str) -> None:
         self._stream.write(line + "\n")

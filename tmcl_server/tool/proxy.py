@@ -91,11 +91,16 @@ class _SocketLink(ModuleLink):
         return self._socket.fileno()
 
     def send(self, frame: bytes) -> None:
-        self._socket.setblocking(True)  # nine bytes: the kernel takes them at once
         try:
-            self._socket.sendall(frame)
-        finally:
-            self._socket.setblocking(False)
+            sent = self._socket.send(frame)  # nine bytes: the kernel takes them at once ...
+        except BlockingIOError:
+            sent = 0
+        if sent < len(frame):  # ... unless the module stopped reading: then wait for it
+            self._socket.setblocking(True)
+            try:
+                self._socket.sendall(frame[sent:])
+            finally:
+                self._socket.setblocking(False)
 
     def receive(self) -> bytes:
         try:

@@ -1,0 +1,108 @@
+#!/usr/bin/env python3
+"""What ``tmcl proxy`` adds to each request: its latency beside a host talking to the module
+directly, in the same run (goal: the proxy's own p50 under 100 us on loopback).
+
+One module (``tmcl-server`` on a free loopback port, its own process) and one ``tmcl proxy``
+in front of it (its own process, capturing to a file, and once without ``--capture``); a
+lockstep host (9-byte GAP 1 requests, each waiting for its reply) measures round trips
+straight to the module and through the proxy, alternating in blocks so the machine's noise
+falls on both alike.  The proxy's own latency is the difference of the medians (p50), and of
+the 90th percentiles.
+
+    .venv/bin/python scripts/bench_proxy.py [--requests 2000] [--rounds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REQUEST = bytes([1, 6, 1, 0, 0, 0, 0, 0, 8])  # GAP 1, 0: the actual position, the usual poll
+
+
+def start(argv: list[str], ready: Path) -> subprocess.Popen[str]:
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 30
+    while not ready.exists():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            raise SystemExit(f"did not start: {' '.join(argv)}: {proc.communicate()[1]}")
+        time.sleep(0.01)
+    return proc
+
+
+def endpoint(ready: Path) -> tuple[str, int]:
+    host, port = json.loads(ready.read_text())["tcp"][0].rsplit(":", 1)
+    return host, int(port)
+
+
+def round_trips(address: tuple[str, int], count: int) -> list[float]:
+    """Seconds per request, one request on the wire at a time (as a TMCL host does)."""
+    with socket.create_connection(address) as sock:
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        times = []
+        for _ in range(count + 50):
+            started = time.perf_counter()
+            sock.sendall(REQUEST)
+            got = 0
+            while got < 9:
+                got += len(sock.recv(9 - got))
+            times.append(time.perf_counter() - started)
+        return times[50:]  # the first ones warm the caches
+
+
+def percentile(values: list[float], q: float) -> float:
+    return statistics.quantiles(values, n=100)[int(q) - 1] if len(values) > 1 else values[0]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--requests", type=int, default=2000, help="requests per block")
+    parser.add_argument("--rounds", type=int, default=5, help="blocks per case, alternating")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder:
+        tmp = Path(folder)
+        module = start([sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0",
+                        "--ready-file", str(tmp / "module.json")], tmp / "module.json")
+        module_at = endpoint(tmp / "module.json")
+        target = f"{module_at[0]}:{module_at[1]}"
+        proxies = []
+        try:
+            cases: dict[str, tuple[str, int]] = {"direct": module_at}
+            for name, extra in (("proxy", ["--capture", str(tmp / "capture.jsonl")]),
+                                ("proxy, no capture", [])):
+                ready = tmp / f"proxy-{len(proxies)}.json"
+                proxies.append(start([sys.executable, "-m", "tmcl_server.tool", "--tcp", target,
+                                      "proxy", "--listen-tcp", "127.0.0.1:0", "--ready-file",
+                                      str(ready), *extra], ready))
+                cases[name] = endpoint(ready)
+            samples: dict[str, list[float]] = {name: [] for name in cases}
+            for _ in range(args.rounds):
+                for name, address in cases.items():
+                    samples[name] += round_trips(address, args.requests)
+        finally:
+            for proc in [*proxies, module]:
+                proc.terminate()
+                proc.wait(timeout=30)
+    direct50, direct90 = percentile(samples["direct"], 50), percentile(samples["direct"], 90)
+    print(f"{args.rounds} x {args.requests} GAP round trips per case, alternating; loopback TCP")
+    print(f"{'case':<20} {'p50 us':>8} {'p90 us':>8} {'added p50 us':>13} {'added p90 us':>13}")
+    for name, values in samples.items():
+        p50, p90 = percentile(values, 50), percentile(values, 90)
+        added = "" if name == "direct" else f"{(p50 - direct50) * 1e6:13.1f} {(p90 - direct90) * 1e6:13.1f}"
+        print(f"{name:<20} {p50 * 1e6:8.1f} {p90 * 1e6:8.1f} {added}")
+    own = (percentile(samples["proxy"], 50) - direct50) * 1e6
+    print(f"the proxy's own latency (p50, capturing): {own:.1f} us (goal < 100 us): "
+          f"{'met' if own < 100 else 'NOT met'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
