@@ -7,7 +7,9 @@ in front of it (its own process, capturing to a file, and once without ``--captu
 lockstep host (9-byte GAP 1 requests, each waiting for its reply) measures round trips
 straight to the module and through the proxy, alternating in blocks so the machine's noise
 falls on both alike.  The proxy's own latency is the difference of the medians (p50), and of
-the 90th percentiles.
+the 90th percentiles.  Two bare forwarders of a dozen lines each show the floor any proxy in
+Python pays for the extra hop on this machine: one blocking (recv, send, recv, send), one on a
+``selectors`` loop as ``tmcl proxy`` is (it must serve several hosts and time replies out).
 
     .venv/bin/python scripts/bench_proxy.py [--requests 2000] [--rounds 5]
 """
@@ -25,6 +27,36 @@ import time
 from pathlib import Path
 
 REQUEST = bytes([1, 6, 1, 0, 0, 0, 0, 0, 8])  # GAP 1, 0: the actual position, the usual poll
+
+#: The floors: forwarders that do nothing else (one host; argv: module port, ready file).
+_LISTEN = r"""
+import json, os, selectors, socket, sys
+module = socket.create_connection(("127.0.0.1", int(sys.argv[1])))
+module.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+server = socket.socket(); server.bind(("127.0.0.1", 0)); server.listen()
+with open(sys.argv[2] + ".tmp", "w") as f:
+    json.dump({"tcp": ["127.0.0.1:%d" % server.getsockname()[1]]}, f)
+os.replace(sys.argv[2] + ".tmp", sys.argv[2])
+"""
+BLOCKING_FORWARDER = _LISTEN + r"""
+while True:
+    host, _ = server.accept(); host.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    while data := host.recv(9):
+        module.sendall(data); host.sendall(module.recv(9))
+"""
+LOOP_FORWARDER = _LISTEN + r"""
+module.setblocking(False); server.setblocking(False)
+loop = selectors.DefaultSelector(); hosts = []
+def accept():
+    host, _ = server.accept(); host.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    host.setblocking(False); hosts.append(host)
+    loop.register(host, selectors.EVENT_READ, lambda: module.send(host.recv(4096)))
+loop.register(server, selectors.EVENT_READ, accept)
+loop.register(module, selectors.EVENT_READ, lambda: hosts[-1].send(module.recv(4096)))
+while True:
+    for key, _ in loop.select(5.0):
+        key.data()
+"""
 
 
 def start(argv: list[str], ready: Path) -> subprocess.Popen[str]:
@@ -76,12 +108,17 @@ def main() -> int:
         proxies = []
         try:
             cases: dict[str, tuple[str, int]] = {"direct": module_at}
-            for name, extra in (("proxy", ["--capture", str(tmp / "capture.jsonl")]),
-                                ("proxy, no capture", [])):
+            tool = [sys.executable, "-m", "tmcl_server.tool", "--tcp", target, "proxy",
+                    "--listen-tcp", "127.0.0.1:0", "--ready-file"]
+            for name, argv in (
+                    ("proxy", [*tool, "{ready}", "--capture", str(tmp / "capture.jsonl")]),
+                    ("proxy, no capture", [*tool, "{ready}"]),
+                    ("floor: blocking", [sys.executable, "-c", BLOCKING_FORWARDER,
+                                         str(module_at[1]), "{ready}"]),
+                    ("floor: selectors", [sys.executable, "-c", LOOP_FORWARDER,
+                                          str(module_at[1]), "{ready}"])):
                 ready = tmp / f"proxy-{len(proxies)}.json"
-                proxies.append(start([sys.executable, "-m", "tmcl_server.tool", "--tcp", target,
-                                      "proxy", "--listen-tcp", "127.0.0.1:0", "--ready-file",
-                                      str(ready), *extra], ready))
+                proxies.append(start([a.replace("{ready}", str(ready)) for a in argv], ready))
                 cases[name] = endpoint(ready)
             samples: dict[str, list[float]] = {name: [] for name in cases}
             for _ in range(args.rounds):

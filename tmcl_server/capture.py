@@ -257,8 +257,9 @@ class CaptureWriter:
     """Writes a capture as frames pass: one JSON line each, flushed at once (a proxy stopped
     at any moment leaves every frame it forwarded on disk, at most the last line cut short)."""
 
-    def __init__(self, stream: IO[str], link: str, identity: dict[str, Any] | None,
+    def __init__(self, stream: IO[bytes], link: str, identity: dict[str, Any] | None,
                  start_ns: int | None = None) -> None:
+        #: Unbuffered: each line is one write to the file, at once.
         self._stream = stream
         self._quoted: dict[str, str] = {}
         #: The monotonic instant ``t`` counts from.
@@ -267,11 +268,11 @@ class CaptureWriter:
                   "created": datetime.now(UTC).isoformat(timespec="seconds"),
                   "clock": "monotonic", "tool": f"tmcl-sim {package_version()}", "link": link,
                   "identity": identity}
-        self._write(json.dumps(header))
+        self._write(json.dumps(header) + "\n")
 
     @classmethod
     def create(cls, path: str | Path, link: str, identity: dict[str, Any] | None) -> CaptureWriter:
-        return cls(Path(path).open("w", encoding="utf-8", newline="\n"), link, identity)
+        return cls(Path(path).open("wb", buffering=0), link, identity)
 
     def frame(self, t_ns: int, direction: str, endpoint: str, address: int | None,
               data: bytes = b"") -> None:
@@ -282,14 +283,14 @@ class CaptureWriter:
                 self._quoted.clear()
             quoted = self._quoted[endpoint] = json.dumps(endpoint)
         seconds = (t_ns - self.start_ns) / NS_PER_S
-        self._stream.write(f'{{"t": {seconds:.9f}, "dir": "{direction}", "endpoint": {quoted}, '
-                           f'"address": {"null" if address is None else address}, '
-                           f'"bytes": "{data.hex()}"}}\n')
-        self._stream.flush()
+        self._write(f'{{"t": {seconds:.9f}, "dir": "{direction}", "endpoint": {quoted}, '
+                    f'"address": {"null" if address is None else address}, '
+                    f'"bytes": "{data.hex()}"}}\n')
 
     def _write(self, line: str) -> None:
-        self._stream.write(line + "\n")
-        self._stream.flush()
+        data = line.encode()
+        while data:  # an unbuffered file takes it whole; a pipe may take part
+            data = data[self._stream.write(data) or 0:]
 
     def close(self) -> None:
         self._stream.close()

@@ -44,7 +44,7 @@ class StandIn:
         self.random = random.Random(seed)
         self.rtt_ms = rtt_ms
         self.t_ns = 0
-        self.writer = CaptureWriter(path.open("w", encoding="utf-8"), "virtual",
+        self.writer = CaptureWriter(path.open("wb", buffering=0), "virtual",
                                     identity(str(config.get("module_type", "tmcm-6212"))), start_ns=0)
         self.events: list[bytes] = []
 
