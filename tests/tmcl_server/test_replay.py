@@ -347,3 +347,46 @@ def test_the_committed_capture_replays_beside_its_test(tmcl_replay) -> None:
     in CI by its relative path (this one was taken through the proxy from a simulator)."""
     result = tmcl_replay("captures/move-polled.jsonl")
     assert result.summary.requests > 20 and result.summary.diverged == 0
+
+
+def test_a_python_can_log_replays_with_its_timestamps(tmp_path: Path) -> None:
+    """A CAN log from python-can (what ``python -m can.logger`` writes): requests on the
+    module's id, replies on the reply id, told apart as ``tmcl decode`` does."""
+    import can
+
+    simulation = build_simulation(ServerConfig(endpoints={}, clock="virtual"))
+    path = tmp_path / "session.log"
+    with can.Logger(str(path)) as log:
+        t = 1700000000.0
+        for opcode, type_, motor, value in ((Opcode.SAP, AP.MAX_SPEED, 0, 51200),
+                                            (Opcode.MVP, 0, 0, 5000), (Opcode.GAP, AP.ACTUAL_POSITION, 0, 0),
+                                            (Opcode.GAP, AP.MAX_SPEED, 0, 0)):
+            request = Request(1, opcode, type_, motor, value)
+            log(can.Message(timestamp=t, arbitration_id=1, is_extended_id=False,
+                            data=request.encode_can()))
+            simulation.advance_to_ns(round((t - 1700000000.0) * NS_PER_S) + 200_000)
+            (_, reply), = simulation.handle_can_request(request)
+            log(can.Message(timestamp=t + 0.0004, arbitration_id=2, is_extended_id=False,
+                            data=reply.encode_can()))
+            t += 0.05
+    result = replay_capture(path)
+    assert result.divergences == [] and result.summary.requests == 4, result.report()
+    assert result.summary.by_command == {"SAP": [1, 0], "MVP": [1, 0], "GAP": [2, 0]}
+    other = replay_capture(path, module_type_name="tmcm-1140")  # refuses 51200: slower, lower
+    assert [d.request.split()[0] for d in other.divergences] == ["SAP", "GAP", "GAP"]
+
+
+def test_a_hex_dump_replays_without_instants(tmp_path: Path) -> None:
+    """A ``tmcl decode`` dump has no instants: settings are compared, moving values are not
+    judged (counted)."""
+    dump = tmp_path / "session.txt"
+    dump.write_text("01 05 04 00 00 00 c8 00 d2\n02 01 64 05 00 00 c8 00 34\n"  # SAP 4, 0, 51200
+                    "01 06 04 00 00 00 00 00 0b\n02 01 64 06 00 00 c8 00 35\n"  # GAP 4 -> 51200
+                    "01 06 01 00 00 00 00 00 08\n02 01 64 06 00 00 00 07 75\n")  # GAP 1 -> 7
+    result = replay_capture(dump)
+    assert result.divergences == [] and result.summary.not_judged == 1
+    assert result.summary.lines(DEFAULT_TOLERANCE_S)[0] == (
+        "3 requests: 2 matched, 0 diverged, 1 not judged (no instants) (GAP 2, SAP 1)")
+    dump.write_text(dump.read_text().replace("02 01 64 06 00 00 c8 00 35", "02 01 64 06 00 00 c8 01 36"))
+    (divergence,) = replay_capture(dump).divergences
+    assert divergence.t is None and divergence.module == "→ 100 OK = 51201"
