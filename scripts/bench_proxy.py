@@ -11,14 +11,13 @@ the 90th percentiles.  Two bare forwarders of a dozen lines each show the floor 
 Python pays for the extra hop on this machine: one blocking (recv, send, recv, send), one on a
 ``selectors`` loop as ``tmcl proxy`` is (it must serve several hosts and time replies out).
 
-    .venv/bin/python scripts/bench_proxy.py [--requests 2000] [--rounds 5]
+    .venv/bin/python scripts/bench_proxy.py [--seconds 0.3] [--rounds 5]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import socket
 import statistics
 import subprocess
 import sys
@@ -26,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REQUEST = bytes([1, 6, 1, 0, 0, 0, 0, 0, 8])  # GAP 1, 0: the actual position, the usual poll
+from bench_wire import lockstep_tcp  # the lockstep host: GAP 1 requests, each awaiting its reply
 
 #: The floors: forwarders that do nothing else (one host; argv: module port, ready file).
 _LISTEN = r"""
@@ -75,28 +74,13 @@ def endpoint(ready: Path) -> tuple[str, int]:
     return host, int(port)
 
 
-def round_trips(address: tuple[str, int], count: int) -> list[float]:
-    """Seconds per request, one request on the wire at a time (as a TMCL host does)."""
-    with socket.create_connection(address) as sock:
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        times = []
-        for _ in range(count + 50):
-            started = time.perf_counter()
-            sock.sendall(REQUEST)
-            got = 0
-            while got < 9:
-                got += len(sock.recv(9 - got))
-            times.append(time.perf_counter() - started)
-        return times[50:]  # the first ones warm the caches
-
-
 def percentile(values: list[float], q: float) -> float:
     return statistics.quantiles(values, n=100)[int(q) - 1] if len(values) > 1 else values[0]
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--requests", type=int, default=2000, help="requests per block")
+    parser.add_argument("--seconds", type=float, default=0.3, help="seconds per block")
     parser.add_argument("--rounds", type=int, default=5, help="blocks per case, alternating")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
@@ -121,15 +105,19 @@ def main() -> int:
                 proxies.append(start([a.replace("{ready}", str(ready)) for a in argv], ready))
                 cases[name] = endpoint(ready)
             samples: dict[str, list[float]] = {name: [] for name in cases}
+            counts: list[int] = []
             for _ in range(args.rounds):
                 for name, address in cases.items():
-                    samples[name] += round_trips(address, args.requests)
+                    latencies: list[int] = []
+                    lockstep_tcp(f"{address[0]}:{address[1]}", args.seconds, latencies, counts)
+                    samples[name] += [ns / 1e9 for ns in latencies[50:]]  # the first warm up
         finally:
             for proc in [*proxies, module]:
                 proc.terminate()
                 proc.wait(timeout=30)
     direct50, direct90 = percentile(samples["direct"], 50), percentile(samples["direct"], 90)
-    print(f"{args.rounds} x {args.requests} GAP round trips per case, alternating; loopback TCP")
+    print(f"{args.rounds} blocks of {args.seconds:g} s of GAP round trips per case, alternating "
+          f"({sum(counts)} in all); loopback TCP")
     print(f"{'case':<20} {'p50 us':>8} {'p90 us':>8} {'added p50 us':>13} {'added p90 us':>13}")
     for name, values in samples.items():
         p50, p90 = percentile(values, 50), percentile(values, 90)

@@ -31,6 +31,7 @@ from tmcl_server.decode import (
     is_can_log,
     read_can_log,
     read_capture,
+    text_lines,
 )
 from tmcl_spec.numbers import NS_PER_S
 from tmcl_spec.package import package_version
@@ -88,12 +89,14 @@ class Capture:
             yield from _foreign_frames(self.path, self.kind)
             return
         try:
-            stream = self.path.open("r", encoding="utf-8", newline="")
+            stream = self.path.open("rb")
         except OSError as exc:
             raise CaptureError(f"{self.path}: {exc.strerror or exc}") from None
-        stream.readline(MAX_LINE + 1)  # the header, read by open_capture
-        self.notes.clear()
-        yield from self._own_frames(_lines_of(stream, self.path))
+        with stream:
+            stream.readline(MAX_LINE + 1)  # the header, read by open_capture
+            self.notes.clear()
+            yield from self._own_frames(text_lines(stream, str(self.path), keep_ends=True,
+                                                   kind="a capture line", first=2))
 
     def _own_frames(self, lines: Iterator[str]) -> Iterator[CapturedFrame]:
         held: tuple[int, str] | None = None  # a line is judged once we know if it is the last
@@ -192,22 +195,6 @@ def _check_header(header: dict[str, Any], path: Path) -> None:
         raise CaptureError(f"{path}: the header's identity must be an object or null")
 
 
-def _lines_of(stream: IO[str], path: Path) -> Iterator[str]:
-    with stream:
-        number = 1
-        while True:
-            number += 1
-            try:
-                line = stream.readline(MAX_LINE + 1)
-            except UnicodeDecodeError as exc:
-                raise CaptureError(f"{path}, line {number}: not UTF-8 ({exc.reason})") from None
-            if not line:
-                return
-            if len(line) > MAX_LINE:
-                raise CaptureError(f"{path}, line {number}: longer than {MAX_LINE} characters")
-            yield line
-
-
 def _foreign_frames(path: Path, kind: str) -> Iterator[CapturedFrame]:
     """A python-can log or a dump: requests and replies told apart as ``tmcl decode`` does."""
     if kind == "python-can log":
@@ -237,20 +224,8 @@ _DIRECTION_OF_KIND = {"request": REQUEST, "bad-checksum": REQUEST, "reply": REPL
 
 
 def _dump_lines(path: Path) -> Iterator[str]:
-    with path.open("r", encoding="utf-8", errors="strict") as stream:
-        number = 0
-        while True:
-            try:
-                line = stream.readline(MAX_LINE + 1)
-            except UnicodeDecodeError:
-                raise CaptureError(f"{path}: neither a tmcl capture, a CAN log python-can reads, "
-                                   "nor a text dump (not UTF-8)") from None
-            if not line:
-                return
-            number += 1
-            if len(line) > MAX_LINE:
-                raise CaptureError(f"{path}, line {number}: longer than {MAX_LINE} characters")
-            yield line.rstrip("\n")
+    with path.open("rb") as stream:
+        yield from text_lines(stream, str(path))
 
 
 class CaptureWriter:
