@@ -122,6 +122,9 @@ class _PumpedLink(ModuleLink):
     pytrinamic's interfaces): a worker thread does them and hands what comes back to the
     loop through a socket pair."""
 
+    #: Why the worker stopped (said when the loop finds the link closed).
+    failure = "closed"
+
     def __init__(self) -> None:
         self._wake, self._feed = socket.socketpair()
         self._wake.setblocking(False)
@@ -144,8 +147,6 @@ class _PumpedLink(ModuleLink):
         if not data:
             raise LinkClosed(f"the module link {self.description} failed: {self.failure}")
         return data
-
-    failure = "closed"
 
     def _run(self) -> None:
         try:
@@ -375,7 +376,7 @@ class Proxy:
         """A pseudo-terminal with ``path`` linked to it (whoever opens it is one host)."""
         require_pseudo_terminals()
         link = Path(path)
-        lock = LinkLock(link, "tmcl proxy")
+        lock = LinkLock(link, "tmcl-server or tmcl proxy")
         lock.acquire(link)
         self._cleanup.append(lock.release)
         master, slave, device = open_raw_pty()  # our own slave stays open: no hang-up between hosts
@@ -471,14 +472,27 @@ class Proxy:
             self.capture.close()
 
 
+#: How long a frame waits for room in a pty nobody reads before it is dropped (the capture
+#: has it; the proxy must go on serving the others).
+PTY_WRITE_PATIENCE_S = 0.2
+
+
 def _write_all(fd: int, data: bytes) -> None:
-    """A pty's host reads slowly at worst: whole frames, never cut (as the server's pty)."""
+    """Whole frames to a pty: a host that reads slowly gets them late, one that reads
+    nothing loses them (as the server's pty does), never a part of one."""
     view = memoryview(data)
+    deadline = time.monotonic() + PTY_WRITE_PATIENCE_S
     while view:
         try:
             view = view[os.write(fd, view):]
         except BlockingIOError:
-            select.select([], [fd], [], 0.05)
+            left = deadline - time.monotonic()
+            if left <= 0 and len(view) == len(data):
+                return  # nothing of it went out: dropped whole
+            if left <= -1.0:
+                return  # it stopped reading inside a frame: the rest is lost (the module's
+                # 5 ms rule on the host's side resynchronises it)
+            select.select([], [fd], [], max(left, 0.01))
 
 
 def cmd_proxy(args: argparse.Namespace) -> int:
