@@ -215,3 +215,30 @@ def test_listen_pty_is_refused_in_one_line_on_windows(tmp_path: Path, standin) -
     assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
     assert "pseudo-terminal needs a POSIX system" in result.stderr
     assert not (tmp_path / "ttyX").exists()
+
+
+def test_a_pty_host_that_reads_nothing_does_not_hold_the_other_hosts(tmp_path: Path, standin) -> None:
+    """Its replies fill the pty and are dropped whole; a TCP host is served all along."""
+    import serial
+
+    from tmcl_server.protocol import Request, decode_reply
+
+    module = standin()
+    proxy = ProxyProcess(tmp_path, module.tcp)
+    try:
+        with serial.Serial(str(proxy.pty), 115200, timeout=1) as silent:
+            request = Request(1, Opcode.GAP, AP.ACTUAL_POSITION, 0, 0).encode()
+            silent.write(request * 12000)  # 108 kB of replies: more than a pty holds
+            silent.flush()
+            with ConnectionManager(f"--interface socket_serial_tmcl --port {proxy.tcp}").connect() as iface:
+                iface._socket.settimeout(30)  # pytrinamic's TCP host waits forever otherwise
+                for _ in range(20):
+                    assert iface.get_axis_parameter(AP.MAX_SPEED, 0) > 0
+            first = silent.read(9)  # what it does read is whole frames
+            assert decode_reply(first).opcode == Opcode.GAP
+    finally:
+        code, _, err = proxy.stop()
+    assert code == 0, err
+    lines = proxy.capture.read_text().splitlines()
+    tcp_replies = [line for line in lines if '"dir": "reply", "endpoint": "tcp' in line]
+    assert len(tcp_replies) == 20

@@ -383,7 +383,7 @@ class Proxy:
         self._cleanup += [lambda: os.close(slave), lambda: os.close(master)]
         replace_symlink(device, link)
         self._cleanup.insert(0, lambda: remove_link(link, device))
-        host = Host(f"pty {path}", lambda data: _write_all(master, data))
+        host = Host(f"pty {path}", _PtyWriter(master))
         self.selector.register(master, selectors.EVENT_READ, lambda: self._from_pty(master, host))
         return str(link)
 
@@ -472,27 +472,36 @@ class Proxy:
             self.capture.close()
 
 
-#: How long a frame waits for room in a pty nobody reads before it is dropped (the capture
-#: has it; the proxy must go on serving the others).
+#: How long a frame waits for room in a pty whose host does not read before it is dropped
+#: (the capture has it; the proxy must go on serving the others).
 PTY_WRITE_PATIENCE_S = 0.2
 
 
-def _write_all(fd: int, data: bytes) -> None:
-    """Whole frames to a pty: a host that reads slowly gets them late, one that reads
-    nothing loses them (as the server's pty does), never a part of one."""
-    view = memoryview(data)
-    deadline = time.monotonic() + PTY_WRITE_PATIENCE_S
-    while view:
-        try:
-            view = view[os.write(fd, view):]
-        except BlockingIOError:
-            left = deadline - time.monotonic()
-            if left <= 0 and len(view) == len(data):
-                return  # nothing of it went out: dropped whole
-            if left <= -1.0:
-                return  # it stopped reading inside a frame: the rest is lost (the module's
-                # 5 ms rule on the host's side resynchronises it)
-            select.select([], [fd], [], max(left, 0.01))
+class _PtyWriter:
+    """Whole frames to a pty: a host that reads slowly gets them late, one that reads nothing
+    loses them whole (as the server's pty does); once one was lost, the next ones are dropped
+    at once until the host reads again."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.stalled = False
+
+    def __call__(self, data: bytes) -> None:
+        view = memoryview(data)
+        deadline = time.monotonic() + (0 if self.stalled else PTY_WRITE_PATIENCE_S)
+        while view:
+            try:
+                view = view[os.write(self.fd, view):]
+            except BlockingIOError:
+                left = deadline - time.monotonic()
+                if left <= 0 and len(view) == len(data):
+                    self.stalled = True  # nothing of it went out: dropped whole
+                    return
+                if left <= -1.0:
+                    self.stalled = True  # it stopped reading inside a frame: the rest is lost
+                    return  # (the 5 ms rule resynchronises the host)
+                select.select([], [self.fd], [], max(left, 0.01))
+        self.stalled = False
 
 
 def cmd_proxy(args: argparse.Namespace) -> int:
