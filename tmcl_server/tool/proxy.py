@@ -39,11 +39,12 @@ from tmcl_server.decode import module_type_by_number
 from tmcl_server.endpoints import parse_host_port, parse_serial_spec
 from tmcl_server.platform import (
     PlatformUnsupported,
+    bytes_waiting,
     can_watch_descriptors,
     open_raw_pty,
     require_pseudo_terminals,
 )
-from tmcl_server.protocol import FRAME_LENGTH, FrameAssembler, Request, decode_reply
+from tmcl_server.protocol import FRAME_LENGTH, RESYNC_GAP_NS, FrameAssembler, Request, decode_reply
 from tmcl_server.ptylink import LinkLock, remove_link, replace_symlink
 from tmcl_server.tool.connection import BadInput, NoReply, UsageError, Where
 from tmcl_server.upload import PytrinamicClient, UploadError
@@ -304,8 +305,12 @@ class Host:
 
     endpoint: str
     write: Callable[[bytes], None]
+    #: What the loop reads it from (asked whether bytes wait unread).
+    fd: int
     frames: FrameAssembler = field(default_factory=FrameAssembler)
     connected: bool = True
+    #: When the last bytes of a partial frame came (None: no partial frame held).
+    partial_since: int | None = None
 
 
 @dataclass
@@ -329,6 +334,11 @@ class Proxy:
         self._queue: deque[tuple[Host, bytes]] = deque()
         self._waiting: _Waiting | None = None
         self._last_host: Host | None = None
+        #: Hosts holding a partial frame (see _resync).
+        self._partial: set[Host] = set()
+        #: Ctrl-C or SIGTERM came while a frame was being handled: stop after it.
+        self._stopping = False
+        self._in_select = False
         self._cleanup: list[Callable[[], None]] = []
         #: Requests forwarded so far (the closing line says it).
         self.forwarded = 0
@@ -355,7 +365,7 @@ class Proxy:
             return
         client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         client.setblocking(False)
-        host = Host(f"tcp {peer[0]}:{peer[1]}", client.sendall)
+        host = Host(f"tcp {peer[0]}:{peer[1]}", client.sendall, client.fileno())
         self.selector.register(client, selectors.EVENT_READ, lambda: self._from_tcp_host(client, host))
 
     def _from_tcp_host(self, client: socket.socket, host: Host) -> None:
@@ -383,7 +393,7 @@ class Proxy:
         self._cleanup += [lambda: os.close(slave), lambda: os.close(master)]
         replace_symlink(device, link)
         self._cleanup.insert(0, lambda: remove_link(link, device))
-        host = Host(f"pty {path}", _PtyWriter(master))
+        host = Host(f"pty {path}", _PtyWriter(master), master)
         self.selector.register(master, selectors.EVENT_READ, lambda: self._from_pty(master, host))
         return str(link)
 
@@ -397,10 +407,30 @@ class Proxy:
     # -- forwarding -----------------------------------------------------------------------------
 
     def _from_host(self, host: Host, data: bytes) -> None:
-        for frame in host.frames.feed(data, time.monotonic_ns()):
+        frames = host.frames
+        for frame in frames.feed(data):
             self._queue.append((host, frame))
+        if frames.buffer:  # a partial frame: dropped if the host then stays silent (_resync)
+            host.partial_since = time.monotonic_ns()
+            self._partial.add(host)
+        elif host.partial_since is not None:
+            host.partial_since = None
+            self._partial.discard(host)
         if self._waiting is None:
             self._next()
+
+    def _resync(self, now: int) -> None:
+        """A partial frame followed by more than 5 ms of silence is dropped, as the module
+        drops it (docs/protocol.md).  Silence on the line, not time the proxy spent elsewhere:
+        only when no bytes wait unread (the server's pty and TCP do the same)."""
+        for host in list(self._partial):
+            since = host.partial_since
+            if since is None or not host.connected:
+                self._partial.discard(host)
+            elif now - since > RESYNC_GAP_NS and bytes_waiting(host.fd) == 0:
+                host.frames.drop()
+                host.partial_since = None
+                self._partial.discard(host)
 
     def _next(self) -> None:
         """Forward the next queued request: the wire is free."""
@@ -408,6 +438,8 @@ class Proxy:
             host, frame = self._queue.popleft()
             if not host.connected:
                 continue
+            if self._replies.buffer:
+                self._replies.drop()  # a torn reply from before: stale now
             t = time.monotonic_ns()
             self.link.send(frame)
             self._waiting = _Waiting(host, frame[0], t + self.timeout_ns)
@@ -419,7 +451,7 @@ class Proxy:
     def _from_module(self) -> None:
         data = self.link.receive()
         t = time.monotonic_ns()
-        for frame in self._replies.feed(data, t):
+        for frame in self._replies.feed(data):
             waiting = self._waiting
             if waiting is not None:
                 self._waiting = None
@@ -451,15 +483,34 @@ class Proxy:
     # -- the loop -------------------------------------------------------------------------------
 
     def run(self) -> None:
+        """Serve until Ctrl-C or SIGTERM (:meth:`interrupt`)."""
         select = self.selector.select
-        while True:
+        while not self._stopping:
             waiting = self._waiting
-            timeout = None if waiting is None else max(0.0, (waiting.deadline_ns
-                                                             - time.monotonic_ns()) / 1e9)
-            for key, _ in select(timeout):
+            deadline = None if waiting is None else waiting.deadline_ns
+            for host in self._partial:
+                if host.partial_since is not None:
+                    due = host.partial_since + RESYNC_GAP_NS + 1
+                    deadline = due if deadline is None else min(deadline, due)
+            timeout = None if deadline is None else max(0.0, (deadline - time.monotonic_ns()) / 1e9)
+            self._in_select = True
+            try:
+                ready = select(timeout)
+            finally:
+                self._in_select = False
+            for key, _ in ready:
                 key.data()
+            if self._partial:
+                self._resync(time.monotonic_ns())
             if self._waiting is not None:
                 self._expire()
+
+    def interrupt(self, *_: object) -> None:
+        """The signal handler: out of a blocking wait at once; while a frame is handled, after
+        it (so its forwarding and its capture line go together)."""
+        if self._in_select:
+            raise KeyboardInterrupt
+        self._stopping = True
 
     def close(self) -> None:
         for step in self._cleanup:
@@ -540,7 +591,8 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         if args.ready_file:
             _write_ready_file(args.ready_file, endpoints)
         main = threading.current_thread() is threading.main_thread()
-        previous = signal.signal(signal.SIGTERM, _interrupt) if main else None
+        previous = [(sig, signal.signal(sig, proxy.interrupt)) for sig in
+                    (signal.SIGINT, signal.SIGTERM)] if main else []
         try:
             proxy.run()
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM: every frame so far is on disk
@@ -548,8 +600,8 @@ def cmd_proxy(args: argparse.Namespace) -> int:
         except LinkClosed as exc:
             raise NoReply(str(exc)) from None
         finally:
-            if main:
-                signal.signal(signal.SIGTERM, previous)
+            for sig, handler in previous:
+                signal.signal(sig, handler)
         saved = f", capture {args.capture}" if args.capture else ""
         _say(f"tmcl proxy: stopped after {proxy.forwarded} requests{saved}")
         return 0
@@ -571,11 +623,6 @@ def _open_endpoints(proxy: Proxy, args: argparse.Namespace) -> dict[str, list[st
                 reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
                 raise UsageError(f"{option} {value}: {reason}") from None
     return endpoints
-
-
-def _interrupt(*_: object) -> None:
-    """SIGTERM ends the proxy as Ctrl-C does (out of the blocking select)."""
-    raise KeyboardInterrupt
 
 
 def _write_ready_file(path: str, endpoints: dict[str, list[str]]) -> None:
