@@ -63,7 +63,7 @@ from tmcl_spec.commands import ApplicationStatus, Opcode, Status
 from tmcl_spec.modules import ModuleType, module_type
 from tmcl_spec.numbers import NS_PER_MS, NS_PER_S, to_int32
 from tmcl_spec.package import add_version_option, doc, safe_console
-from tmcl_spec.parameters import AP, GP
+from tmcl_spec.parameters import GP, Motion
 
 #: How the module's answer may lag the simulator's, beyond the round trips (seconds): the
 #: real module answers from its state some time inside its processing, and its chips update
@@ -78,39 +78,30 @@ MAX_SAMPLES = 16
 #: Where a capture has no instants (a hex dump): requests this far apart.
 UNTIMED_STEP_NS = NS_PER_MS
 
-Motion = Literal["steady", "axis", "time", "access"]
+Judged = Literal["steady", "axis", "time", "access"]
 
-#: Axis parameters whose value moves with the axis (firmware numbering, tmcl_spec AP).
-_MOVES_WITH_THE_AXIS = frozenset({
-    AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.TARGET_SPEED, AP.ACTUAL_SPEED,
-    AP.POSITION_REACHED, AP.HOME_SWITCH, AP.RIGHT_SWITCH, AP.LEFT_SWITCH, AP.MEASURED_SPEED,
-    AP.ACTUAL_ACCELERATION, AP.RAMP_MODE, AP.SMARTENERGY_ACTUAL_CURRENT, AP.LOAD,
-    AP.DRIVER_ERROR_FLAGS, AP.ENCODER_POSITION, AP.ABSOLUTE_ENCODER,
-    AP.EXTERNAL_ENCODER_POSITION})
+#: How a read is judged, by how its parameter moves (the tables' ParamSpec.motion column):
+#: exactly (a setting), over its window (moves with the axis, changes at its events, moves
+#: with time or the program), or read once (reading it changes it).
+_JUDGED: dict[Motion, Judged] = {
+    Motion.SETTING: "steady", Motion.EVENTS: "axis", Motion.AXIS: "axis",
+    Motion.TIME: "time", Motion.PROGRAM: "time", Motion.ACCESS: "access"}
 
 
-def _how_it_moves(kind: ModuleType, opcode: int, type_: int, bank: int) -> Motion:
+def _how_it_moves(kind: ModuleType, opcode: int, type_: int, bank: int) -> Judged:
     """How a read's answer moves: ``steady`` (a setting: only a command changes it), ``axis``
-    (moves with the axis), ``time`` (moves with time: the tick timer, a program's state) or
-    ``access`` (reading it changes it: AP 207 clears the error flags, GP 133 draws a number).
-
-    The one place that says it until the parameter tables carry it as a column (issue 32):
-    then this function becomes a look-up of that column.
-    """
+    (moves with the axis or at its events), ``time`` (moves with time: the tick timer, a
+    program's state) or ``access`` (reading it changes it: AP 207 clears the error flags,
+    GP 133 draws a number): the parameter's row says (``ParamSpec.motion``)."""
     if opcode == Opcode.GAP:
         row = kind.axis_parameters.get(type_)
-        number = row.firmware_number if row is not None and row.firmware_number is not None else type_
-        if number == AP.ERROR_FLAGS:
-            return "access"
-        return "axis" if number in _MOVES_WITH_THE_AXIS else "steady"
-    if opcode == Opcode.GGP and bank == 0:
-        if type_ in (GP.RANDOM_NUMBER,):
-            return "access"
-        if type_ in (GP.TICK_TIMER, GP.APPLICATION_STATUS, GP.PROGRAM_COUNTER):
-            return "time"
-    if opcode == Opcode.GET_APPLICATION_STATUS:
+    elif opcode == Opcode.GGP:
+        row = kind.global_parameters.get(bank, {}).get(type_)
+    elif opcode == Opcode.GET_APPLICATION_STATUS:
         return "time"
-    return "steady"
+    else:
+        return "steady"
+    return "steady" if row is None or row.motion is None else _JUDGED[row.motion]
 
 
 #: Commands that only read: the replay may answer them at several instants.
