@@ -125,8 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "mode=usb")
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
     parser.add_argument("--max-connections", type=_positive_int, default=256, metavar="N",
-                        help="clients each TCP endpoint serves at once; a new one past it "
-                             "closes the client silent longest (default 256)")
+                        help="clients each TCP and socketcand endpoint serves at once; past it "
+                             "a newcomer is refused unless a connection is idle (default 256; "
+                             f"{doc('robustness.md')}, Connection limits)")
     parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
                         help="open a virtual serial port and link PATH to it (repeatable); "
                              "mode usb answers any address like the module's USB port, rs485 "
@@ -155,6 +156,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mqtt-faults", action="store_true",
                         help="let MQTT clients inject faults (sim/fault, sim/power_cycle); off by "
                              "default: every client of the broker could silence the module")
+    parser.add_argument("--mqtt-commands", action="store_true",
+                        help="let MQTT clients send TMCL commands that change the module (SAP, "
+                             "STAP, MVP, programs, 137, ...); off by default, since every client "
+                             "of the broker could drive it; reads are always served")
     add_model_options(parser)
     parser.add_argument("--speed", type=positive, default=1.0, metavar="X",
                         help="run simulated time X times faster than real time")
@@ -384,7 +389,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         processing_time=args.processing_time, max_connections=args.max_connections,
                         skip_loops=not args.step_every_instruction,
                         trace_max=args.trace_max, record_max=args.record_max,
-                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults)
+                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults,
+                        mqtt_commands=args.mqtt_commands)
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given

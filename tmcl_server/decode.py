@@ -355,7 +355,11 @@ class CaptureReader:
         self.line_number += 1
         if len(line) > MAX_LINE:
             raise CaptureError(f"line {self.line_number} is longer than {MAX_LINE} characters: not a dump")
-        is_can, frame = _can_line(line)
+        try:
+            is_can, frame = _can_line(line)
+        except ValueError:  # ``can0 123#0``: an odd number of hex digits (issue 36, N9)
+            raise CaptureError(f"line {self.line_number}: a CAN log line whose data is not "
+                               "whole bytes of hex") from None
         if is_can:
             if frame is not None:
                 yield frame

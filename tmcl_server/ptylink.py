@@ -12,10 +12,12 @@ are in tmcl_server/platform.py.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import stat
 from pathlib import Path
 
-from tmcl_server.platform import lock_exclusively
+from tmcl_server.platform import lock_exclusively, open_no_follow
 
 
 class LinkInUseError(FileExistsError):
@@ -59,7 +61,11 @@ class LinkLock:
             raise FileNotFoundError(f"cannot create the pty link {link}: directory "
                                     f"{link.parent} does not exist")
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = open_no_follow(self.path, os.O_RDWR | os.O_CREAT)  # N5: a planted link
+            if not stat.S_ISREG(os.fstat(fd).st_mode):  # a FIFO or device planted there
+                os.close(fd)
+                raise OSError(errno.EEXIST, "is not a regular file: refusing it as the lock",
+                              str(self.path))
             try:
                 lock_exclusively(fd)
             except BlockingIOError:

@@ -82,6 +82,18 @@ def positive_count(text: str) -> int:
     return value
 
 
+#: ``tmcl program step N`` steps at most this many instructions (one request each): a
+#: mistyped count must not keep the tool busy for hours (issue 36, N9).
+MAX_STEPS = 10_000
+
+
+def step_count(text: str) -> int:
+    value = positive_count(text)
+    if value > MAX_STEPS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_STEPS} steps at once, got {value}")
+    return value
+
+
 def _connection_options(parser: argparse.ArgumentParser, suppress: bool) -> None:
     """--tcp/--serial/--connection/--address/--timeout, before or after the subcommand."""
     default = argparse.SUPPRESS if suppress else None
@@ -188,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--wait-timeout", type=positive, default=600.0, metavar="SECONDS")
     action("stop", "stop the program (128)")
     step = action("step", "execute single instructions (130)")
-    step.add_argument("steps", nargs="?", type=positive_count, default=1)
+    step.add_argument("steps", nargs="?", type=step_count, default=1)
     status = action("status", "state, program counter, accumulator and X (135)")
     status.add_argument("--json", action="store_true")
     read = action("read", "read the program back (134) as source")
