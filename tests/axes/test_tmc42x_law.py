@@ -12,19 +12,21 @@ holds it to the product's law on everything, from states anywhere in the registe
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from axes.chips.tmc42x.registers import HALF24, MASK24, Irq, RampMode, Reg
 from axes.chips.tmc42x.tmc4210 import TMC4210
-from axes.core import Stop
+from axes.core import ChipModel, Stop
 from tests.axes.test_tmc4210 import _Strip
 
 #: Attributes that are the engine's bookkeeping, not the chip's state.
 _BOOKKEEPING = {"_work"}
 
 
-def _state(chip: TMC4210) -> dict:
+def _state(chip: ChipModel) -> dict:
     return {name: value for name, value in vars(chip).items() if name not in _BOOKKEEPING}
 
 
@@ -80,17 +82,24 @@ def _chip(state: dict, board: _Strip | None) -> TMC4210:
     return chip
 
 
+def run_beside_the_law(chip: ChipModel, law: ChipModel, until: int, budget: int | None,
+                       state: Callable[[ChipModel], dict]) -> None:
+    """Run ``chip`` to ``until`` (on a work ``budget``) and, at each return of ``run`` (a stop,
+    the budget spent, or ``until``), step ``law`` (its copy) to the same tick by the law:
+    the same ``Stop`` there and none before, the same ``state``.  (Both chips' tests.)"""
+    while chip.t < until:
+        stop = chip.run(until, budget)
+        assert chip.t <= until
+        assert law.step(chip.t) is stop, f"at tick {chip.t}"
+        assert law.t == chip.t
+        assert state(law) == state(chip), f"at tick {chip.t}"
+
+
 def _hold_equal(state: dict, board: _Strip | None, script: list) -> None:
     chip = _chip(state, board)
     law = chip.clone()
     for ticks, budget, write in script:
-        until = chip.t + ticks
-        while chip.t < until:  # each return of run: a stop, the budget spent, or until
-            stop = chip.run(until, budget)
-            assert chip.t <= until
-            assert law.step(chip.t) is stop, f"at clk32 tick {chip.t}"
-            assert law.t == chip.t
-            assert _state(law) == _state(chip), f"at clk32 tick {chip.t}"
+        run_beside_the_law(chip, law, chip.t + ticks, budget, _state)
         if write is not None:
             chip.write(*write)
             law.write(*write)
