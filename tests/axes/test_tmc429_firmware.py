@@ -185,7 +185,7 @@ def _random_moves_case(setting: tuple[int, int, int, int], targets: list[int]) -
 
 def test_the_tmc4210_core_no_longer_overshoots_where_v_min_missed_late_braking() -> None:
     """977 pps at 430 pps²: PULSE_DIV 8, RAMP_DIV 13, A_MAX 1891 (docs/motion.md, V_MIN)."""
-    axis = TMC4210Axis(0)
+    axis = TMC4210Axis(0, TMCM6212_AXIS_PARAMETERS)
     axis.set_parameter(AP.MAX_SPEED, 977)
     axis.set_parameter(AP.MAX_ACCELERATION, 430)
     for target in (1259, 1290, 2000, 0):

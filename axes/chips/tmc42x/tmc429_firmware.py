@@ -33,7 +33,6 @@ from axes.interface import Axis
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld
 from tmcl_spec.parameters import AP, ParamSpec
-from tmcl_spec.tmc429_modules import AXIS_PARAMETERS_6110
 
 #: IF_CONFIGURATION at power-up: Step/Dir outputs, a right switch input per motor (REFR1..3),
 #: nINT on its own pin (the stepRocker firmware's Init429).
@@ -193,7 +192,7 @@ class TMC429Driver(TMC42xDriver):
 class TMC429Axis(AxisFirmware):
     """One axis of a TMC429 module: the TMCL firmware layer over a TMC429 motor and its TMC262."""
 
-    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS_6110,
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec],
                  world: AxisWorld | None = None, clock_hz: int | None = None, *,
                  chip: TMC429 | None = None, motor: int | None = None) -> None:
         if chip is None:  # an axis of its own: motor 0 of a chip with one TMC262
