@@ -679,7 +679,8 @@ def test_braking_batches_are_the_reference_ramp_ticks(
         ref.run_until(chip.ramp_next + (1 << ramp_div) - 1)
         assert abs(signed(ref.x_actual, 24)) >= steps_to_interest
         return
-    ticks, w_before, w_after, acc_after, steps, mag = down
+    ticks, w_after, acc_after, steps, a_step, mag, _ = down
+    w_before = w_after - a_step
     assert 1 <= ticks <= max_ticks and steps < steps_to_interest
     ref.run_until(chip.ramp_next - 1 + ((ticks - 1) << ramp_div))
     v_before = ref.v
