@@ -1,36 +1,35 @@
 """The TMCL firmware layer of one axis, whatever motion-controller chip is under it.
 
-:class:`AxisFirmware` implements :class:`axes.interface.Axis`: the axis parameters, the
-reference-search state machine (plans in axes/reference_search.py), stallGuard, the encoder
-and its deviation, the motor current, the events a host or a program sees, and time.  It
-reaches its chip only through a *driver* (:class:`axes.core.ChipDriver`), the chip-specific
-half of the firmware that speaks the chip's SPI datagrams (``axes/chips/tmc42x/tmc4210_firmware.py`` for
-the TMC4210).  The mechanics and the input stage are the :class:`axes.board.AxisBoard`.
-
-Time: the axis keeps the simulated time it was last advanced to.  To find its next event it
-runs a *copy* of the chip forward (:meth:`AxisFirmware._lookahead`); :meth:`advance_to` then
-adopts that copy at the event instant, so each stretch of motion is computed once.  Every
-modelling choice is explained in docs/motion.md.
+:class:`AxisFirmware` is what the TMCL commands and axis parameters mean for an axis (SAP/GAP,
+ROR/MVP/MST, RFS, stall and deviation stops, the current, the events a host or a program
+sees), over a *driver* (:class:`axes.core.ChipDriver`): the chip-specific half of the
+firmware, which speaks the chip's SPI datagrams (``axes/chips/tmc42x/tmc4210_firmware.py``).
+What it relies on lives in files of its own: the look-ahead and loop skipping's forecasts
+(axes/forecast.py), the reference search (axes/reference_search.py), the encoder
+(axes/encoder.py), stallGuard2 and coolStep (axes/stallguard.py), and the world and faults
+around it on its :class:`axes.board.AxisBoard` (axes/rig.py).  Time: the axis keeps the
+simulated time it was last advanced to; :meth:`advance_to` adopts the look-ahead's copy of
+the chip at each event, so each stretch of motion is computed once.  Every modelling choice
+is explained in docs/motion.md.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 
 from axes import stallguard
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
-from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind, AxisStatus
-from axes.reference_search import ReferenceSearch, reference_plan, reference_point
+from axes.encoder import Encoder
+from axes.forecast import AxisForecast, Lookahead
+from axes.interface import AxisEvent, AxisEventKind, AxisStatus
+from axes.reference_search import ReferenceSearcher
+from axes.rig import RiggedAxis
 from axes.stallguard import CoolStep
-from axes.world import AxisWorld, LoadZone, Switch
+from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_MS, to_int32
-from tmcl_spec.parameters import AP, ParamSpec
+from tmcl_spec.parameters import AP, Motion, ParamSpec
 
-#: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
-#: it the look-ahead stops short and the axis looks again from there when that time comes.
-LOOKAHEAD_BUDGET = 2_000
 #: How often the firmware samples stallGuard while it could stall but does not yet.
 STALL_POLL_NS = NS_PER_MS
 
@@ -57,13 +56,6 @@ FIRMWARE_DEFAULTS: dict[int, int] = {
 #: disable and polarity parameters the firmware acts on.
 _LIMIT_SWITCH_BITS = {AP.RIGHT_LIMIT_SWITCH: (AP.RIGHT_DISABLE, AP.RIGHT_POLARITY),
                       AP.LEFT_LIMIT_SWITCH: (AP.LEFT_DISABLE, AP.LEFT_POLARITY)}
-#: An encoder prescaler's (AP 210 on modules without AP 202) unit: AP 209 = counts * p / 512;
-#: its low five bits select special encoder functions (not modelled).
-PRESCALER_UNIT = 512
-PRESCALER_FUNCTION_BITS = 0x1F
-
-
-# == the axis ==================================================================================
 
 
 _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
@@ -89,10 +81,6 @@ _LIVE_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.ACTUAL_
 #: encoder set, a rotation, a ramp-mode stop): the others change nothing when written unchanged.
 _ACTION_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.ACTUAL_POSITION, AP.TARGET_SPEED,
                                 AP.ENCODER_POSITION, AP.RAMP_MODE})
-#: Live parameters that change only at the chip's notable instants (switch edges are marks):
-#: steady between two events even while the axis moves.
-_LEVEL_PARAMETERS = frozenset({AP.TARGET_POSITION, AP.LEFT_SWITCH, AP.RIGHT_SWITCH,
-                               AP.HOME_SWITCH, AP.ERROR_FLAGS})
 #: Parameters whose writes re-plan the stop switches.
 _STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, AP.SOFT_STOP_FLAG,
                               AP.REFERENCE_SWITCH_TOLERANCE, AP.VIRTUAL_STOP_LEFT,
@@ -100,14 +88,7 @@ _STOP_PARAMETERS = frozenset({AP.LEFT_DISABLE, AP.RIGHT_DISABLE, AP.SOFT_STOP, A
                               AP.VIRTUAL_STOP_MODE})
 
 
-@dataclass(slots=True)
-class _Lookahead:
-    chip: ChipModel
-    stop: Stop | None  # None: nothing happened up to the horizon
-    time_ns: int
-
-
-class AxisFirmware(Axis):
+class AxisFirmware(RiggedAxis):
     """One TMCL axis: axis parameters in, datagrams to its chip (through the driver) out.
 
     A core's axis class subclasses it with the :class:`axes.interface.Axis` constructor and
@@ -138,32 +119,29 @@ class AxisFirmware(Axis):
         self.motor_driver: MotorDriverLink | None = self.driver.motor_driver
         #: Chip-specific parameters the driver reads from its chip (e.g. AP 135, AP 138).
         self._chip_live: frozenset[int] = frozenset(self.driver.live_parameters & known)
-        #: AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps).
-        self._encoder_prescaler = AP.FULLSTEPS not in known
-        #: AP 212 counts microsteps with a prescaler (the TMC429 modules) and on the TMC4361
-        #: modules (whose own numbering has a DSTOP; the chip compares ENC_POS_DEV, in
-        #: microsteps); else encoder counts (the TMCM-6212).
-        self._deviation_in_microsteps = (self._encoder_prescaler
-                                         or AP.STOP_DECELERATION in known)
+        motions = {self._keys.get(n, n): spec.motion for n, spec in parameters.items()
+                   if spec.motion is not None}
+        self._check_motions(motions)
+        #: The look-ahead, and the forecasts loop skipping asks for (axes/forecast.py).
+        self.forecast = AxisForecast(self, motions)
+        # AP 210 is an encoder prescaler where the table has no AP 202 (motor full steps);
+        # AP 212 counts microsteps with a prescaler (the TMC429 modules) and on the TMC4361
+        # modules (whose own numbering has a DSTOP; the chip compares ENC_POS_DEV, in
+        # microsteps); else encoder counts (the TMCM-6212).
+        prescaler = AP.FULLSTEPS not in known
+        self.encoder = Encoder(self.board, self._params, prescaler=prescaler,
+                               deviation_in_microsteps=prescaler or AP.STOP_DECELERATION in known)
         self._now_ns = 0
         self._pending: list[AxisEvent] = []
-        #: The chip's next notable instant (None: nothing ahead), once computed since the last
-        #: change (``_lookahead_known``).
-        self._lookahead_cache: _Lookahead | None = None
-        #: The last crossing found: (the look-ahead it holds for, values, time).
-        self._crossing: tuple[_Lookahead, tuple[int, ...], int] | None = None
-        self._lookahead_known = False
         self._target = 0  # AP 0, 32 bit
         self._positioning = False
         self._awaiting_arrival = False
         self._velocity_command = 0
-        self._rfs: ReferenceSearch | None = None
-        self._rfs_state = 0
+        #: The reference search (axes/reference_search.py).
+        self.homing = ReferenceSearcher(self, self._params)
         self._errors = 0
         self._standstill_since: int | None = 0
         self._standby = False
-        self._encoder_offset = 0  # encoder counts added to what the mechanics give
-        self._encoder_mech_base = 0  # mechanical position at which slip was last rebased
         self._stall_watch = False
         self._motion_origin = 0  # motor position where the motion last started
         #: The current scale coolStep regulates (axes/stallguard.py).
@@ -186,23 +164,37 @@ class AxisFirmware(Axis):
         """AP 1, as of the last read from the chip."""
         return self.driver.position
 
+    def _check_motions(self, motions: Mapping[int, Motion]) -> None:
+        """The table's motion column and what the firmware does agree (F2 in axes/forecast.py):
+        a row the firmware reads from the chip is not a setting, and a row it keeps changes
+        only by a command or at one of its events.  Refused otherwise, at construction."""
+        for number, motion in motions.items():
+            live = number in _LIVE_PARAMETERS or number in self._chip_live
+            # a row the firmware keeps changes by a command, or at one of its events (AP 196)
+            kept = motion is Motion.SETTING or motion is Motion.EVENTS
+            if motion is Motion.SETTING if live else not kept:
+                raise ValueError(f"axis parameter {number}: the table says it {motion.value}, "
+                                 f"but the firmware {'reads it from the chip' if live else 'keeps it'}")
+
     # == time ==================================================================================
 
     def _invalidate(self) -> None:
-        self._lookahead_known = False
+        self.forecast.known = False  # AxisForecast.invalidate, inlined: every command runs it
 
-    def _lookahead(self) -> _Lookahead | None:
-        """Run a copy of the chip to its next notable instant (or the horizon)."""
-        if self._lookahead_known:
-            return self._lookahead_cache
-        twin = self.chip.clone()
-        horizon_ns = max(self._now_ns, self.chip.ns_at(twin.t)) + self.driver.horizon_ns()
-        stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
-        at_rest = stop is None and twin.at_rest()
-        result = None if at_rest else _Lookahead(twin, stop, twin.ns_at(twin.t))
-        self._lookahead_cache = result
-        self._lookahead_known = True
-        return result
+    def _lookahead(self) -> Lookahead | None:
+        forecast = self.forecast  # AxisForecast.lookahead's cache, inlined: a hot path
+        return forecast.cached if forecast.known else forecast.lookahead()
+
+    # the forecast's view of the axis (axes.forecast.ForecastedAxis)
+
+    def present_ns(self) -> int:
+        return self._now_ns
+
+    def target_position(self) -> int:
+        return self._target
+
+    def error_flags(self) -> int:
+        return self._errors
 
     def _timer_due(self) -> int | None:
         """The firmware's own next deadline (standby current, stallGuard sampling)."""
@@ -245,7 +237,7 @@ class AxisFirmware(Axis):
                 self._react(ahead.stop)
             elif timer is not None and timer <= t_ns:
                 self._now_ns = max(self._now_ns, timer)
-                self._sync()
+                self.sync()
                 self._on_timer()
             else:
                 break
@@ -256,7 +248,7 @@ class AxisFirmware(Axis):
         events, self._pending = self._pending, []
         return events
 
-    def _sync(self) -> None:
+    def sync(self) -> None:
         """Bring the chip up to ``_now_ns`` and read the position (before any command)."""
         chip = self.driver.chip
         until = chip.ticks_at(self._now_ns)
@@ -272,15 +264,15 @@ class AxisFirmware(Axis):
         self.driver.read_position()
         if (self._params[AP.SMARTENERGY_HYSTERESIS_START] or self._coolstep.scale is not None
                 or (self.motor_driver is not None and self.motor_driver.regulating)):
-            self._update_coolstep()  # _coolstep_follows_reads, inlined: every read runs it
+            self._update_coolstep()  # coolstep_follows_reads, inlined: every read runs it
 
-    def _coolstep_follows_reads(self) -> bool:
+    def coolstep_follows_reads(self) -> bool:
         """coolStep regulates (or is set up to): its current follows every read's load."""
         return bool(self._params[AP.SMARTENERGY_HYSTERESIS_START]
                     or self._coolstep.scale is not None
                     or (self.motor_driver is not None and self.motor_driver.regulating))
 
-    def _emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
+    def emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
         self._pending.append(AxisEvent(self._now_ns, self.index, kind, active))
 
     # == reacting to the chip ==================================================================
@@ -295,24 +287,20 @@ class AxisFirmware(Axis):
             self.driver.continue_move(self._target)
         if (stop in (Stop.ARRIVED, Stop.STOPPED) or switch_stopped) and not moving:
             self._standstill_since = self._now_ns
-            if not self._positioning and self._rfs is None:
+            if not self._positioning and not self.homing.active:
                 self._target = self._position  # MVP REL after a rotation starts from here
-            if self._positioning and self._awaiting_arrival and self._position == self._target:
-                self._awaiting_arrival = False
-                if self._rfs is None:
-                    self._emit(AxisEventKind.TARGET_REACHED)
-        if self._rfs is not None:
-            self._rfs_step(self._rfs)
+            self._conclude_move()  # arrived and standing: "target reached"
+        self.homing.step()
         self._check_stall()
         self._check_deviation()
-        self._update_marks()
+        self.update_marks()
 
     def _on_timer(self) -> None:
         if (self._standstill_since is not None and not self._standby and self._now_ns
                 >= self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS):
             self._standby = True
             self._current_changed()
-            self._emit(AxisEventKind.CURRENT_CHANGED, False)
+            self.emit(AxisEventKind.CURRENT_CHANGED, False)
         self._check_stall()
 
     def _check_levels(self) -> None:
@@ -321,7 +309,7 @@ class AxisFirmware(Axis):
                 (AxisEventKind.LEFT_SWITCH, AxisEventKind.RIGHT_SWITCH, AxisEventKind.HOME_SWITCH),
                 self._levels, levels, strict=True):
             if old != new:
-                self._emit(kind, new)
+                self.emit(kind, new)
         self._levels = levels
 
     def _motion_started(self) -> None:
@@ -330,13 +318,13 @@ class AxisFirmware(Axis):
         if self._standby:
             self._standby = False
             self._current_changed()
-            self._emit(AxisEventKind.CURRENT_CHANGED, True)
+            self.emit(AxisEventKind.CURRENT_CHANGED, True)
         self._errors = 0
 
     # == motion ================================================================================
 
     def conclude_move(self) -> None:
-        self._sync()
+        self.sync()
         self._conclude_move()
 
     def _conclude_move(self) -> None:
@@ -346,17 +334,17 @@ class AxisFirmware(Axis):
         the firmware's poll of the chip's target flag would see it, not lost with the move."""
         if self._positioning and self._awaiting_arrival and self._position == self._target:
             self._awaiting_arrival = False
-            if self._rfs is None:
-                self._emit(AxisEventKind.TARGET_REACHED)
+            if not self.homing.active:
+                self.emit(AxisEventKind.TARGET_REACHED)
 
-    def _start_velocity(self, speed: int) -> None:
+    def start_velocity(self, speed: int) -> None:
         self._conclude_move()
         self.driver.start_velocity(speed)
         self._positioning = False
         self._awaiting_arrival = False
         self._motion_started()
 
-    def _start_positioning(self, target: int, top_speed: int) -> None:
+    def start_positioning(self, target: int, top_speed: int) -> None:
         self._conclude_move()
         self._target = target
         self.driver.start_positioning(target, top_speed)
@@ -366,32 +354,32 @@ class AxisFirmware(Axis):
         if self._position == self._target and not self.driver.moving():
             self._awaiting_arrival = False
             self._standstill_since = self._now_ns
-            if self._rfs is None:
-                self._emit(AxisEventKind.TARGET_REACHED)
+            if not self.homing.active:
+                self.emit(AxisEventKind.TARGET_REACHED)
 
     def _rotating_at(self, velocity: int) -> bool:
         """Already doing what ROR ``velocity`` asks, with nothing for it to reset (the
         firmware's own records: a raw register write is noticed at the next real command)."""
         return (self._velocity_command == velocity and self._params[AP.TARGET_SPEED] == velocity
-                and not self._positioning and self._rfs is None and self._errors == 0
+                and not self._positioning and not self.homing.active and self._errors == 0
                 and self._standstill_since is None)
 
     def rotate(self, velocity: int) -> bool:
         if self._rotating_at(velocity):
             return False
         self._command()
-        self._abort_search()
+        self.homing.abort()
         self._velocity_command = self._params[AP.TARGET_SPEED] = velocity
-        self._start_velocity(velocity)
+        self.start_velocity(velocity)
         self._after_command()
         return True
 
     def stop(self) -> bool:
         if (self._velocity_command == 0 and self._params[AP.TARGET_SPEED] == 0
-                and not self._positioning and self._rfs is None and self._errors == 0):
+                and not self._positioning and not self.homing.active and self._errors == 0):
             return False  # already stopping (or stopped) in velocity mode: nothing to change
         self._command()
-        self._abort_search()
+        self.homing.abort()
         self._velocity_command = self._params[AP.TARGET_SPEED] = 0
         self._conclude_move()
         self.driver.ramp_stop()
@@ -403,11 +391,11 @@ class AxisFirmware(Axis):
 
     def emergency_stop(self) -> None:
         self._command()
-        self._abort_search()
-        self._hard_stop()
+        self.homing.abort()
+        self.hard_stop()
         self._after_command()
 
-    def _hard_stop(self) -> None:
+    def hard_stop(self) -> None:
         """Stop within one chip tick, at once (switch, stall, deviation, heartbeat)."""
         self._conclude_move()
         self.driver.hard_stop()
@@ -417,129 +405,61 @@ class AxisFirmware(Axis):
         self._velocity_command = 0
         if self._standstill_since is None:
             self._standstill_since = self._now_ns
-        self._update_marks()
+        self.update_marks()
 
     def move_to(self, target: int) -> None:
         self._command()
-        self._abort_search()
-        self._start_positioning(to_int32(target), self._params[AP.MAX_SPEED])
+        self.homing.abort()
+        self.start_positioning(to_int32(target), self._params[AP.MAX_SPEED])
         self._after_command()
 
     def _command(self) -> None:
         """Every host command first brings the chip to the present."""
-        self._sync()
+        self.sync()
         self._invalidate()
 
     def _after_command(self) -> None:
         self._check_stall()
-        self._update_marks()
+        self.update_marks()
         self._invalidate()
 
-    # == reference search ======================================================================
+    # == reference search (axes/reference_search.py) =============================================
 
     def reference_search(self, action: int) -> int:
+        homing = self.homing
         if action == 2:
-            self._sync()
-            return self._rfs_state
+            self.sync()
+            return homing.state
         self._command()
         if action == 1:
-            if self._rfs is not None:
-                self._abort_search()
+            if homing.active:
+                homing.abort()
                 self.stop()
             return 0
-        plan, inverted = reference_plan(self._params[AP.RFS_MODE])
-        self._abort_search()
-        self._rfs = ReferenceSearch(plan, inverted)
+        search = homing.plan(self._params[AP.RFS_MODE])
+        homing.abort()
         self._errors = 0
-        self.driver.configure_stops(searching=True)
-        self._rfs_enter()
+        homing.begin(search)
         self._after_command()
         return 0
 
-    def _abort_search(self) -> None:
-        if self._rfs is not None:
-            self._rfs = None
-            self._rfs_state = 0
-            self.driver.configure_stops(searching=False)
+    # the search's view of the axis (axes.reference_search.SearchingAxis)
 
-    def _search_level(self, search: ReferenceSearch, switch: str) -> bool:
-        left, right, home = self._levels
-        if switch == "home":
-            return home != search.inverted_home
-        return left if switch == "left" else right
+    def switch_levels(self) -> tuple[bool, bool, bool]:
+        return self._levels
 
-    def _rfs_enter(self) -> None:
-        """Start the current phase, or finish phases whose condition already holds."""
-        search = self._rfs
-        while search is not None:
-            self._rfs_state = search.index + 1
-            phase = search.phase
-            if phase.kind == "finish":
-                self._rfs_finish_move(search)
-                return
-            want_active = phase.kind != "leave"
-            if self._search_level(search, phase.switch) == want_active:
-                self._rfs_phase_done(search)
-                search = self._rfs
-                continue
-            fast = phase.kind == "seek"
-            speed = self._params[AP.RFS_SPEED if fast else AP.RFS_SWITCH_SPEED]
-            search.direction = phase.direction
-            if phase.reverse_on and self._search_level(search, phase.reverse_on):
-                self._rfs_reverse(search)
-            self._start_velocity(search.direction * speed)
-            return
+    def actual_position(self) -> int:
+        return self._position
 
-    def _rfs_phase_done(self, search: ReferenceSearch) -> None:
-        phase = search.phase
-        if phase.record:
-            search.points[phase.record] = self._position
-        self._hard_stop()
-        search.index += 1
+    def arrived(self) -> bool:
+        return not self._awaiting_arrival and self._position == self._target
 
-    def _rfs_step(self, search: ReferenceSearch) -> None:
-        """React to switch levels during a search (called at every notable instant)."""
-        phase = search.phase
-        if phase.kind == "finish":
-            if not self._awaiting_arrival and self._position == self._target:
-                self._rfs_complete()
-            return
-        if (phase.reverse_on and not search.reversed_once
-                and self._search_level(search, phase.reverse_on)):
-            self._rfs_reverse(search)
-            self._hard_stop()
-            self._start_velocity(search.direction * self._params[AP.RFS_SPEED])
-            self._update_marks()
-            return
-        want_active = phase.kind != "leave"
-        if self._search_level(search, phase.switch) == want_active:
-            self._rfs_phase_done(search)
-            self._rfs_enter()
+    def configure_stops(self, searching: bool) -> None:
+        self.driver.configure_stops(searching=searching)
 
-    def _rfs_reverse(self, search: ReferenceSearch) -> None:
-        """Modes 5/6 hit the limit switch: search the other way, and calibrate that way too."""
-        search.reversed_once = True
-        search.direction = -search.direction
-        for phase in search.phases[search.index + 1:]:
-            phase.direction = -phase.direction
-
-    def _rfs_finish_move(self, search: ReferenceSearch) -> None:
-        zero, distance = reference_point(search.points)
-        search.points["zero"] = zero
-        if distance is not None:
-            self._params[AP.SWITCH_DISTANCE] = distance
-        self._start_positioning(zero, self._params[AP.RFS_SWITCH_SPEED])
-        if not self._awaiting_arrival:
-            self._rfs_complete()
-
-    def _rfs_complete(self) -> None:
-        self._params[AP.LAST_REFERENCE] = self._position
-        self._rfs = None
-        self._rfs_state = 0
-        self.driver.configure_stops(searching=False)
+    def zero_counters(self) -> None:
         self._set_position(0)
-        self._set_encoder(0)
-        self._emit(AxisEventKind.REFERENCE_SEARCH_DONE)
+        self.encoder.set(0, self.chip.motor_position)
 
     # == stallGuard, encoder, current ==========================================================
 
@@ -550,15 +470,10 @@ class AxisFirmware(Axis):
         """AP 206: the stallGuard2 reading, after threshold (AP 174) and filter (AP 173)."""
         if self.motor_driver is not None:
             return self.motor_driver.load()
-        threshold = self._params[AP.STALLGUARD_THRESHOLD]
-        if not self._params[AP.STALLGUARD_FILTER]:
-            return stallguard.reading(self.board.world.load_at(self._mechanical()), threshold)
-        # at rest the driver holds what it measured over the last full steps it travelled
-        return stallguard.filtered_reading(self.board.world.load_at, self._mechanical(),
-                                           self.driver.heading() or self._travel_direction,
-                                           threshold)
+        return stallguard.load_reading(self._params, self.board.world.load_at, self._mechanical(),
+                                       self.driver.heading() or self._travel_direction)
 
-    def _actual_speed(self) -> int:
+    def actual_speed(self) -> int:
         return self.driver.actual_speed()
 
     def _check_stall(self) -> None:
@@ -576,11 +491,11 @@ class AxisFirmware(Axis):
             motor_driver = self.motor_driver
             stalled = (self._driver_stalled(motor_driver) if motor_driver is not None
                        else self._load() == 0)
-            if stalled and abs(self._actual_speed()) >= threshold:
-                self._abort_search()
-                self._hard_stop()
+            if stalled and abs(self.actual_speed()) >= threshold:
+                self.homing.abort()
+                self.hard_stop()
                 self._errors |= ERROR_STALL
-                self._emit(AxisEventKind.STALL)
+                self.emit(AxisEventKind.STALL)
             elif stalled or stallguard.reading(self.board.world.load_at(self._mechanical()),
                                                self._params[AP.STALLGUARD_THRESHOLD]) == 0:
                 watching = True
@@ -599,101 +514,28 @@ class AxisFirmware(Axis):
 
     def _update_coolstep(self) -> None:
         """Bring coolStep's current scale up to the present (called at every position read)."""
-        speed = abs(self._actual_speed()) if self._standstill_since is None else 0
+        speed = abs(self.actual_speed()) if self._standstill_since is None else 0
         if self.motor_driver is not None:
             self.motor_driver.regulate(speed)
             return
         self._coolstep.update(self._params, self._mechanical(), speed, self._load())
 
-    def _encoder_counts_per_rev(self) -> int:
-        """The world's encoder, or the module's own where the world names none."""
-        return self.board.world.encoder_counts_per_rev or self.builtin_encoder_counts
-
-    def _mechanical_per_count(self) -> float:
-        """World units (1/256 of a full step) per encoder count."""
-        return self.board.world.motor_fullsteps_per_rev * 256 / self._encoder_counts_per_rev()
-
-    def _encoder_counts(self) -> int:
-        world = self.board.world
-        mech = self._mechanical()
-        seen = (mech - self._encoder_mech_base) * (1.0 - world.encoder_slip)
-        return self._encoder_offset + int(seen // self._mechanical_per_count())
-
-    def _absolute_encoder(self) -> int:
-        """AP 215 (sensOstep modules): the rotor's angle within one turn, in encoder counts
-        (0..counts per revolution - 1), whatever AP 209 was set to."""
-        return (int(self._mechanical() // self._mechanical_per_count())
-                % self._encoder_counts_per_rev())
-
-    def _counts_per_microstep(self) -> float:
-        """Encoder counts per unit of AP 209: AP 210 counts per revolution of AP 202 full
-        steps, or (modules without AP 202) AP 209 = counts * AP 210 / 512, a prescaler."""
-        if self._encoder_prescaler:
-            prescaler = self._params[AP.ENCODER_RESOLUTION] & ~PRESCALER_FUNCTION_BITS
-            return PRESCALER_UNIT / prescaler if prescaler > 0 else 0.0
-        resolution = self._params[AP.ENCODER_RESOLUTION]
-        microsteps = self._params[AP.FULLSTEPS] << self._params[AP.MICROSTEPS]
-        return resolution / microsteps if microsteps else 0.0
-
-    def _encoder_position(self) -> int:
-        ratio = self._counts_per_microstep()
-        return to_int32(round(self._encoder_counts() / ratio)) if ratio else 0
-
-    def _set_encoder(self, microsteps: int) -> None:
-        counts = round(microsteps * self._counts_per_microstep())
-        self._encoder_offset += counts - self._encoder_counts()
-
-    def _rebase_encoder(self) -> None:
-        """Keep the encoder reading continuous when slip or the mechanics mapping change."""
-        self._encoder_offset = self._encoder_counts()
-        self._encoder_mech_base = self._mechanical()
-
-    def _deviation(self) -> float:
-        """|AP 1 - AP 209| in the unit of AP 212: encoder counts, or microsteps (the TMC429
-        and TMC4361 modules)."""
-        gap = abs(self._position - self._encoder_position())
-        return gap if self._deviation_in_microsteps else gap * self._counts_per_microstep()
-
-    def _deviation_limit_steps(self, limit: int) -> float:
-        """AP 212 in microsteps of AP 1."""
-        return limit if self._deviation_in_microsteps else limit / self._counts_per_microstep()
-
     def _check_deviation(self) -> None:
         limit = self._params[AP.MAX_DEVIATION]
-        if limit and self._standstill_since is None and self._deviation() > limit:
-            self._abort_search()
-            self._hard_stop()
+        if limit and self._standstill_since is None and self.encoder.deviation(
+                self._position, self.chip.motor_position) > limit:
+            self.homing.abort()
+            self.hard_stop()
             self._errors |= ERROR_DEVIATION
-            self._emit(AxisEventKind.DEVIATION)
+            self.emit(AxisEventKind.DEVIATION)
 
-    def _deviation_mark(self, direction: int) -> int | None:
-        """Motor position where the deviation will first exceed AP 212 (slip > 0, or stuck).
-
-        The estimate is refined at the mark itself: if the limit is not yet exceeded there, a
-        new mark at least one step further is set, so the event lands on the exact step.
-        """
-        limit = self._params[AP.MAX_DEVIATION]
-        ratio = self._counts_per_microstep()
-        world = self.board.world
-        slip = 1.0 if self.board.stuck else world.encoder_slip  # stuck: the encoder sees nothing
-        if not limit or not ratio or slip <= 0:
-            return None
-        per_count = self._mechanical_per_count()
-        encoder_per_step = (1.0 - slip) * self.board.scale / per_count / ratio
-        rate = direction * (1.0 - encoder_per_step)  # change of AP1 - AP209 per step
-        if rate == 0:
-            return None
-        deviation = self._position - self._encoder_position()
-        steps = self._deviation_limit_steps(limit)
-        room = (steps - deviation) / rate if rate > 0 else (steps + deviation) / -rate
-        return self.chip.motor_position + direction * max(1, int(room))
-
-    def _update_marks(self) -> None:
+    def update_marks(self) -> None:
         marks = []
         direction = self.driver.heading()
         if direction:
             self._travel_direction = direction
-            mark = self._deviation_mark(direction)
+            mark = self.encoder.deviation_mark(self._position, self.chip.motor_position,
+                                               direction)
             if mark is not None:
                 marks.append(mark)
         if self._positioning and self._awaiting_arrival:
@@ -708,11 +550,7 @@ class AxisFirmware(Axis):
         load, and AP 7 after the power-down delay."""
         if self._standby:
             return self._params[AP.STANDBY_CURRENT]
-        run = self._params[AP.MAX_CURRENT]
-        scale = self._coolstep_scale()
-        if scale is None:
-            return run
-        return run * (scale + 1) // ((run >> stallguard.CURRENT_SCALE_SHIFT) + 1)
+        return stallguard.run_current(self._params[AP.MAX_CURRENT], self._coolstep_scale())
 
     def _coolstep_scale(self) -> int | None:
         """The current scale coolStep regulates to (0..31), None while it does not."""
@@ -745,20 +583,20 @@ class AxisFirmware(Axis):
         if self._keys:
             number = self._keys.get(number, number)
         if number == AP.ACTUAL_POSITION:  # first: what a program polls most
-            self._sync()
+            self.sync()
             return self.driver.position
         if number not in _LIVE_PARAMETERS:
             if number in self._chip_live:
-                self._sync()
+                self.sync()
                 return self.driver.read_parameter(number)
             return self._params[number]  # configuration: no need to bring the chip up to date
-        if number == AP.POSITION_REACHED and self._short_of_target():
+        if number == AP.POSITION_REACHED and self.forecast.short_of_target():
             return 0
-        self._sync()
+        self.sync()
         if number == AP.TARGET_POSITION:
             return self._target
         if number == AP.ACTUAL_SPEED:
-            return self._actual_speed()
+            return self.actual_speed()
         if number == AP.POSITION_REACHED:
             return int(self._position == self._target)
         if number in (AP.LEFT_SWITCH, AP.RIGHT_SWITCH, AP.HOME_SWITCH):
@@ -770,126 +608,33 @@ class AxisFirmware(Axis):
             flags, self._errors = self._errors, 0
             return flags
         if number == AP.ENCODER_POSITION:
-            return self._encoder_position()
+            return self.encoder.position(self.chip.motor_position)
         if number == AP.SMARTENERGY_ACTUAL_CURRENT:
             return self._current_scale()
         if number == AP.MEASURED_SPEED:  # the driver's step-rate measurement: a magnitude
-            return abs(self._actual_speed())
+            return abs(self.actual_speed())
         if number == AP.DRIVER_ERROR_FLAGS and self.motor_driver is not None:
             return self.motor_driver.flags()
         if number == AP.ABSOLUTE_ENCODER:
-            return self._absolute_encoder()
+            return self.encoder.absolute(self.chip.motor_position)
         return self._params[number]
 
-    # == what stays as it is (the interpreter's loop skipping, docs/scheduling.md) ================
+    # == what stays as it is (loop skipping, axes/forecast.py) ===================================
 
     def steady_until(self, number: int) -> int:
         if self._keys:
             number = self._keys.get(number, number)
-        if number not in _LIVE_PARAMETERS and number not in self._chip_live:
-            return FOREVER  # a setting: only a command changes it
-        if number == AP.ERROR_FLAGS and self._errors:
-            return 0  # reading clears the flags
-        ahead = self._lookahead()
-        if ahead is None:
-            return FOREVER  # at rest: what it reads changes only at an event or a command
-        if number in _LEVEL_PARAMETERS:
-            return FOREVER  # switch levels and flags change only at the chip's notable instants
-        if number == AP.POSITION_REACHED:
-            return self._first_time_at_position((self._target,), ahead)
-        if number == AP.ACTUAL_SPEED and self._rotating():
-            # a rotation's ramp only ever heads for its speed: the same speed at both ends of
-            # the stretch to the next notable instant means the same speed all along it
-            self._sync()
-            if self.driver.speed_on(ahead.chip.clone()) == self._actual_speed():
-                return ahead.time_ns
-        return 0  # a moving quantity
+        return self.forecast.steady_until(number)
 
     def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
         if self._keys:
             number = self._keys.get(number, number)
-        ahead = self._lookahead()
-        if number == AP.ACTUAL_POSITION:
-            return FOREVER if ahead is None else self._first_time_at_position(values, ahead)
-        if number == AP.ACTUAL_SPEED and self._rotating():
-            return FOREVER if ahead is None else self._first_time_speed_crosses(values, ahead)
-        return 0
+        return self.forecast.first_time_at(number, values)
 
-    def _rotating(self) -> bool:
+    def in_velocity_mode(self) -> bool:
         """Velocity mode (ROR, ROL, MST) with no reference search: the speed only ever moves
         towards the speed asked for, monotonically, until the next notable instant."""
-        return not self._positioning and self._rfs is None
-
-    def _first_time_speed_crosses(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
-        """The first time AP 3 compares otherwise with one of ``values`` than now (reaches it,
-        or passes it), or the next notable instant: the speed being monotonic there, a copy
-        of the chip is bisected over the clock ticks."""
-        self._sync()
-        speed = self._actual_speed()
-        if speed in values:
-            return 0
-        above = [speed > value for value in values]
-
-        def compares_otherwise(chip: ChipModel) -> bool:
-            now = self.driver.speed_on(chip)
-            return any(now == value or (now > value) != side
-                       for value, side in zip(values, above, strict=True))
-
-        if not compares_otherwise(ahead.chip.clone()):
-            return ahead.time_ns
-        low, high = self.chip.clone(), ahead.chip.t
-        while high - low.t > 1:
-            middle = (low.t + high) // 2
-            probe = low.clone()
-            probe.run(middle, LOOKAHEAD_BUDGET)
-            if probe.t < middle:  # stopped short (its work budget): no promise beyond here
-                return probe.ns_at(probe.t)
-            if compares_otherwise(probe.clone()):
-                high = middle
-            else:
-                low = probe
-        return low.ns_at(high)
-
-    def _short_of_target(self) -> bool:
-        """AP 8 reads 0 now for certain, without bringing the chip up to now: the position
-        first meets the target later than now (found once per look-ahead with a copy of the
-        chip, as :meth:`steady_until` does).  A host or program polling AP 8 through a long
-        move then costs a comparison a poll, not a run of the chip's ramp to every poll.
-        Not while coolStep regulates, whose readings follow the reads (:meth:`_read_position`)."""
-        if self._coolstep_follows_reads():
-            return False
-        ahead = self._lookahead()
-        if ahead is None:
-            return False  # at rest: the plain read is cheap
-        return self._now_ns < self._first_time_at_position((self._target,), ahead)
-
-    def _first_time_at_position(self, values: tuple[int, ...], ahead: _Lookahead) -> int:
-        """The first time AP 1 equals one of ``values``, or the chip's next notable instant
-        if it does not before: a copy of the chip runs with a mark at each value's motor
-        position (AP 1 and the motor position move together, step by step).  Kept while the
-        look-ahead it was found for holds."""
-        cached = self._crossing
-        if cached is not None and cached[0] is ahead and cached[1] == values:
-            return cached[2]
-        self._sync()
-        if not self.chip.steps_reach_motor():
-            return 0  # AP 1 counts steps that do not move the motor: no marks to set
-        here = self.driver.position
-        marks = [self.chip.motor_position + to_int32(value - here) for value in values]
-        if self.chip.motor_position in marks:
-            return 0
-        twin = self.chip.clone()
-        board = self.board
-        saved = board.firmware_marks
-        board.firmware_marks = saved + marks
-        until = twin.ticks_at(ahead.time_ns)
-        try:  # it stops early at a mark (or, conservatively, at anything else)
-            twin.run(until, LOOKAHEAD_BUDGET)
-        finally:
-            board.firmware_marks = saved
-        result = twin.ns_at(twin.t) if twin.t < until else ahead.time_ns
-        self._crossing = (ahead, values, result)
-        return result
+        return not self._positioning and not self.homing.active
 
     def set_parameter(self, number: int, value: int) -> bool:
         if self._keys:
@@ -900,17 +645,17 @@ class AxisFirmware(Axis):
             return False  # a setting written with the value it has: as on the chip, no change
         self._command()
         if number == AP.TARGET_POSITION:
-            self._abort_search()
-            self._start_positioning(to_int32(value), self._params[AP.MAX_SPEED])
+            self.homing.abort()
+            self.start_positioning(to_int32(value), self._params[AP.MAX_SPEED])
         elif number == AP.ACTUAL_POSITION:
             self._set_position(to_int32(value))
         elif number == AP.TARGET_SPEED:
-            self._abort_search()
+            self.homing.abort()
             self._velocity_command = value
-            self._start_velocity(value)
+            self.start_velocity(value)
             self._params[number] = value
         elif number == AP.ENCODER_POSITION:
-            self._set_encoder(value)
+            self.encoder.set(value, self.chip.motor_position)
         else:
             self._params[number] = value
             self._parameter_side_effects(number)
@@ -928,28 +673,34 @@ class AxisFirmware(Axis):
     def _parameter_side_effects(self, number: int) -> None:
         if number in _LIMIT_SWITCH_BITS:
             self._derive_limit_switch(number)
-            self.driver.configure_stops(searching=self._rfs is not None)
+            self.driver.configure_stops(searching=self.homing.active)
             number = _LIMIT_SWITCH_BITS[number][1]  # and the polarity, below
         if self.motor_driver is not None and number in self.motor_driver.parameters:
             self.motor_driver.configure(number)
-        if number in _RAMP_PARAMETERS:
-            if self._rfs is None:
-                self.driver.limits_changed(self._positioning, self._velocity_command)
-        elif number in _STOP_PARAMETERS:
-            self.driver.configure_stops(searching=self._rfs is not None)
-        elif number == AP.RAMP_MODE:
-            self._ramp_mode_written()
-        elif number in (AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY):
-            self._input_stage_from_parameters()
-            self._pins_changed()
-        elif number == AP.MICROSTEPS:
-            self._rebase_encoder()
-            self.board.rescale(self.chip.motor_position, self._params[AP.MICROSTEPS])
-            self._rebase_encoder()
-        elif number in (AP.MAX_CURRENT, AP.STANDBY_CURRENT):
-            self._current_changed()
-            if self._standby:
-                self._emit(AxisEventKind.CURRENT_CHANGED, False)
+        follow = _SIDE_EFFECTS.get(number)
+        if follow is not None:
+            follow(self)
+
+    def _ramp_written(self) -> None:
+        if not self.homing.active:
+            self.driver.limits_changed(self._positioning, self._velocity_command)
+
+    def _stops_written(self) -> None:
+        self.driver.configure_stops(searching=self.homing.active)
+
+    def _input_stage_written(self) -> None:
+        self._input_stage_from_parameters()
+        self._pins_changed()
+
+    def _microsteps_written(self) -> None:
+        self._rebase_encoder()
+        self.board.rescale(self.chip.motor_position, self._params[AP.MICROSTEPS])
+        self._rebase_encoder()
+
+    def _current_written(self) -> None:
+        self._current_changed()
+        if self._standby:
+            self.emit(AxisEventKind.CURRENT_CHANGED, False)
 
     def _input_stage_from_parameters(self) -> None:
         """The module's input stage: switches swapped and inverted as the parameters say."""
@@ -961,7 +712,7 @@ class AxisFirmware(Axis):
         """AP 138 (TMC429 modules): 2 (velocity) stops a move on a ramp, as MST does; 0/1
         choose ramp or soft positioning, at once for a move in flight, else for the next."""
         if self._params[AP.RAMP_MODE] == 2:
-            if self._positioning and self._rfs is None:
+            if self._positioning and not self.homing.active:
                 self._conclude_move()
                 self.driver.ramp_stop()
                 self._positioning = False
@@ -973,85 +724,33 @@ class AxisFirmware(Axis):
     def _pins_changed(self) -> None:
         self.chip.set_pins(*self.board.pins(self.chip.motor_position))
         self._check_levels()
-        if self._rfs is not None:
-            self._rfs_step(self._rfs)
+        self.homing.step()
 
-    # == the world =============================================================================
+    # == the rig's hooks (axes/rig.py: the world and the faults around the axis) ==================
+
+    def _motor_position(self) -> int:
+        return self.chip.motor_position
+
+    def _rig_begin(self) -> None:
+        self._command()
+
+    def _rig_end(self) -> None:
+        self._after_command()  # a new load or stuck mechanics may stall the motor now
+
+    def _encoder_placed(self, mechanical: int) -> None:
+        self.encoder.placed(mechanical)
+
+    def _rebase_encoder(self) -> None:
+        self.encoder.rebase(self.chip.motor_position)
 
     @property
-    def world(self) -> AxisWorld:
-        return self.board.world
+    def builtin_encoder_counts(self) -> int:
+        """Counts per turn of the module's own encoder (set by the module from its type)."""
+        return self.encoder.builtin_counts
 
-    def set_world(self, world: AxisWorld) -> None:
-        """Replace the whole world of this axis (switch edges happen now)."""
-        self._command()
-        self._rebase_encoder()
-        self.board.set_world(world)
-        self.board.set_stuck(world.stuck, self.chip.motor_position)
-        self._rebase_encoder()
-        self._pins_changed()
-        self._check_stall()
-        self._after_command()
-
-    def set_switch(self, name: str, switch: Switch | None) -> None:
-        self._command()
-        self.board.set_switch(name, switch)
-        self._pins_changed()
-        self._after_command()
-
-    def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
-        self._command()
-        self.board.world.load_zones = list(zones)
-        if free_load is not None:  # a value of its own: blocked if it is 0 (axes/world.py)
-            self.board.world.free_load, self.board.world.free_blocked = free_load, None
-        self.board.world_changed()
-        self._check_stall()
-        self._after_command()
-
-    def set_encoder_slip(self, slip: float) -> None:
-        if not 0.0 <= slip <= 1.0:
-            raise ValueError("slip must be between 0 and 1")
-        self._command()
-        self._rebase_encoder()
-        self.board.world.encoder_slip = slip
-        self._after_command()
-
-    def set_stuck(self, stuck: bool, load: int | None = None) -> None:
-        """A fault of the mechanics: from now on the motor no longer follows its steps (or
-        follows them again).  The chip keeps counting; the mechanics, the switches they actuate
-        and the encoder stay where they stopped, so the encoder deviates (AP 212 catches it).
-        ``load``: what stallGuard2 reads meanwhile (0 for a blocked rotor; None: the world's)."""
-        self._command()
-        world = self.board.world
-        world.stuck = stuck
-        world.stuck_load = load if stuck else None
-        self.board.set_stuck(stuck, self.chip.motor_position)
-        self.board.world_changed()
-        self._check_stall()
-        self._after_command()
-
-    def break_switch(self, name: str, level: bool | None) -> None:
-        """A broken switch: its input stays at the electrical ``level`` wherever the axis is
-        (before swap and polarity, AP 14/24/25); None repairs it."""
-        self._command()
-        if level is None:
-            self.board.world.broken_switches.pop(name, None)
-        else:
-            self.board.world.broken_switches[name] = level
-        self.board.world_changed()
-        self._pins_changed()
-        self._after_command()
-
-    def place_mechanics(self, mechanical: int) -> None:
-        """After a module restart: the mechanics stand at ``mechanical`` (world units) while
-        the fresh counters (AP 1, the encoder) start from 0, so the world's switches and load
-        zones stay where they are."""
-        self._command()
-        self.board.place(mechanical, self.chip.motor_position)
-        self._encoder_mech_base = mechanical
-        self._encoder_offset = 0
-        self._pins_changed()
-        self._after_command()
+    @builtin_encoder_counts.setter
+    def builtin_encoder_counts(self, counts: int) -> None:
+        self.encoder.builtin_counts = counts
 
     def register_access(self, address: int, value: int | None = None) -> int:
         """Commands 146/147: one raw datagram to the chip (None reads).
@@ -1067,14 +766,28 @@ class AxisFirmware(Axis):
 
     def status(self) -> AxisStatus:
         """A snapshot for telemetry (MQTT bridge, tests); clears nothing."""
-        self._sync()
+        self.sync()
         left, right, home = self._levels
         return AxisStatus(
-            position=self._position, target=self._target, velocity=self._actual_speed(),
+            position=self._position, target=self._target, velocity=self.actual_speed(),
             mode=self.driver.mode_name(),
             position_reached=self._position == self._target,
             home_switch=home, left_switch=left, right_switch=right, load=self._load(),
             error_flags=self._errors, current=self.current, standby=self._standby,
-            encoder_position=self._encoder_position(), reference_search=self._rfs_state,
+            encoder_position=self.encoder.position(self.chip.motor_position),
+            reference_search=self.homing.state,
             mechanical_position=self._mechanical(),
         )
+
+
+#: What the firmware does after a parameter is written, besides storing it (a motor driver's
+#: own parameters are configured first, AxisFirmware._parameter_side_effects).
+_SIDE_EFFECTS: dict[int, Callable[[AxisFirmware], None]] = {
+    **dict.fromkeys(_RAMP_PARAMETERS, AxisFirmware._ramp_written),
+    **dict.fromkeys(_STOP_PARAMETERS, AxisFirmware._stops_written),
+    AP.RAMP_MODE: AxisFirmware._ramp_mode_written,
+    **dict.fromkeys((AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY),
+                    AxisFirmware._input_stage_written),
+    AP.MICROSTEPS: AxisFirmware._microsteps_written,
+    **dict.fromkeys((AP.MAX_CURRENT, AP.STANDBY_CURRENT), AxisFirmware._current_written),
+}

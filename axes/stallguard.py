@@ -66,6 +66,25 @@ def filtered_reading(load_at: Callable[[int], int], position: int, direction: in
     return sum(samples) // FILTER_FULL_STEPS
 
 
+def load_reading(params: Mapping[int, int], load_at: Callable[[int], int], position: int,
+                 direction: int) -> int:
+    """AP 206 without a modelled driver: the reading at ``position`` (world units) after the
+    threshold (AP 174) and the filter (AP 173), the motor last travelling ``direction`` (at
+    rest the driver holds what it measured over the last full steps it travelled)."""
+    threshold = params[AP.STALLGUARD_THRESHOLD]
+    if not params[AP.STALLGUARD_FILTER]:
+        return reading(load_at(position), threshold)
+    return filtered_reading(load_at, position, direction, threshold)
+
+
+def run_current(run: int, scale: int | None) -> int:
+    """The current while running (0..255): AP 6 (``run``), lowered to coolStep's ``scale``
+    (0..31) where it regulates (None: it does not)."""
+    if scale is None:
+        return run
+    return run * (scale + 1) // ((run >> CURRENT_SCALE_SHIFT) + 1)
+
+
 def minimum_scale(full_scale: int, quarter: bool) -> int:
     """The lowest scale coolStep goes to: half (AP 168 = 0) or a quarter (1) of the current."""
     return max(0, (full_scale + 1) // (4 if quarter else 2) - 1)

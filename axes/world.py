@@ -229,6 +229,20 @@ class World:
         """
         _table(data, (), _TOP_KEYS)
         world = cls()
+        world._axes_from(data, number_of_axes)
+        world._inputs_from(data, number_of_inputs, analog_full_scale)
+        chip = _table(data.get("chip", {}), ("chip",), _CHIP_KEYS)
+        if "clock_hz" in chip:
+            world.clock_hz = _integer(chip["clock_hz"], ("chip", "clock_hz"), 1)
+        if "core" in chip:
+            world.chip_core = _chip_core(chip["core"], chip_cores)
+        supply = _table(data.get("supply", {}), ("supply",), _SUPPLY_KEYS)
+        if "voltage" in supply:
+            world.supply_voltage = check_supply_voltage(
+                _number(supply["voltage"], ("supply", "voltage"), 0.0, SUPPLY_VOLTAGE_MAX))
+        return world
+
+    def _axes_from(self, data: dict[str, Any], number_of_axes: int | None) -> None:
         entries = data.get("axis", [])
         if not isinstance(entries, list):
             raise WorldError("'axis' must be an array of tables ([[axis]])", ("axis",))
@@ -237,13 +251,16 @@ class World:
             _table(entry, at, _AXIS_KEYS, required=("index",))
             limit = None if number_of_axes is None else number_of_axes - 1
             index = _integer(entry["index"], (*at, "index"), 0, limit, what="axis index")
-            if index in world.axes:
+            if index in self.axes:
                 raise WorldError(f"{_name(at)}: axis index {index} appears twice", (*at, "index"))
-            world.axes[index] = AxisWorld.from_dict(entry, at)
+            self.axes[index] = AxisWorld.from_dict(entry, at)
+
+    def _inputs_from(self, data: dict[str, Any], number_of_inputs: int | None,
+                     analog_full_scale: int) -> None:
         inputs = _table(data.get("inputs", {}), ("inputs",), _INPUT_KEYS)
         for kind in ("analog", "digital"):
             values = inputs.get(kind, [])
-            at = ("inputs", kind)
+            at: KeyPath = ("inputs", kind)
             if not isinstance(values, list):
                 raise WorldError(f"{_name(at)} must be an array", at)
             if number_of_inputs is not None and len(values) > number_of_inputs:
@@ -251,24 +268,19 @@ class World:
                                  f"{number_of_inputs}", at)
             for port, value in enumerate(values):
                 if kind == "analog":
-                    world.analog_inputs[port] = _integer(value, (*at, port), 0, analog_full_scale)
+                    self.analog_inputs[port] = _integer(value, (*at, port), 0, analog_full_scale)
                 else:
-                    world.digital_inputs[port] = _boolean(value, (*at, port))
-        chip = _table(data.get("chip", {}), ("chip",), _CHIP_KEYS)
-        if "clock_hz" in chip:
-            world.clock_hz = _integer(chip["clock_hz"], ("chip", "clock_hz"), 1)
-        if "core" in chip:
-            core = _text(chip["core"], ("chip", "core"))
-            known = None if chip_cores is None else sorted(chip_cores)
-            if known is not None and core.lower() not in known:
-                raise WorldError(f"chip.core {core!r} is not a chip core (known: "
-                                 f"{', '.join(known)})", ("chip", "core"))
-            world.chip_core = core.lower()
-        supply = _table(data.get("supply", {}), ("supply",), _SUPPLY_KEYS)
-        if "voltage" in supply:
-            world.supply_voltage = check_supply_voltage(
-                _number(supply["voltage"], ("supply", "voltage"), 0.0, SUPPLY_VOLTAGE_MAX))
-        return world
+                    self.digital_inputs[port] = _boolean(value, (*at, port))
+
+
+def _chip_core(value: Any, chip_cores: Iterable[str] | None) -> str:
+    """``[chip] core``: one of ``chip_cores`` (any case), as its name."""
+    core = _text(value, ("chip", "core"))
+    known = None if chip_cores is None else sorted(chip_cores)
+    if known is not None and core.lower() not in known:
+        raise WorldError(f"chip.core {core!r} is not a chip core (known: "
+                         f"{', '.join(known)})", ("chip", "core"))
+    return core.lower()
 
 
 def load_world(path: str | Path, number_of_axes: int | None = None,
@@ -424,14 +436,25 @@ def locate_key(text: str, where: KeyPath) -> int | None:
             if index >= len(headers):
                 return found
             top = headers[index]
-            stop = next((n for n in range(top + 1, end) if (h := _header(lines[n])) is not None
-                         and not h.startswith(name + ".")), end)
-            start, end, prefix, found = top + 1, stop, name, top + 1
+            start, end, prefix, found = top + 1, _block_end(lines, top, end, name), name, top + 1
             continue
-        key = re.compile(rf'(^|[{{,\s.]){re.escape(part)}"?\s*[=.]')
-        line = next((n for n in range(start, end)
-                     if _header(lines[n]) is None and key.search(lines[n].split("#")[0])), None)
+        line = _key_line(lines, start, end, part)
         if line is None:
             return found
         start, found = line, line + 1
     return found
+
+
+def _block_end(lines: list[str], top: int, end: int, name: str) -> int:
+    """Where the table whose header is on line ``top`` ends: at the next header that is not
+    one of its sub-tables (or ``end``)."""
+    return next((n for n in range(top + 1, end) if (h := _header(lines[n])) is not None
+                 and not h.startswith(name + ".")), end)
+
+
+def _key_line(lines: list[str], start: int, end: int, key: str) -> int | None:
+    """The first line in ``start..end`` (not a header) that writes ``key =`` (also inside
+    an inline table), ignoring comments."""
+    pattern = re.compile(rf'(^|[{{,\s.]){re.escape(key)}"?\s*[=.]')
+    return next((n for n in range(start, end)
+                 if _header(lines[n]) is None and pattern.search(lines[n].split("#")[0])), None)

@@ -98,12 +98,13 @@ def _run(args: argparse.Namespace) -> int:
         sys.stdout.write(program.listing())
         return EXIT_OK
     output = args.output or args.source.with_suffix(".bin")
-    try:
+    try:  # an output that is a directory, or cannot be written: one line (N9)
         output.write_bytes(program.binary())
         if args.listing:
             args.listing.write_text(program.listing(), encoding="utf-8")
     except OSError as exc:
-        print(f"tmcl-asm: {exc}", file=sys.stderr)
+        print(f"tmcl-asm: cannot write {exc.filename or output}: {exc.strerror or exc}",
+              file=sys.stderr)
         return EXIT_BAD_INPUT
     print(f"{args.source}: {len(program.instructions)} commands -> {output}")
     return EXIT_OK

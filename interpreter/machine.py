@@ -16,7 +16,35 @@ from typing import NamedTuple, Protocol
 
 from interpreter import interrupts
 from interpreter.interrupts import Trigger
-from interpreter.isa import CALL_STACK_DEPTH, EMPTY, PROGRAM_MEMORY_SIZE, WAIT_TICK_NS, Instruction
+from interpreter.isa import (
+    CALL_STACK_DEPTH,
+    CONTINUE,
+    EMPTY,
+    INTERNAL_OPCODES,
+    INTERRUPTS,
+    LOOP,
+    OP_AAP,
+    OP_ACO,
+    OP_AGP,
+    OP_CALC,
+    OP_COMP,
+    OP_GCO,
+    OP_JA,
+    OP_JC,
+    OP_RFS,
+    OP_SAP,
+    OP_SCO,
+    OP_SGP,
+    OP_STOP,
+    OP_WAIT,
+    PROGRAM_MEMORY_SIZE,
+    STOPPED,
+    WAIT_TICK_NS,
+    WAITING,
+    YIELD,
+    Instruction,
+)
+from interpreter.skipping import LOADS_ACCUMULATOR, Call, LoopSkipper
 from tmcl_spec.commands import (
     MOTOR_ALL,
     STATUS_OK,
@@ -35,36 +63,10 @@ from tmcl_spec.parameters import AP
 INSTRUCTION_NS = 10_000
 #: A running program asks to be run at least this often (how far it may lag a real clock).
 SLICE_NS = 10_000_000
-#: A loop is analysed after this many backward jumps; while it cannot be skipped, the wait
-#: doubles up to LOOP_BACKOFF_MAX (docs/scheduling.md, "Loops that change nothing").
-LOOP_PROBE_AFTER = 2
-LOOP_BACKOFF_MAX = 1024
-#: A pass longer than this many instructions is not analysed.
-MAX_PASS = 256
-#: "Steady until something intervenes" (axes.interface.FOREVER's value).
-FOREVER = 1 << 62
 
 _MASK = 0xFFFF_FFFF
 _SIGN = 0x8000_0000
-
-# Opcodes as plain ints for the dispatch loop.
-_CALC, _COMP, _JC, _JA = Opcode.CALC.value, Opcode.COMP.value, Opcode.JC.value, Opcode.JA.value
-_CALCX, _CSUB, _RSUB = Opcode.CALCX.value, Opcode.CSUB.value, Opcode.RSUB.value
-_STOP, _WAIT = Opcode.STOP.value, Opcode.WAIT.value
-_AAP, _AGP, _ACO = Opcode.AAP.value, Opcode.AGP.value, Opcode.ACO.value
-_SAP, _SGP, _SCO = Opcode.SAP.value, Opcode.SGP.value, Opcode.SCO.value
-_GCO, _RFS, _GAP = Opcode.GCO.value, Opcode.RFS.value, Opcode.GAP.value
 _RFS_STATUS = RfsType.STATUS.value
-
-#: Commands that, in a program, load the value they read into the accumulator.
-_LOADS_ACCUMULATOR = frozenset({Opcode.GAP.value, Opcode.GGP.value, Opcode.GIO.value, _GCO})
-
-
-def _loads_accumulator(op: int, ty: int, motor: int) -> bool:
-    """Whether a command's answer goes to the accumulator (when it succeeds): the reads, but
-    not GCO of all coordinates, and RFS STATUS."""
-    return ((op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
-            or (op == _RFS and ty == _RFS_STATUS))
 
 _ERROR_BITS: dict[int, int] = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
                ErrorFlag.ESD: 16}
@@ -185,18 +187,6 @@ class _Timer:
     next_ns: int
 
 
-@dataclass(slots=True)
-class _Call:
-    """One module command of a pass being analysed."""
-
-    time_ns: int
-    status: int
-    value: int
-    changed: bool
-    steady_until: int
-    request: tuple[int, int, int, int]  # opcode, type, motor, value sent
-
-
 class Interpreter:
     """One TMCL program and the state of its execution (not thread-safe)."""
 
@@ -237,12 +227,9 @@ class Interpreter:
         self.wake_for_timers = True
         #: Passes of loops skipped so far (tests, benchmarks).
         self.loops_skipped = 0
-        self._probe_calls: list[_Call] | None = None
-        self._loop_wait = LOOP_PROBE_AFTER  # backward jumps until the next analysis
-        self._loop_backoff = 1
-        #: Loop head -> (registers and memory revision, pass ns, pass instructions) of loops
-        #: that touch nothing but registers: skipped again without an analysis.
-        self._idle_loops: dict[int, tuple[tuple[object, ...], int, int]] = {}
+        #: While a pass is analysed, the module commands it sends (interpreter.skipping).
+        self.recording: list[Call] | None = None
+        self.skipper = LoopSkipper(self)
         self.power_up(0)
 
     def power_up(self, now_ns: int) -> None:
@@ -479,11 +466,11 @@ class Interpreter:
                 self.time_ns = limit  # still waiting when the next timer fires
                 continue
             outcome = self._execute_checked(limit) if self.breakpoints else self._execute(limit)
-            if outcome == _LOOP:
-                outcome = self._loop(limit)
-            if outcome == _YIELD:
+            if outcome == LOOP:
+                outcome = self.skipper.at_loop_head(limit)
+            if outcome == YIELD:
                 return True
-            if outcome == _STOPPED:
+            if outcome == STOPPED:
                 return False
         return False
 
@@ -551,15 +538,16 @@ class Interpreter:
         cost = self.instruction_ns
         end = self.memory_size
         count = (limit_ns - self.time_ns + cost - 1) // cost
-        not_module = _NOT_MODULE
+        not_module = INTERNAL_OPCODES
         n = 0
-        outcome = _CONTINUE
+        outcome = CONTINUE
         # Backward jumps count down to a loop analysis (never while one runs, or breakpoints).
-        watch = self.skip_loops and self._probe_calls is None and not self.breakpoints
-        loops = self._loop_wait
+        watch = self.skip_loops and self.recording is None and not self.breakpoints
+        skipper = self.skipper
+        loops = skipper.countdown
         while n < count:
             op, ty, motor, va = code[pc]
-            if op == _CALC:
+            if op == OP_CALC:
                 if ty == 0:
                     acc = ((acc + va + _SIGN) & _MASK) - _SIGN
                 elif ty == 1:
@@ -570,11 +558,11 @@ class Interpreter:
                     acc = calculate(ty, acc, va)
                 zero = acc
                 pc += 1
-            elif op == _COMP:
+            elif op == OP_COMP:
                 cmp_ = zero = acc - va
                 pc += 1
-            elif op in (_JC, _JA):
-                if op == _JA:
+            elif op in (OP_JC, OP_JA):
+                if op == OP_JA:
                     taken = True
                 elif ty == 0:
                     taken = zero == 0
@@ -601,7 +589,7 @@ class Interpreter:
                     loops -= 1
                     if loops <= 0:
                         n += 1
-                        outcome = _LOOP
+                        outcome = LOOP
                         break
                 else:
                     pc = va if 0 <= va < end else end
@@ -614,13 +602,13 @@ class Interpreter:
                     outcome = self._module_command(op, ty, motor, va, self.time_ns + n * cost)
                 pc, acc = self.pc, self.accumulator
                 zero, cmp_ = self.zero_source, self.compare_source
-                if outcome != _CONTINUE:
+                if outcome != CONTINUE:
                     n += 1
                     break
             n += 1
         self.pc, self.accumulator = pc, acc
         self.zero_source, self.compare_source = zero, cmp_
-        self._loop_wait = loops
+        skipper.countdown = loops
         self.executed += n
         self.time_ns += n * cost
         if self._hold_ns:
@@ -638,22 +626,22 @@ class Interpreter:
             if pc in breakpoints and (pc, self.executed) != self._resumed_at:
                 self.status = ApplicationStatus.STEP
                 self.port.program_event(self.time_ns, "breakpoint", pc=pc)
-                return _STOPPED
+                return STOPPED
             outcome = self._execute(self.time_ns + 1)
-            if outcome != _CONTINUE:
+            if outcome != CONTINUE:
                 return outcome
-        return _CONTINUE
+        return CONTINUE
 
     def _execute_other(self, ins: Instruction, t: int) -> int:
         """The interpreter's own instructions the dispatch loop does not inline (the opcodes
-        of ``_NOT_MODULE``; the module's go to :meth:`_module_command`); ``t`` is the
+        of ``INTERNAL_OPCODES``; the module's go to :meth:`_module_command`); ``t`` is the
         instruction's time."""
         op, ty, motor, va = ins
-        if op == 0 or op == _STOP:  # empty memory ends a program too
+        if op == 0 or op == OP_STOP:  # empty memory ends a program too
             self.status = ApplicationStatus.STOP
             self.port.program_event(t, "program_stopped", pc=self.pc)
-            return _STOPPED
-        if op == _WAIT:
+            return STOPPED
+        if op == OP_WAIT:
             return self._start_wait(ty, motor, va, t)
         return _INTERNAL[op](self, ty, motor, va)
 
@@ -683,7 +671,7 @@ class Interpreter:
     def _calcx(self, ty: int, motor: int, va: int) -> int:
         self.calcx(ty)
         self.pc += 1
-        return _CONTINUE
+        return CONTINUE
 
     def _address(self, value: int) -> int:
         """A jump target: outside program memory it is the empty sentinel cell (the end)."""
@@ -695,43 +683,43 @@ class Interpreter:
             self.pc = self._address(va)
         else:
             self.pc += 1  # stack full: the call is ignored (§3.6.18)
-        return _CONTINUE
+        return CONTINUE
 
     def _rsub(self, ty: int, motor: int, va: int) -> int:
         self.pc = self.stack.pop() if self.stack else self.pc + 1  # empty stack: ignored
-        return _CONTINUE
+        return CONTINUE
 
     def _ei(self, ty: int, motor: int, va: int) -> int:
         self.enable_interrupt(ty)
         self.pc += 1
-        return _INTERRUPTS
+        return INTERRUPTS
 
     def _di(self, ty: int, motor: int, va: int) -> int:
         self.disable_interrupt(ty)
         self.pc += 1
-        return _INTERRUPTS
+        return INTERRUPTS
 
     def _vect(self, ty: int, motor: int, va: int) -> int:
         self.vectors[ty] = self._address(va)
         self.pc += 1
-        return _INTERRUPTS
+        return INTERRUPTS
 
     def _reti(self, ty: int, motor: int, va: int) -> int:
         saved = self.saved
         if saved is None:
             self.pc += 1  # RETI outside a handler does nothing
-            return _CONTINUE
+            return CONTINUE
         self.saved = None
         (self.pc, self.accumulator, self.x, self.zero_source, self.compare_source,
          self.wait) = saved
         if self.wait is not None or (self.globally_enabled and self.pending & self.enabled):
-            return _INTERRUPTS  # a WAIT to resume, or the next interrupt to take
-        return _CONTINUE  # back where it was interrupted, nothing else to do: go on
+            return INTERRUPTS  # a WAIT to resume, or the next interrupt to take
+        return CONTINUE  # back where it was interrupted, nothing else to do: go on
 
     def _cle(self, ty: int, motor: int, va: int) -> int:
         self.clear_error_flags(ty)
         self.pc += 1
-        return _CONTINUE
+        return CONTINUE
 
     def enable_interrupt(self, number: int) -> None:
         if number == interrupts.GLOBAL:
@@ -750,243 +738,68 @@ class Interpreter:
         if condition not in tuple(WaitCondition) or (
                 condition != WaitCondition.TICKS and not 0 <= motor < self.number_of_axes):
             self.pc += 1  # a WAIT the firmware cannot evaluate is skipped
-            return _CONTINUE
+            return CONTINUE
         deadline = t + ticks * WAIT_TICK_NS if ticks > 0 else None
         wait = Wait(condition, motor, deadline)
         if condition == WaitCondition.TICKS:
             if deadline is None:
                 self.pc += 1
-                return _CONTINUE
+                return CONTINUE
         elif self._wait_satisfied(wait, t):
             self.pc += 1
-            return _CONTINUE
+            return CONTINUE
         self.wait = wait
-        return _WAITING
+        return WAITING
 
     # -- commands that go to the module --------------------------------------------------------
 
     def _module_command(self, op: int, ty: int, motor: int, va: int, t: int) -> int:
-        """A command for the module; while a pass is analysed (:meth:`_probe`) it is recorded
-        with whether it changed the module and how long its answer stays the same."""
-        if op == _AGP:  # the accumulator variants send the plain command with its value
-            op, va = _SGP, self.accumulator
-        elif op == _AAP:
-            op, va = _SAP, self.accumulator
-        elif op == _ACO:
+        """A command for the module; while a pass is analysed (interpreter.skipping) it is
+        recorded with whether it changed the module and how long its answer stays the same."""
+        if op == OP_AGP:  # the accumulator variants send the plain command with its value
+            op, va = OP_SGP, self.accumulator
+        elif op == OP_AAP:
+            op, va = OP_SAP, self.accumulator
+        elif op == OP_ACO:
             if motor == MOTOR_ALL:
                 self.pc += 1
-                return _YIELD if self._hold_ns else _CONTINUE
-            op, va = _SCO, self.accumulator
-        calls = self._probe_calls
+                return YIELD if self._hold_ns else CONTINUE
+            op, va = OP_SCO, self.accumulator
+        calls = self.recording
         if calls is None:
             status, value, replan = self.port.execute(t, op, ty, motor, va)
         else:
             status, value, replan, steady = self.port.probe(t, op, ty, motor, va)
-            calls.append(_Call(t, status, value, replan, steady, (op, ty, motor, va)))
-        if status == STATUS_OK and (  # _loads_accumulator, inlined: every command runs it
-                (op in _LOADS_ACCUMULATOR and not (op == _GCO and motor == MOTOR_ALL))
-                or (op == _RFS and ty == _RFS_STATUS)):
+            calls.append(Call(t, status, value, replan, steady, (op, ty, motor, va)))
+        if status == STATUS_OK and (  # skipping.loads_accumulator, inlined: every command runs it
+                (op in LOADS_ACCUMULATOR and not (op == OP_GCO and motor == MOTOR_ALL))
+                or (op == OP_RFS and ty == _RFS_STATUS)):
             self.accumulator = self.zero_source = wrap32(value)
         self.pc += 1
-        return _YIELD if replan or self._hold_ns else _CONTINUE
+        return YIELD if replan or self._hold_ns else CONTINUE
 
-    # == loops that change nothing (docs/scheduling.md) =========================================
+    # == the pass analysis' view (interpreter.skipping.Program) ================================
 
-    def _registers(self) -> tuple[object, ...]:
+    def registers(self) -> tuple[object, ...]:
         """What a pass may read of the program's state (besides the module)."""
         return (self.pc, self.accumulator, self.x, self.zero_source, self.compare_source,
                 self.errors, tuple(self.stack), self.saved, self.memory_revision)
 
-    def _loop(self, limit: int) -> int:
-        """A backward jump brought the program to a loop head: skip the passes that would do
-        exactly what the last one did (or analyse one pass to learn whether they would)."""
-        idle = self._idle_loops.get(self.pc)
-        if idle is not None and idle[0] == self._registers():
-            self._skip(idle[1], idle[2], limit, ())
-            return _CONTINUE
-        return self._probe(limit)
+    def interrupt_due(self) -> bool:
+        return bool(self.pending and self._dispatchable())
 
-    def _give_up(self) -> None:
-        """This loop cannot be skipped now: analyse again later, less often each time."""
-        self._loop_wait = self._loop_backoff
-        self._loop_backoff = min(self._loop_backoff * 2, LOOP_BACKOFF_MAX)
+    def execute_one(self) -> int:
+        return self._execute(self.time_ns + 1)
 
-    def _probe(self, limit: int) -> int:
-        """Run one pass instruction by instruction, recording what it asks the module, then
-        skip the passes after it that are certain to do the same (exactly as stepping)."""
-        head, start, executed = self.pc, self.time_ns, self.executed
-        before = self._registers()
-        if self.pending and self._dispatchable():
-            self._give_up()
-            return _CONTINUE
-        calls: list[_Call] = []
-        path: list[int] = []
-        waited = False
-        self._probe_calls = calls
-        try:
-            while True:
-                if self.time_ns >= limit or len(path) >= MAX_PASS:
-                    self._give_up()
-                    return _CONTINUE
-                path.append(self.pc)
-                outcome = self._execute(self.time_ns + 1)
-                if outcome == _WAITING:
-                    wait = self.wait
-                    assert wait is not None
-                    if wait.condition != WaitCondition.TICKS or not self._resume_wait(limit):
-                        self._give_up()
-                        return _CONTINUE  # the wait goes on: the caller waits
-                    waited = True
-                elif outcome != _CONTINUE:
-                    self._give_up()
-                    return outcome
-                if self.pc == head:
-                    break
-        finally:
-            self._probe_calls = None
-        if any(call.changed for call in calls):
-            self._give_up()
-            return _CONTINUE
-        period, length = self.time_ns - start, self.executed - executed
-        after = self._registers()
-        steady = all(call.steady_until > call.time_ns for call in calls)
-        if steady and after == before:  # the pass changed nothing: the next ones do the same
-            if not calls and not waited:
-                self._idle_loops[head] = (before, period, length)
-            horizons = tuple((call.time_ns - start, call.steady_until) for call in calls)
-            skipped = self._skip(period, length, limit, horizons, start)
-        else:
-            skipped = self._skip_to_flip(path, calls, before, after, start, period, length, limit)
-        if skipped:
-            self._loop_backoff = 1
-            self._loop_wait = 1 if steady and after == before else 2
-        else:
-            self._give_up()
-        return _CONTINUE
+    def tick_wait_ends(self, limit_ns: int) -> bool:
+        wait = self.wait
+        assert wait is not None
+        return wait.condition == WaitCondition.TICKS and self._resume_wait(limit_ns)
 
-    def _skip(self, period: int, length: int, limit: int,
-              horizons: tuple[tuple[int, int], ...], start: int | None = None,
-              real_passes: int = 0) -> int:
-        """Skip the whole passes after the one that began at ``start`` (default: now) whose
-        every module command (offset in the pass, steady until) still answers the same,
-        keeping ``real_passes`` whole passes before ``limit`` to be stepped; returns how many."""
-        if start is None:
-            start = self.time_ns - period
-        passes = (limit - start) // period - 1 - real_passes
-        for offset, steady_until in horizons:
-            passes = min(passes, -(-(steady_until - start - offset) // period) - 1)
-        if passes <= 0:
-            return 0
-        self.time_ns = start + (passes + 1) * period
-        self.executed += passes * length
-        self.loops_skipped += passes
-        return passes
+    def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
+                      values: tuple[int, ...]) -> int:
+        return self.port.first_time_at(time_ns, opcode, type_, motor, values)
 
-    def _skip_to_flip(self, path: list[int], calls: list[_Call], before: tuple[object, ...],
-                      after: tuple[object, ...], start: int, period: int, length: int,
-                      limit: int) -> int:
-        """A pass that reads moving values (positions) and only compares them: skip to the pass
-        where a comparison could flip, the first time a value reaches one of its boundaries."""
-        moving = [index for index, call in enumerate(calls) if call.steady_until <= call.time_ns]
-        if any(calls[i].status != STATUS_OK or calls[i].request[0] != _GAP for i in moving):
-            return 0
-        boundaries = _boundaries(self.code, path, calls, set(moving), before, after)
-        if boundaries is None:
-            return 0
-        horizons = []
-        for index, call in enumerate(calls):
-            horizon = call.steady_until
-            if index in boundaries:
-                values = boundaries[index]
-                if call.value in values:
-                    return 0
-                opcode, type_, motor, _ = call.request
-                horizon = self.port.first_time_at(call.time_ns, opcode, type_, motor, values) \
-                    if values else FOREVER
-            horizons.append((call.time_ns - start, horizon))
-        return self._skip(period, length, limit, tuple(horizons), start, real_passes=1)
-
-
-#: Registers of the pass analysis (the indices in Interpreter._registers()).
-_ACC, _X, _ZERO, _CMP, _ERRORS, _STACK = 1, 2, 3, 4, 5, 6
-
-
-def _boundaries(code: list[Instruction], path: list[int], calls: list[_Call], moving: set[int],
-                before: tuple[object, ...],
-                after: tuple[object, ...]) -> dict[int, tuple[int, ...]] | None:
-    """For each moving read (an index of ``calls``), the values at which the pass's branches
-    could decide otherwise, if the pass depends on the moving reads only through COMP and JC
-    and leaves every register it reads before writing as it found it; None if the pass is not
-    of that shape."""
-    symbolic: dict[int, tuple[int, int]] = {}  # register -> (read, offset): read's value + offset
-    written: set[int] = set()
-    first_read: set[int] = set()
-    boundaries: dict[int, set[int]] = {index: set() for index in moving}
-    pending = iter(enumerate(calls))
-
-    def reads(register: int) -> None:
-        if register not in written:
-            first_read.add(register)
-
-    def writes(register: int, source: tuple[int, int] | None = None) -> None:
-        written.add(register)
-        if source is None:
-            symbolic.pop(register, None)
-        else:
-            symbolic[register] = source
-
-    for pc in path:
-        op, ty, motor, va = code[pc]
-        if op == _CALC:
-            if ty != CalcOp.LOAD:
-                reads(_ACC)
-                if _ACC in symbolic:
-                    return None
-            writes(_ACC)
-            writes(_ZERO)
-        elif op == _COMP:
-            reads(_ACC)
-            source = symbolic.get(_ACC)
-            compared = None if source is None else (source[0], source[1] - va)
-            writes(_CMP, compared)
-            writes(_ZERO, compared)
-        elif op == _JC:
-            register = _ZERO if ty <= 1 else _CMP if ty <= 7 else _ERRORS
-            reads(register)
-            if register in symbolic:
-                index, offset = symbolic[register]
-                boundaries[index].add(-offset)
-        elif op in (_JA, _WAIT):
-            continue
-        elif op in (_AAP, _AGP, _ACO):
-            reads(_ACC)
-            if _ACC in symbolic:
-                return None
-            if not (op == _ACO and motor == MOTOR_ALL):
-                next(pending)
-        elif op in _NOT_MODULE:
-            return None  # CALCX, subroutines, interrupts, error flags: not analysed
-        else:
-            index, call = next(pending)
-            if call.status == STATUS_OK and _loads_accumulator(op, ty, motor):
-                source = (index, 0) if index in moving else None
-                writes(_ACC, source)
-                writes(_ZERO, source)
-    # What the next pass reads before writing must be what this one found, and not come from a
-    # moving read (equal now by chance, it would differ in the passes skipped).
-    if any(before[register] != after[register] or register in symbolic
-           for register in first_read):
-        return None
-    return {index: tuple(sorted(values)) for index, values in boundaries.items()}
-
-
-# Outcomes of _execute / _execute_other.
-_CONTINUE = 0  # keep going
-_YIELD = 1  # a module command may have moved an event: let the caller re-plan
-_STOPPED = 2  # STOP or end of program
-_WAITING = 3  # a WAIT is in progress
-_INTERRUPTS = 4  # interrupt state changed: check for a dispatch before the next instruction
-_LOOP = 5  # a backward jump reached a loop head: see whether its passes can be skipped
 
 _INTERNAL: dict[int, Callable[[Interpreter, int, int, int], int]] = {
     Opcode.CALCX: Interpreter._calcx,
@@ -998,5 +811,3 @@ _INTERNAL: dict[int, Callable[[Interpreter, int, int, int], int]] = {
     Opcode.RETI: Interpreter._reti,
     Opcode.CLE: Interpreter._cle,
 }
-#: Opcodes the interpreter handles itself (the rest go to the module through the port).
-_NOT_MODULE = frozenset({0, _STOP, _WAIT, *(int(op) for op in _INTERNAL)})

@@ -9,12 +9,13 @@ transport library and nothing of the running server.
 
 from __future__ import annotations
 
+import io
 import json
 import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from tmcl_server.protocol import FRAME_LENGTH, Reply, Request, checksum
 from tmcl_spec.commands import (
@@ -220,7 +221,22 @@ class Frame:
 
     data: bytes
     can_id: int | None = None
+    #: The capture's timestamp of the frame, as it writes it (shown by ``tmcl decode``).
     timestamp: str | None = None
+
+    @property
+    def time(self) -> float | None:
+        """When it was captured, in seconds of the log's own time base (``tmcl replay``):
+        the timestamp read as seconds or as ``[[h:]m:]s``; None where there is none."""
+        if self.timestamp is None:
+            return None
+        seconds = 0.0
+        try:
+            for part in self.timestamp.split(":"):
+                seconds = seconds * 60 + float(part)
+        except ValueError:
+            return None
+        return seconds
 
 
 @dataclass
@@ -370,7 +386,11 @@ class CaptureReader:
         self.line_number += 1
         if len(line) > MAX_LINE:
             raise CaptureError(f"line {self.line_number} is longer than {MAX_LINE} characters: not a dump")
-        is_can, frame = _can_line(line)
+        try:
+            is_can, frame = _can_line(line)
+        except ValueError:  # ``can0 123#0``: an odd number of hex digits (issue 36, N9)
+            raise CaptureError(f"line {self.line_number}: a CAN log line whose data is not "
+                               "whole bytes of hex") from None
         if is_can:
             if frame is not None:
                 yield frame
@@ -481,6 +501,26 @@ class CaptureReader:
         if pattern:
             self._stream += (pattern * (count // len(pattern) + 1))[:count]
             # frames are taken out after each line, so at most MAX_SQUEEZED bytes wait here
+
+
+def text_lines(stream: BinaryIO, name: str, keep_ends: bool = False, kind: str = "a dump",
+               first: int = 1) -> Iterator[str]:
+    """Lines of UTF-8 text, each at most MAX_LINE characters read (bounded memory); errors
+    name ``name`` and the line (numbered from ``first``).  ``keep_ends``: a line keeps its
+    newline, so a last line without one shows (a capture cut short)."""
+    text = io.TextIOWrapper(stream, encoding="utf-8", errors="strict", newline=None)
+    number = first - 1
+    while True:
+        try:
+            line = text.readline(MAX_LINE + 1)
+        except UnicodeDecodeError as exc:
+            raise CaptureError(f"{name}, line {number + 1}: not UTF-8 text ({exc.reason})") from None
+        if not line:
+            return
+        number += 1
+        if len(line) > MAX_LINE:
+            raise CaptureError(f"{name}, line {number}: longer than {MAX_LINE} characters: not {kind}")
+        yield line if keep_ends else line.rstrip("\n")
 
 
 def read_capture(lines: Iterable[str]) -> Iterator[Frame]:

@@ -6,7 +6,10 @@ without pulling in the server, a transport library, the axes or the interpreter.
 
 * :mod:`tmcl_spec.numbers`  -- 32-bit value wrapping, units of simulated time
 * :mod:`tmcl_spec.commands` -- opcodes, operand symbols, status codes, I/O banks
-* :mod:`tmcl_spec.parameters` -- parameter rows (:class:`ParamSpec`) and their names (AP, GP)
+* :mod:`tmcl_spec.parameters` -- parameter rows (:class:`ParamSpec`), how each moves
+  (:class:`Motion`), and their names (AP, GP)
 * :mod:`tmcl_spec.modules` -- module types (profiles): which tables a module has, by name
-* :mod:`tmcl_spec.tmcm6212` -- the TMCM-6212 profile and its tables
+* :mod:`tmcl_spec.family` -- the rows and tables every module of the family shares
+* :mod:`tmcl_spec.tmcm6212`, :mod:`tmcl_spec.tmc429_modules`, :mod:`tmcl_spec.tmcm1111`,
+  :mod:`tmcl_spec.landungsbruecke` -- the profiles and their tables
 """

@@ -17,10 +17,10 @@ from enum import IntEnum
 
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.eval_boards import BoardId, EvalBoards, EvalFirmware, id_eeprom
+from tmcl_spec.family import BANK0_PARAMETERS, BAUD_RATES
 from tmcl_spec.modules import ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
-from tmcl_spec.parameters import GP, EvalGP, ParamSpec
-from tmcl_spec.tmcm6212 import BANK0_PARAMETERS, BAUD_RATES
+from tmcl_spec.parameters import AXIS, GP, SETTING, EvalGP, Motion, ParamSpec
 
 
 class EvalOpcode(IntEnum):
@@ -54,8 +54,9 @@ _ACCELERATION = (0, 0x3F_FFFF)
 
 
 def _p(number: int, name: str, access: str = "RW",
-       limits: tuple[int, int] = (INT32_MIN, INT32_MAX)) -> ParamSpec:
-    return ParamSpec(number, name, access, limits[0], limits[1], 0)
+       limits: tuple[int, int] = (INT32_MIN, INT32_MAX), motion: Motion = SETTING) -> ParamSpec:
+    """A row (``motion``: SETTING unless it reads a register the chip moves)."""
+    return ParamSpec(number, name, access, limits[0], limits[1], 0, motion=motion)
 
 
 #: The evaluation firmware's axis parameters (pytrinamic's ``TMC4361_eval._MotorTypeA.AP``
@@ -64,12 +65,12 @@ AXIS_PARAMETERS: dict[int, ParamSpec] = {
     spec.number: spec
     for spec in (
         _p(0, "Target position"),  # XTARGET
-        _p(1, "Actual position"),  # XACTUAL
+        _p(1, "Actual position", motion=AXIS),  # XACTUAL
         _p(2, "Target velocity"),  # VMAX (pps, clamped to +-8 000 000)
-        _p(3, "Actual velocity", "R"),  # VACTUAL
+        _p(3, "Actual velocity", "R", motion=AXIS),  # VACTUAL
         _p(4, "Maximum velocity"),  # the VMAX a move uses
         _p(5, "Maximum acceleration", limits=_ACCELERATION),  # AMAX
-        _p(8, "Position reached flag", "R"),  # STATUS bit 0
+        _p(8, "Position reached flag", "R", motion=AXIS),  # STATUS bit 0
         _p(14, "Ramp type"),  # RAMPMODE profile: 0 trapezoid, else S-shaped
         _p(15, "Velocity VSTART"),  # VSTART (register = value / 256)
         _p(16, "Acceleration AStart", limits=_ACCELERATION),  # ASTART
@@ -84,7 +85,7 @@ AXIS_PARAMETERS: dict[int, ParamSpec] = {
         _p(25, "Bow 4"),
         _p(26, "Virtual stop left"),
         _p(27, "Virtual stop right"),
-        _p(209, "Encoder position"),  # ENC_POS
+        _p(209, "Encoder position", motion=AXIS),  # ENC_POS
         _p(214, "Power down delay"),  # STDBY_DELAY (register = value * 160 000)
         _p(225, "Maximum encoder deviation"),  # ENC_POS_DEV_TOL
     )
@@ -95,7 +96,7 @@ AXIS_PARAMETERS: dict[int, ParamSpec] = {
 
 def _g(number: int, name: str, access: str, lo: int = INT32_MIN, hi: int = INT32_MAX,
        default: int = 0) -> ParamSpec:
-    return ParamSpec(number, name, access, lo, hi, default)
+    return ParamSpec(number, name, access, lo, hi, default, motion=SETTING)
 
 
 #: The housekeeping parameters the module model keeps for every module type (addresses,

@@ -75,6 +75,18 @@ class ModuleType:
     #: Evaluation system only: the boards on the base board (tmcl_spec/landungsbruecke.py).
     eval_boards: EvalBoards | None = None
 
+    def __post_init__(self) -> None:
+        """Every row says how its value moves (ParamSpec.motion): loop skipping reads it, and
+        a row that does not say is an error here, at import, never taken as steady."""
+        tables = {"axis parameter": self.axis_parameters,
+                  **{f"bank {bank} parameter": rows
+                     for bank, rows in self.global_parameters.items()}}
+        for kind, rows in tables.items():
+            unsaid = sorted(n for n, spec in rows.items() if spec.motion is None)
+            if unsaid:
+                raise ValueError(f"module type {self.key}: {kind}s {unsaid} say nothing of how "
+                                 f"their values move (ParamSpec.motion)")
+
     @property
     def version_string(self) -> bytes:
         """Command 136 type 0: e.g. ``6212V105``."""

@@ -8,8 +8,36 @@ of writing the numbers.  Plain ints, not IntEnums: they index dictionaries on ev
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import Enum
 
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN, UINT32_MAX
+
+
+class Motion(Enum):
+    """How a parameter's value changes while no command writes it: what loop skipping may
+    assume of a value the program read before (interpreter/skipping.py, axes/forecast.py).
+    Every row of every table says it; a row that does not is refused when its module type is
+    built (``ModuleType``), never taken as steady."""
+
+    #: Changes only when written, by a command (SAP, SGP, a host's or the program's).
+    SETTING = "setting"
+    #: Follows the axis, but changes only at its notable instants (a switch edge, arrival,
+    #: a reference search's end): the switch levels, AP 0 after a rotation, AP 196/197.
+    EVENTS = "changes at events"
+    #: Changes while the axis moves (position, speed, load, encoder, coolStep's current).
+    AXIS = "moves with the axis"
+    #: Changes with the clock alone: the millisecond tick (GP 132).
+    TIME = "moves with time"
+    #: Reading it may change it: the random number, the last command error, error flags
+    #: that a read clears.
+    ACCESS = "changes on access"
+    #: Follows the program itself (status, download mode, program counter): the same at the
+    #: same instruction of a program.
+    PROGRAM = "follows the program"
+
+
+SETTING, EVENTS, AXIS, TIME, ACCESS, PROGRAM = (
+    Motion.SETTING, Motion.EVENTS, Motion.AXIS, Motion.TIME, Motion.ACCESS, Motion.PROGRAM)
 
 
 @dataclass(frozen=True, slots=True)
@@ -21,7 +49,8 @@ class ParamSpec:
     ``allowed`` restricts the value to a set when the range is not contiguous.
     ``unsigned`` means the 32-bit wire value is read as unsigned before the range check.
     ``firmware_number`` maps a module's own numbering onto the firmware's (docs/modules.md,
-    "TMCM-1111").
+    "TMCM-1111").  ``motion``: how the value changes by itself (:class:`Motion`); required of
+    every row a module type lists.
     """
 
     number: int
@@ -36,6 +65,8 @@ class ParamSpec:
     #: module numbers it otherwise (the TMCM-1111's AP 15 is the TMCM-6212's VSTART, 19);
     #: None: its own number.  Keys above 255 never appear on the wire.
     firmware_number: int | None = None
+    #: How the value changes while no command writes it (None only before a table says).
+    motion: Motion | None = None
 
     #: The access letters as flags, worked out once (they are asked on every request).
     readable: bool = field(init=False, repr=False, compare=False)

@@ -17,17 +17,31 @@ pytrinamic class names.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 from tmcl_spec.commands import Opcode
+from tmcl_spec.family import (
+    ANALOG_FULL_SCALE,
+    BANK2_PARAMETERS,
+    BAUD_RATES,
+    CAN_BIT_RATES,
+    COORDINATES,
+    DIGITAL_THRESHOLD,
+    IO_MODE,
+    LAST_TMCL_ERROR,
+    PROGRAM_MEMORY,
+    REFERENCE_SEARCH_MODES,
+    STORABLE_USER_VARIABLES,
+    axis_row,
+    bank0,
+    bank3,
+    global_row,
+    tmc262_rows,
+    without_can,
+)
 from tmcl_spec.modules import ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
-from tmcl_spec.parameters import AP, GP, ParamSpec
-from tmcl_spec.tmcm6212 import BANK0_PARAMETERS as TMCM6212_BANK0
-from tmcl_spec.tmcm6212 import BANK2_PARAMETERS, REFERENCE_SEARCH_MODES, STORABLE_USER_VARIABLES
-from tmcl_spec.tmcm6212 import BAUD_RATES as TMCM6212_BAUD_RATES
-from tmcl_spec.tmcm6212 import CAN_BIT_RATES as TMCM6212_CAN_BIT_RATES
+from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, GP, SETTING, Motion, ParamSpec
 
 #: The TMC429's velocity and acceleration registers (11 bits): the firmware's units.
 V_MAX = 2047
@@ -36,112 +50,85 @@ DIVIDER_MAX = 13
 _BOOL = (0, 1)
 
 
-def _p(number: int, name: str, access: str, lo: int = INT32_MIN, hi: int = INT32_MAX,
-       default: int = 0, allowed: frozenset[int] | None = None) -> ParamSpec:
-    return ParamSpec(number, name, access, lo, hi, default, allowed)
-
-
-def tmc262_rows(v_max: int) -> tuple[ParamSpec, ...]:
-    """The TMC262 driver's rows (chopper, smartEnergy, stallGuard2), alike in the manual of
-    every module built on that driver (the TMC429 modules here, the TMCM-1111); ``v_max``:
-    the bound of the speeds among them (181, 182) in the module's units."""
-    return (
-        _p(162, "Chopper blank time", "RW", 0, 3, 2),
-        _p(163, "Chopper mode", "RW", *_BOOL),
-        _p(164, "Chopper hysteresis decrement", "RW", 0, 3, 0),
-        _p(165, "Chopper hysteresis end", "RW", 0, 15, 2),
-        _p(166, "Chopper hysteresis start", "RW", 0, 8, 3),
-        _p(167, "Chopper off time", "RW", 0, 15, 5),
-        _p(168, "smartEnergy current minimum", "RW", *_BOOL),
-        _p(169, "smartEnergy current down step", "RW", 0, 3, 0),
-        _p(170, "smartEnergy hysteresis", "RW", 0, 15, 0),
-        _p(171, "smartEnergy current up step", "RW", 0, 3, 0),
-        _p(172, "smartEnergy hysteresis start", "RW", 0, 15, 0),
-        _p(173, "stallGuard2 filter enable", "RW", *_BOOL),
-        _p(174, "stallGuard2 threshold", "RW", -64, 63, 0),
-        _p(175, "Slope control high side", "RW", 0, 3, 3),
-        _p(176, "Slope control low side", "RW", 0, 3, 3),
-        _p(177, "Short protection disable", "RW", *_BOOL),
-        _p(178, "Short detection timer", "RW", 0, 3, 0),
-        _p(179, "Vsense", "RW", *_BOOL, 1),
-        _p(180, "smartEnergy actual current", "R", 0, 31),
-        _p(181, "Stop on stall", "RW", 0, v_max, 0),
-        _p(182, "smartEnergy threshold speed", "RW", 0, v_max, 0),
-        _p(183, "smartEnergy slow run current", "RW", 0, 255, 0),
-        _p(184, "Random TOff mode", "RW", *_BOOL),
-    )
+def _p(number: int, name: str, access: str, motion: Motion, lo: int = INT32_MIN,
+       hi: int = INT32_MAX, default: int = 0, allowed: frozenset[int] | None = None) -> ParamSpec:
+    return axis_row(number, name, access, motion, lo, hi, default, allowed)
 
 
 #: Rows every TMC429 module has (pytrinamic names them for all three).  "E": STAP/RSAP store
 #: them (PyStepRocker's access letters).
 COMMON_AXIS_ROWS: tuple[ParamSpec, ...] = (
-    _p(0, "Target (next) position", "RW"),
-    _p(1, "Actual position", "RW"),
-    _p(2, "Target (next) speed", "RW", -V_MAX, V_MAX),
-    _p(3, "Actual speed", "R", -V_MAX, V_MAX),
-    _p(4, "Maximum positioning speed", "RWE", 0, V_MAX, 1000),
-    _p(5, "Maximum acceleration", "RWE", 0, A_MAX, 500),
-    _p(6, "Absolute max. current", "RWE", 0, 255, 255),
-    _p(7, "Standby current", "RWE", 0, 255, 32),
-    _p(8, "Target position reached", "R", *_BOOL),
-    _p(9, "Reference switch status", "R", *_BOOL),
-    _p(10, "Right limit switch status", "R", *_BOOL),
-    _p(11, "Left limit switch status", "R", *_BOOL),
-    _p(12, "Right limit switch disable", "RWE", *_BOOL),
-    _p(13, "Left limit switch disable", "RWE", *_BOOL),
-    _p(130, "Minimum speed", "RWE", 0, V_MAX, 1),
-    _p(135, "Actual acceleration", "R", 0, A_MAX),
-    _p(138, "Ramp mode", "RWE", 0, 2, 0),
-    _p(140, "Microstep resolution", "RWE", 0, 8, 8),
-    _p(141, "Reference switch tolerance", "RW", 0, 4095, 0),
-    _p(149, "Soft stop flag", "RWE", *_BOOL),
-    _p(150, "End switch power down mode", "RWE", *_BOOL),
-    _p(153, "Ramp divisor", "RWE", 0, DIVIDER_MAX, 3),
-    _p(154, "Pulse divisor", "RWE", 0, DIVIDER_MAX, 2),
-    _p(160, "Step interpolation enable", "RW", *_BOOL),
-    _p(161, "Double step enable", "RW", *_BOOL),
+    _p(0, "Target (next) position", "RW", EVENTS),
+    _p(1, "Actual position", "RW", AXIS),
+    _p(2, "Target (next) speed", "RW", SETTING, -V_MAX, V_MAX),
+    _p(3, "Actual speed", "R", AXIS, -V_MAX, V_MAX),
+    _p(4, "Maximum positioning speed", "RWE", SETTING, 0, V_MAX, 1000),
+    _p(5, "Maximum acceleration", "RWE", SETTING, 0, A_MAX, 500),
+    _p(6, "Absolute max. current", "RWE", SETTING, 0, 255, 255),
+    _p(7, "Standby current", "RWE", SETTING, 0, 255, 32),
+    _p(8, "Target position reached", "R", AXIS, *_BOOL),
+    _p(9, "Reference switch status", "R", EVENTS, *_BOOL),
+    _p(10, "Right limit switch status", "R", EVENTS, *_BOOL),
+    _p(11, "Left limit switch status", "R", EVENTS, *_BOOL),
+    _p(12, "Right limit switch disable", "RWE", SETTING, *_BOOL),
+    _p(13, "Left limit switch disable", "RWE", SETTING, *_BOOL),
+    _p(130, "Minimum speed", "RWE", SETTING, 0, V_MAX, 1),
+    _p(135, "Actual acceleration", "R", AXIS, 0, A_MAX),
+    _p(138, "Ramp mode", "RWE", AXIS, 0, 2, 0),
+    _p(140, "Microstep resolution", "RWE", SETTING, 0, 8, 8),
+    _p(141, "Reference switch tolerance", "RW", SETTING, 0, 4095, 0),
+    _p(149, "Soft stop flag", "RWE", SETTING, *_BOOL),
+    _p(150, "End switch power down mode", "RWE", SETTING, *_BOOL),
+    _p(153, "Ramp divisor", "RWE", SETTING, 0, DIVIDER_MAX, 3),
+    _p(154, "Pulse divisor", "RWE", SETTING, 0, DIVIDER_MAX, 2),
+    _p(160, "Step interpolation enable", "RW", SETTING, *_BOOL),
+    _p(161, "Double step enable", "RW", SETTING, *_BOOL),
     *tmc262_rows(V_MAX),
-    _p(193, "Reference search mode", "RWE", 1, 136, 1, REFERENCE_SEARCH_MODES),
-    _p(194, "Reference search speed", "RWE", 0, V_MAX, 500),
-    _p(195, "Reference switch speed", "RWE", 0, V_MAX, 50),
-    _p(196, "Distance end switches", "R"),
-    _p(204, "Freewheeling delay", "RWE", 0, 65535, 0),
-    _p(206, "Actual load value", "R", 0, 1023),
-    _p(207, "Extended error flags", "R", 0, 3),
-    _p(208, "TMC262 driver error flags", "R", 0, 255),
-    _p(213, "Group index", "RW", 0, 255, 0),
-    _p(214, "Power down delay", "RWE", 1, 65535, 200),
+    _p(193, "Reference search mode", "RWE", SETTING, 1, 136, 1, REFERENCE_SEARCH_MODES),
+    _p(194, "Reference search speed", "RWE", SETTING, 0, V_MAX, 500),
+    _p(195, "Reference switch speed", "RWE", SETTING, 0, V_MAX, 50),
+    _p(196, "Distance end switches", "R", EVENTS),
+    _p(204, "Freewheeling delay", "RWE", SETTING, 0, 65535, 0),
+    _p(206, "Actual load value", "R", AXIS, 0, 1023),
+    _p(207, "Extended error flags", "R", ACCESS, 0, 3),
+    _p(208, "TMC262 driver error flags", "R", AXIS, 0, 255),
+    _p(213, "Group index", "RW", SETTING, 0, 255, 0),
+    _p(214, "Power down delay", "RWE", SETTING, 1, 65535, 200),
     # Not a parameter of these modules: MVP REL counts from the actual position (the
     # stepRocker firmware and the TMCL reference), i.e. the TMCM-6212's AP 127 = 1.
-    _p(AP.RELATIVE_POSITIONING_OPTION, "(fixed) MVP REL from the actual position", "", 1, 1, 1),
+    _p(AP.RELATIVE_POSITIONING_OPTION, "(fixed) MVP REL from the actual position", "",
+       SETTING, 1, 1, 1),
 )
 
 #: Rows only some modules have (as their pytrinamic classes name them).
-LAST_REFERENCE = _p(197, "Last reference switch position", "R")
-BOOST_CURRENT = _p(200, "Boost current", "RWE", 0, 255, 0)
-ENCODER_MODE = _p(201, "Encoder mode", "RWE", 0, 255, 0)
+LAST_REFERENCE = _p(197, "Last reference switch position", "R", EVENTS)
+BOOST_CURRENT = _p(200, "Boost current", "RWE", SETTING, 0, 255, 0)
+ENCODER_MODE = _p(201, "Encoder mode", "RWE", SETTING, 0, 255, 0)
 ENCODER_ROWS = (
-    _p(209, "Encoder position", "RW"),
+    _p(209, "Encoder position", "RW", AXIS),
     # AP 209 = encoder counts * prescaler / 512; 512: the counts themselves (docs/modules.md).
-    _p(210, "Encoder prescaler", "RWE", 0, 65535, 512),
-    _p(212, "Maximum encoder deviation", "RWE", 0, 65535, 0),
+    _p(210, "Encoder prescaler", "RWE", SETTING, 0, 65535, 512),
+    _p(212, "Maximum encoder deviation", "RWE", SETTING, 0, 65535, 0),
 )
-STEP_DIRECTION_MODE = _p(254, "Step/direction mode", "RWE", 0, 2, 0)
+STEP_DIRECTION_MODE = _p(254, "Step/direction mode", "RWE", SETTING, 0, 2, 0)
 #: The sensOstep encoder of the TMCM-1140/1160/1161: 1024 counts per turn, AP 209 counts
 #: AP 210 / 512 per count, 25600 (50) by default: AP 209 in microsteps at 256 microsteps
 #: (TMCM-1161 manual V1.19 §6.2, TMCM-1021 manual V1.42 §6.2.1).
 SENSOSTEP_COUNTS_PER_REV = 1024
 SENSOSTEP_ROWS = (
-    _p(209, "Encoder position", "RW"),
-    _p(210, "Encoder prescaler", "RWE", 0, 65535, 25600),
-    _p(212, "Maximum encoder deviation", "RWE", 0, 65535, 0),
-    _p(AP.ABSOLUTE_ENCODER, "Absolute resolver value", "R", 0, SENSOSTEP_COUNTS_PER_REV - 1),
+    _p(209, "Encoder position", "RW", AXIS),
+    _p(210, "Encoder prescaler", "RWE", SETTING, 0, 65535, 25600),
+    _p(212, "Maximum encoder deviation", "RWE", SETTING, 0, 65535, 0),
+    _p(AP.ABSOLUTE_ENCODER, "Absolute resolver value", "R", AXIS, 0,
+       SENSOSTEP_COUNTS_PER_REV - 1),
 )
 #: An external encoder's rows (TMCM-1140/1160): stored and read back, no encoder behind them.
 EXTERNAL_ENCODER_ROWS = (
-    _p(AP.EXTERNAL_ENCODER_POSITION, "External encoder position", "RW"),
-    _p(AP.EXTERNAL_ENCODER_PRESCALER, "External encoder prescaler", "RWE", 0, 65535, 512),
-    _p(AP.EXTERNAL_ENCODER_MAX_DEVIATION, "External encoder max. deviation", "RWE", 0, 65535, 0),
+    _p(AP.EXTERNAL_ENCODER_POSITION, "External encoder position", "RW", SETTING),
+    _p(AP.EXTERNAL_ENCODER_PRESCALER, "External encoder prescaler", "RWE", SETTING, 0, 65535,
+       512),
+    _p(AP.EXTERNAL_ENCODER_MAX_DEVIATION, "External encoder max. deviation", "RWE", SETTING,
+       0, 65535, 0),
 )
 
 
@@ -173,58 +160,21 @@ AXIS_PARAMETERS_1141 = axis_table(LAST_REFERENCE, BOOST_CURRENT, STEP_DIRECTION_
 
 # -- global parameters -------------------------------------------------------------------------
 
-def global_row(number: int, name: str, access: str, lo: int, hi: int, default: int = 0,
-               unsigned: bool = False) -> ParamSpec:
-    return ParamSpec(number, name, access, lo, hi, default, None, unsigned)
-
-
-def bank0(*extra: ParamSpec) -> dict[int, ParamSpec]:
-    """The TMCL family's bank 0 (as on the TMCM-6212) and the rows these modules add."""
-    return {**TMCM6212_BANK0, **{spec.number: spec for spec in extra}}
-
-
 #: Bank 0 rows of the TMC429 modules beyond the TMCM-6212's (pytrinamic's GP0 names).
-END_SWITCH_POLARITY = global_row(GP.END_SWITCH_POLARITY, "End switch polarity", "RWA", 0, 1, 0)
-REVERSE_SHAFT = global_row(GP.REVERSE_SHAFT_DIRECTION, "Reverse shaft direction", "RWA", 0, 1, 0)
-IO_MODE = global_row(GP.IO_MODE, "I/O mode", "RWA", 0, 255, 0)
-#: The 1140 generation's (TMCM-1140/1141/1160/1161, TMCM-1111): the ASCII interface chosen
-#: for the next power-up (stored only: no ASCII interface here), the last command error.
-ASCII_MODE = global_row(GP.ASCII_MODE, "ASCII mode", "RWA", 0, 1, 0)
-LAST_TMCL_ERROR = global_row(GP.LAST_TMCL_ERROR, "Last TMCL error", "R", 0, 255, 0)
-#: Bank-0 rows of the CAN interface (the modules without one keep them hidden, access "").
-CAN_PARAMETERS = frozenset({GP.CAN_BIT_RATE, GP.CAN_REPLY_ID, GP.CAN_ID, GP.CAN_HEARTBEAT,
-                            GP.CAN_SECONDARY_ID})
-
-
-def without_can(table: dict[int, ParamSpec]) -> dict[int, ParamSpec]:
-    """A bank 0 whose CAN rows are hidden (the module has no CAN interface): GGP/SGP answer
-    status 3 for them; the module model still keeps its CAN address inside."""
-    return {n: dataclasses.replace(spec, access="") if n in CAN_PARAMETERS else spec
-            for n, spec in table.items()}
-
-
-def bank3(switch_motors: int, inputs: int) -> dict[int, ParamSpec]:
-    """Timer periods 0..2, stop switch triggers 27.. (two per motor), input triggers 39.."""
-    rows = {n: global_row(n, f"Timer {n} period", "RW", 0, 2**32 - 1, 0, unsigned=True)
-            for n in range(3)}
-    for motor in range(switch_motors):
-        for side, number in (("left", 27 + 2 * motor), ("right", 28 + 2 * motor)):
-            rows[number] = global_row(number, f"Stop {side} {motor} trigger transition", "RW", 0, 3)
-    for port in range(inputs):
-        rows[39 + port] = global_row(39 + port, f"Input {port} trigger transition", "RW", 0, 3)
-    return rows
+END_SWITCH_POLARITY = global_row(GP.END_SWITCH_POLARITY, "End switch polarity", "RWA", SETTING,
+                                 0, 1, 0)
+REVERSE_SHAFT = global_row(GP.REVERSE_SHAFT_DIRECTION, "Reverse shaft direction", "RWA",
+                           SETTING, 0, 1, 0)
+#: The 1140 generation's (TMCM-1140/1141/1160/1161): the ASCII interface chosen for the next
+#: power-up (stored only: no ASCII interface here); with the family's last command error.
+ASCII_MODE = global_row(GP.ASCII_MODE, "ASCII mode", "RWA", SETTING, 0, 1, 0)
 
 
 # -- I/O --------------------------------------------------------------------------------------
 
-#: Analogue inputs read 12 bit (0..4095) on these modules; a line reads 1 from half scale up.
-ANALOG_FULL_SCALE = 4095
-DIGITAL_THRESHOLD = 2048
 #: ``GIO 8, 1``: the supply voltage in 0.1 V (pytrinamic's ``VIN = 8``, TMCM-Lib's TMCM-3110).
 SUPPLY_VOLTAGE_CHANNEL = 8
 NOMINAL_SUPPLY_VOLTAGE = 24.0
-PROGRAM_MEMORY = 2048  # TMCL commands (TMCM-6110 manual V1.31 §4)
-COORDINATES = 21  # 0..20 as across the TMCL family; coordinate 0 is RAM only
 #: The TMCM-1160's supply: "up to 48 V" (manual V1.47's title page).
 NOMINAL_SUPPLY_VOLTAGE_1160 = 48.0
 
@@ -242,8 +192,8 @@ _FAMILY: dict[str, Any] = dict(
     analog_full_scale=ANALOG_FULL_SCALE,
     digital_threshold=DIGITAL_THRESHOLD,
     nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
-    baud_rates=TMCM6212_BAUD_RATES,  # the TMCL family's GP 65 and GP 69 (inferred)
-    can_bit_rates=TMCM6212_CAN_BIT_RATES,
+    baud_rates=BAUD_RATES,  # the TMCL family's GP 65 and GP 69 (inferred)
+    can_bit_rates=CAN_BIT_RATES,
 )
 
 TMCM_1110 = ModuleType(

@@ -19,23 +19,26 @@ to learn facts, not copied.
 from __future__ import annotations
 
 from tmcl_spec.commands import Opcode
-from tmcl_spec.modules import ModuleType
-from tmcl_spec.numbers import INT32_MAX, INT32_MIN
-from tmcl_spec.parameters import AP, ParamSpec
-from tmcl_spec.tmc429_modules import (
+from tmcl_spec.family import (
     ANALOG_FULL_SCALE,
+    BANK2_PARAMETERS,
+    BAUD_RATES,
+    CAN_BIT_RATES,
     COORDINATES,
     DIGITAL_THRESHOLD,
     IO_MODE,
     LAST_TMCL_ERROR,
     PROGRAM_MEMORY,
+    REFERENCE_SEARCH_MODES,
+    STORABLE_USER_VARIABLES,
+    axis_row,
     bank0,
     bank3,
     tmc262_rows,
 )
-from tmcl_spec.tmcm6212 import BANK2_PARAMETERS, REFERENCE_SEARCH_MODES, STORABLE_USER_VARIABLES
-from tmcl_spec.tmcm6212 import BAUD_RATES as TMCM6212_BAUD_RATES
-from tmcl_spec.tmcm6212 import CAN_BIT_RATES as TMCM6212_CAN_BIT_RATES
+from tmcl_spec.modules import ModuleType
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN
+from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, SETTING, Motion, ParamSpec
 
 #: VMAX is 24.8 fixed point, signed 32 bit: the largest whole pps it holds (the firmware
 #: shifts the pps value left by 8, TMCL-LITE-1111 ``ConvertVelocityUserToInternal``).
@@ -48,114 +51,113 @@ BOW_MAX = 0xFF_FFFF
 _BOOL = (0, 1)
 
 
-def _p(number: int, name: str, access: str, lo: int = INT32_MIN, hi: int = INT32_MAX,
-       default: int = 0, firmware_number: int | None = None,
+def _p(number: int, name: str, access: str, motion: Motion, lo: int = INT32_MIN,
+       hi: int = INT32_MAX, default: int = 0, firmware_number: int | None = None,
        allowed: frozenset[int] | None = None) -> ParamSpec:
-    return ParamSpec(number, name, access, lo, hi, default, allowed,
-                     firmware_number=firmware_number)
+    return axis_row(number, name, access, motion, lo, hi, default, allowed, firmware_number)
 
 
 def _stored(number: int, name: str, access: str = "RW", lo: int = INT32_MIN,
             hi: int = INT32_MAX, default: int = 0) -> ParamSpec:
     """A row stored and read back whose number means something else to the firmware layer
     (the TMCM-6212's numbering): kept apart under ``AP.STORED + number``."""
-    return _p(number, name, access, lo, hi, default, AP.STORED + number)
+    return _p(number, name, access, SETTING, lo, hi, default, AP.STORED + number)
 
 
 AXIS_PARAMETERS: dict[int, ParamSpec] = {
     spec.number: spec
     for spec in (
-        _p(0, "Target position", "RW"),
-        _p(1, "Actual position", "RW"),
-        _p(2, "Target speed", "RW", -V_MAX, V_MAX),
-        _p(3, "Actual speed", "R", -V_MAX, V_MAX),
-        _p(4, "Maximum positioning speed", "RW", 0, V_MAX, 51200),
-        _p(5, "Maximum acceleration", "RW", 0, A_MAX, 51200),
-        _p(6, "Maximum current", "RW", 0, 255, 128),
-        _p(7, "Standby current", "RW", 0, 255, 32),
-        _p(8, "Position reached flag", "R", *_BOOL),
-        _p(9, "Home switch state", "R", *_BOOL),
-        _p(10, "Right limit switch state", "R", *_BOOL),
-        _p(11, "Left limit switch state", "R", *_BOOL),
+        _p(0, "Target position", "RW", EVENTS),
+        _p(1, "Actual position", "RW", AXIS),
+        _p(2, "Target speed", "RW", SETTING, -V_MAX, V_MAX),
+        _p(3, "Actual speed", "R", AXIS, -V_MAX, V_MAX),
+        _p(4, "Maximum positioning speed", "RW", SETTING, 0, V_MAX, 51200),
+        _p(5, "Maximum acceleration", "RW", SETTING, 0, A_MAX, 51200),
+        _p(6, "Maximum current", "RW", SETTING, 0, 255, 128),
+        _p(7, "Standby current", "RW", SETTING, 0, 255, 32),
+        _p(8, "Position reached flag", "R", AXIS, *_BOOL),
+        _p(9, "Home switch state", "R", EVENTS, *_BOOL),
+        _p(10, "Right limit switch state", "R", EVENTS, *_BOOL),
+        _p(11, "Left limit switch state", "R", EVENTS, *_BOOL),
         # bit 0: the switch stops the motor, bit 1: its polarity inverted; 0 at power-up
-        _p(12, "Right limit switch enable / polarity", "RW", 0, 3, 0, AP.RIGHT_LIMIT_SWITCH),
-        _p(13, "Left limit switch enable / polarity", "RW", 0, 3, 0, AP.LEFT_LIMIT_SWITCH),
-        _p(14, "Ramp type (0 trapezoid, 1 S-shaped)", "RW", *_BOOL, 0, AP.RAMP_TYPE),
-        _p(15, "Start velocity", "RW", 0, V_MAX, 0, AP.VSTART),
-        _p(16, "Start acceleration", "RW", 0, A_MAX, 25600, AP.A1),
-        _p(17, "Maximum deceleration", "RW", 0, A_MAX, 51200),
-        _p(18, "Break velocity", "RW", 0, V_MAX, 0, AP.V1),
-        _p(19, "Final deceleration", "RW", 0, A_MAX, 25600, AP.D1),
-        _p(20, "Stop velocity", "RW", 0, V_MAX, 0),
-        _p(21, "Stop deceleration", "RW", 0, A_MAX, 10000, AP.STOP_DECELERATION),
-        _p(22, "Bow 1", "RW", 0, BOW_MAX, 0, AP.BOW1),
-        _p(23, "Bow 2", "RW", 0, BOW_MAX, 0, AP.BOW2),
-        _p(24, "Bow 3", "RW", 0, BOW_MAX, 0, AP.BOW3),
-        _p(25, "Bow 4", "RW", 0, BOW_MAX, 0, AP.BOW4),
-        _p(26, "Virtual stop left", "RW", firmware_number=AP.VIRTUAL_STOP_LEFT),
-        _p(27, "Virtual stop right", "RW", firmware_number=AP.VIRTUAL_STOP_RIGHT),
-        _p(28, "Virtual stop enable (bit 0 left, bit 1 right)", "RW", 0, 3, 0,
+        _p(12, "Right limit switch enable / polarity", "RW", SETTING, 0, 3, 0, AP.RIGHT_LIMIT_SWITCH),
+        _p(13, "Left limit switch enable / polarity", "RW", SETTING, 0, 3, 0, AP.LEFT_LIMIT_SWITCH),
+        _p(14, "Ramp type (0 trapezoid, 1 S-shaped)", "RW", SETTING, *_BOOL, 0, AP.RAMP_TYPE),
+        _p(15, "Start velocity", "RW", SETTING, 0, V_MAX, 0, AP.VSTART),
+        _p(16, "Start acceleration", "RW", SETTING, 0, A_MAX, 25600, AP.A1),
+        _p(17, "Maximum deceleration", "RW", SETTING, 0, A_MAX, 51200),
+        _p(18, "Break velocity", "RW", SETTING, 0, V_MAX, 0, AP.V1),
+        _p(19, "Final deceleration", "RW", SETTING, 0, A_MAX, 25600, AP.D1),
+        _p(20, "Stop velocity", "RW", SETTING, 0, V_MAX, 0),
+        _p(21, "Stop deceleration", "RW", SETTING, 0, A_MAX, 10000, AP.STOP_DECELERATION),
+        _p(22, "Bow 1", "RW", SETTING, 0, BOW_MAX, 0, AP.BOW1),
+        _p(23, "Bow 2", "RW", SETTING, 0, BOW_MAX, 0, AP.BOW2),
+        _p(24, "Bow 3", "RW", SETTING, 0, BOW_MAX, 0, AP.BOW3),
+        _p(25, "Bow 4", "RW", SETTING, 0, BOW_MAX, 0, AP.BOW4),
+        _p(26, "Virtual stop left", "RW", SETTING, firmware_number=AP.VIRTUAL_STOP_LEFT),
+        _p(27, "Virtual stop right", "RW", SETTING, firmware_number=AP.VIRTUAL_STOP_RIGHT),
+        _p(28, "Virtual stop enable (bit 0 left, bit 1 right)", "RW", SETTING, 0, 3, 0,
            AP.VIRTUAL_STOP_ENABLE),
-        _p(29, "Virtual stop mode", "RW", 0, 3, 0, AP.VIRTUAL_STOP_MODE),
-        _p(33, "Swap stop switches", "RW", *_BOOL, 0, AP.SWAP_SWITCHES),
-        _p(34, "Soft stop enable", "RW", *_BOOL, 0, AP.SOFT_STOP),
-        _p(35, "Bow scaling factor", "RW", 0, 255, 0),
-        _p(50, "Torque (closed loop)", "RW"),
-        _p(108, "Closed loop gamma VMin", "RW", 0, 0xFF_FFFF, 300000),
-        _p(109, "Closed loop gamma VMax", "RW", 0, 0xFF_FFFF, 600000),
-        _p(110, "Closed loop maximum gamma", "RW", 0, 255, 255),
-        _p(111, "Closed loop beta", "RW", 0, 511, 255),
-        _p(112, "Closed loop offset", "RW"),
-        _p(113, "Closed loop current scaler minimum", "RW", 0, 255, 100),
-        _p(114, "Closed loop current scaler maximum", "RW", 0, 255, 240),
-        _p(115, "Closed loop correction velocity P", "RW", 0, INT32_MAX, 10000),
-        _p(116, "Closed loop correction velocity I", "RW", 0, INT32_MAX, 20),
-        _p(117, "Closed loop correction velocity I clipping", "RW", 0, 65535, 10),
-        _p(118, "Closed loop correction velocity DV clock", "RW", 0, 255, 0),
-        _p(119, "Closed loop correction velocity DV clipping", "RW", 0, INT32_MAX, 1073741823),
-        _p(120, "Closed loop upscale delay", "RW", 0, 0xFF_FFFF, 1000),
-        _p(121, "Closed loop downscale delay", "RW", 0, 0xFF_FFFF, 10000),
-        _p(123, "Actual scaler value", "R", 0, 255),
-        _p(124, "Closed loop correction position P", "RW", 0, INT32_MAX, 65536),
-        _p(125, "Closed loop max. correction tolerance", "RW", 0, INT32_MAX, 100),
-        _p(126, "Closed loop start up current scaler", "RW", 0, 255, 0),
-        _p(127, "Relative positioning option", "RW", 0, 2, 0),
-        _p(129, "Closed loop mode", "RW", *_BOOL),
+        _p(29, "Virtual stop mode", "RW", SETTING, 0, 3, 0, AP.VIRTUAL_STOP_MODE),
+        _p(33, "Swap stop switches", "RW", SETTING, *_BOOL, 0, AP.SWAP_SWITCHES),
+        _p(34, "Soft stop enable", "RW", SETTING, *_BOOL, 0, AP.SOFT_STOP),
+        _p(35, "Bow scaling factor", "RW", SETTING, 0, 255, 0),
+        _p(50, "Torque (closed loop)", "RW", SETTING),
+        _p(108, "Closed loop gamma VMin", "RW", SETTING, 0, 0xFF_FFFF, 300000),
+        _p(109, "Closed loop gamma VMax", "RW", SETTING, 0, 0xFF_FFFF, 600000),
+        _p(110, "Closed loop maximum gamma", "RW", SETTING, 0, 255, 255),
+        _p(111, "Closed loop beta", "RW", SETTING, 0, 511, 255),
+        _p(112, "Closed loop offset", "RW", SETTING),
+        _p(113, "Closed loop current scaler minimum", "RW", SETTING, 0, 255, 100),
+        _p(114, "Closed loop current scaler maximum", "RW", SETTING, 0, 255, 240),
+        _p(115, "Closed loop correction velocity P", "RW", SETTING, 0, INT32_MAX, 10000),
+        _p(116, "Closed loop correction velocity I", "RW", SETTING, 0, INT32_MAX, 20),
+        _p(117, "Closed loop correction velocity I clipping", "RW", SETTING, 0, 65535, 10),
+        _p(118, "Closed loop correction velocity DV clock", "RW", SETTING, 0, 255, 0),
+        _p(119, "Closed loop correction velocity DV clipping", "RW", SETTING, 0, INT32_MAX, 1073741823),
+        _p(120, "Closed loop upscale delay", "RW", SETTING, 0, 0xFF_FFFF, 1000),
+        _p(121, "Closed loop downscale delay", "RW", SETTING, 0, 0xFF_FFFF, 10000),
+        _p(123, "Actual scaler value", "R", SETTING, 0, 255),
+        _p(124, "Closed loop correction position P", "RW", SETTING, 0, INT32_MAX, 65536),
+        _p(125, "Closed loop max. correction tolerance", "RW", SETTING, 0, INT32_MAX, 100),
+        _p(126, "Closed loop start up current scaler", "RW", SETTING, 0, 255, 0),
+        _p(127, "Relative positioning option", "RW", SETTING, 0, 2, 0),
+        _p(129, "Closed loop mode", "RW", SETTING, *_BOOL),
         # the encoder velocity (V_ENC_MEAN / V_ENC): with the world's encoder on the motor
         # shaft, the motor's velocity
-        _p(131, "Measured speed", "R", -V_MAX, V_MAX, 0, AP.ACTUAL_SPEED),
-        _p(132, "Current measured speed", "R", -V_MAX, V_MAX, 0, AP.ACTUAL_SPEED),
-        _p(133, "Closed loop init flag", "R", *_BOOL),
-        _p(134, "Positioning window", "RW", 0, INT32_MAX, 100),
-        _p(136, "Encoder mean wait", "RW", 0, 255, 0),
-        _p(137, "Encoder mean filter", "RW", 0, 15, 7),
+        _p(131, "Measured speed", "R", AXIS, -V_MAX, V_MAX, 0, AP.ACTUAL_SPEED),
+        _p(132, "Current measured speed", "R", AXIS, -V_MAX, V_MAX, 0, AP.ACTUAL_SPEED),
+        _p(133, "Closed loop init flag", "R", SETTING, *_BOOL),
+        _p(134, "Positioning window", "RW", SETTING, 0, INT32_MAX, 100),
+        _p(136, "Encoder mean wait", "RW", SETTING, 0, 255, 0),
+        _p(137, "Encoder mean filter", "RW", SETTING, 0, 15, 7),
         _stored(138, "Encoder mean interval", "RW", 0, 65535, 500),
-        _p(140, "Microstep resolution", "RW", 0, 8, 8),
+        _p(140, "Microstep resolution", "RW", SETTING, 0, 8, 8),
         _stored(150, "Encoder input sample rate", "RW", 0, 7, 0),
-        _p(151, "Encoder input filter length", "RW", 0, 7, 0),
+        _p(151, "Encoder input filter length", "RW", SETTING, 0, 7, 0),
         *tmc262_rows(V_MAX),
-        _p(193, "Reference search mode", "RW", 1, 136, 1, allowed=REFERENCE_SEARCH_MODES),
-        _p(194, "Reference search speed", "RW", 0, V_MAX, 51200),
-        _p(195, "Reference switch speed", "RW", 0, V_MAX, 5120),
-        _p(196, "End switch distance", "R"),
-        _p(197, "Last reference position", "R"),
-        _p(200, "Boost current", "RW", 0, 255, 128),
-        _p(201, "Encoder mode", "RW", 0, 255, 0),
-        _p(202, "Motor full step resolution", "RW", 0, 65535, 200),
-        _p(206, "Actual load value", "R", 0, 1023),
-        _p(207, "Error flags", "R", 0, 3),
-        _p(208, "TMC262 status flags", "R", 0, 255),
-        _p(209, "Encoder position", "RW"),
-        _p(210, "Encoder resolution", "RW", 0, 65535, 4096),
-        _p(212, "Maximum position encoder deviation", "RW", 0, 65535, 0),
-        _p(213, "Maximum velocity encoder deviation", "RW", 0, INT32_MAX, 0),
+        _p(193, "Reference search mode", "RW", SETTING, 1, 136, 1, allowed=REFERENCE_SEARCH_MODES),
+        _p(194, "Reference search speed", "RW", SETTING, 0, V_MAX, 51200),
+        _p(195, "Reference switch speed", "RW", SETTING, 0, V_MAX, 5120),
+        _p(196, "End switch distance", "R", EVENTS),
+        _p(197, "Last reference position", "R", EVENTS),
+        _p(200, "Boost current", "RW", SETTING, 0, 255, 128),
+        _p(201, "Encoder mode", "RW", SETTING, 0, 255, 0),
+        _p(202, "Motor full step resolution", "RW", SETTING, 0, 65535, 200),
+        _p(206, "Actual load value", "R", AXIS, 0, 1023),
+        _p(207, "Error flags", "R", ACCESS, 0, 3),
+        _p(208, "TMC262 status flags", "R", AXIS, 0, 255),
+        _p(209, "Encoder position", "RW", AXIS),
+        _p(210, "Encoder resolution", "RW", SETTING, 0, 65535, 4096),
+        _p(212, "Maximum position encoder deviation", "RW", SETTING, 0, 65535, 0),
+        _p(213, "Maximum velocity encoder deviation", "RW", SETTING, 0, INT32_MAX, 0),
         # STDBY_DELAY = value * 160000 clocks (10 ms units) must fit the 32-bit register
-        _p(214, "Power down delay", "RW", 0, 13421, 0),
-        _p(251, "Reverse shaft", "RW", *_BOOL),
-        _p(253, "Step/direction gear ratio", "RW"),
-        _p(254, "Step/direction mode", "RW", 0, 15, 0),
+        _p(214, "Power down delay", "RW", SETTING, 0, 13421, 0),
+        _p(251, "Reverse shaft", "RW", SETTING, *_BOOL),
+        _p(253, "Step/direction gear ratio", "RW", SETTING),
+        _p(254, "Step/direction mode", "RW", SETTING, 0, 15, 0),
         # pps only: the TMC4361's internal units (0) are not emulated (status 4)
-        _p(255, "Unit mode", "RW", 1, 1, 1),
+        _p(255, "Unit mode", "RW", SETTING, 1, 1, 1),
     )
 }
 
@@ -194,6 +196,6 @@ TMCM_1111 = ModuleType(
     digital_threshold=DIGITAL_THRESHOLD,
     supply_voltage_channel=None,
     encoder_counts_per_rev=ENCODER_COUNTS_PER_REV,
-    baud_rates=TMCM6212_BAUD_RATES,
-    can_bit_rates=TMCM6212_CAN_BIT_RATES,
+    baud_rates=BAUD_RATES,
+    can_bit_rates=CAN_BIT_RATES,
 )

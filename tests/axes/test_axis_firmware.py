@@ -18,6 +18,7 @@ from axes.chips.tmc4361a.firmware import TMC4361AAxis
 from axes.firmware import AxisFirmware
 from axes.interface import AxisEvent, AxisEventKind
 from axes.world import AxisWorld, LoadZone, Switch
+from tmcl_spec.tmcm6212 import AXIS_PARAMETERS as TMCM6212_AXIS_PARAMETERS
 
 NS = 1_000_000_000
 MS = 1_000_000
@@ -32,7 +33,7 @@ class Harness:
 
     def __init__(self, world: AxisWorld | None = None,
                  axis_class: type[AxisFirmware] = TMC4210Axis) -> None:
-        self.axis = axis_class(0, world=world)
+        self.axis = axis_class(0, TMCM6212_AXIS_PARAMETERS, world=world)
         self.events: list[AxisEvent] = []
         self.now = 0
 

@@ -123,8 +123,8 @@ def test_the_datasheets_speed_ceiling_in_each_mode(clock: int) -> None:
     """|VMAX| <= f/4 in positioning, <= f/2 in velocity mode (datasheet §6.7.2): beyond them
     the real chip makes wrong step pulses or positions wrongly, so the firmware writes no
     more (a raised AP 4 during a move too); AP 4 and AP 2 keep the values the host wrote."""
-    h = Harness(axis_class=lambda index, world=None: TMC4361AAxis(index, world=world,
-                                                                  clock_hz=clock))
+    h = Harness(axis_class=lambda index, parameters, world=None: TMC4361AAxis(
+        index, parameters, world=world, clock_hz=clock))
     h.sap(AP.MAX_ACCELERATION, MAX_ACCELERATION_PPS2)
     h.sap(AP.MAX_DECELERATION, MAX_ACCELERATION_PPS2)
     h.sap(AP.MAX_SPEED, 1_000_000)

@@ -183,7 +183,7 @@ def trial_rng(seed: int, number: int) -> random.Random:
 
 #: clk32 ticks per second at the TMC4210's 16 MHz.
 TICKS_PER_S = 500_000
-#: The firmware's look-ahead budget (axes/firmware.py LOOKAHEAD_BUDGET).
+#: The firmware's look-ahead budget (axes/forecast.py LOOKAHEAD_BUDGET).
 BUDGET = 2_000
 
 

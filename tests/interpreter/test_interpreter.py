@@ -600,3 +600,12 @@ def test_program_events_start_interrupt_and_stop():
     assert kinds[-1] == ("program_stopped", {"pc": 5})
     times = [t for t, _, _ in port.events]
     assert times == sorted(times)
+
+
+def test_the_opcodes_the_interpreter_keeps_to_itself_are_isa_s_list() -> None:
+    """interpreter.isa.INTERNAL_OPCODES (what the pass analysis treats as not a module
+    command) is exactly what the dispatch loop executes itself."""
+    from interpreter import machine
+    from interpreter.isa import INTERNAL_OPCODES, OP_STOP, OP_WAIT
+
+    assert {0, OP_STOP, OP_WAIT, *machine._INTERNAL} == INTERNAL_OPCODES

@@ -320,11 +320,11 @@ def test_polling_ap8_through_a_move_reads_what_the_chip_brought_up_to_time_reads
     """AP 8 is answered from the look-ahead while the position is short of the target (no
     run of the chip to every poll): every poll, position and event is what bringing the
     chip up to each poll gives, and the chip runs far less often."""
-    from axes.firmware import AxisFirmware
+    from axes.forecast import AxisForecast
 
     def run(shortcut: bool) -> tuple[list[tuple[int, ...]], list[tuple[int, str]], int]:
         if not shortcut:
-            monkeypatch.setattr(AxisFirmware, "_short_of_target", lambda self: False)
+            monkeypatch.setattr(AxisForecast, "short_of_target", lambda self: False)
         module = TMCLModule(kind=kind, chip_core=core) if core else TMCLModule(kind=kind)
         bench = Bench(module)
         events: list[tuple[int, str]] = []
@@ -362,7 +362,7 @@ def test_polling_ap8_through_a_move_reads_what_the_chip_brought_up_to_time_reads
     bench.ok(Opcode.MVP, 0, 0, 30000)
     while abs(30000 - bench.ok(Opcode.GAP, 1, 0)) > 100:
         bench.advance(0.001)
-    monkeypatch.setattr(AxisFirmware, "_short_of_target", lambda self: False)
+    monkeypatch.setattr(AxisForecast, "short_of_target", lambda self: False)
     while bench.ok(Opcode.GAP, 8, 0) == 0:
         bench.advance(0.000005)
     monkeypatch.undo()

@@ -27,7 +27,7 @@ from tmcl_server.protocol import AnyReply, RawReply, Reply, Request
 from tmcl_spec.commands import ALWAYS_REPLIED, READ_ONLY_OPCODES, IOBank, Opcode, Status
 from tmcl_spec.modules import ModuleType, module_type
 from tmcl_spec.numbers import NS_PER_MS, to_int32
-from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, ParamSpec
+from tmcl_spec.parameters import AP, GP, SWITCH_NAMES, Motion, ParamSpec
 
 log = logging.getLogger(__name__)
 
@@ -312,11 +312,14 @@ class ModuleCore:
             return FOREVER if status in _REFUSALS else 0
         if opcode == _GAP:
             return self.axes[motor].steady_until(type_)
-        if opcode == _GGP and motor == 0:
-            if type_ == GP.TICK_TIMER:  # counts milliseconds
+        if opcode == _GGP:  # the motor field is the bank; the row says how it moves
+            row = self.type.global_parameters.get(motor, {}).get(type_)
+            if row is None:
+                return 0  # not a row of the table: no promise
+            if row.motion is Motion.TIME:  # the tick timer counts milliseconds
                 return (self.now_ns // NS_PER_MS + 1) * NS_PER_MS
-            if type_ in (GP.RANDOM_NUMBER, GP.LAST_TMCL_ERROR):  # the next number; a refused
-                return 0  # command of the same loop sets the last error (a refusal "changes nothing")
+            if row.motion is Motion.ACCESS:  # the next random number; a refused command of
+                return 0  # the same loop sets the last error (a refusal "changes nothing")
         return FOREVER  # inputs, outputs, variables, coordinates: changed only from outside
 
     def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...]) -> int:

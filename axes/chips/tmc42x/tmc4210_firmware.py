@@ -27,7 +27,6 @@ from axes.chips.tmc42x.tmc4210 import (
 from axes.firmware import AxisFirmware
 from axes.world import AxisWorld
 from tmcl_spec.parameters import ParamSpec
-from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
 
 __all__ = ["ROLLING_REFRESH", "ROLLING_SPAN", "SMGP_FIRMWARE", "TMC4210Axis", "TMC4210Driver"]
 
@@ -58,7 +57,7 @@ class TMC4210Driver(TMC42xDriver):
 class TMC4210Axis(AxisFirmware):
     """One TMCM-6212 axis on a TMC4210: the TMCL firmware layer over the TMC4210 driver."""
 
-    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS,
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec],
                  world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
         clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         super().__init__(index, parameters, world,

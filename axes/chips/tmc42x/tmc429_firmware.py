@@ -23,17 +23,16 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from axes.board import AxisBoard
-from axes.chips.tmc42x.engine import DEFAULT_CLOCK_HZ
 from axes.chips.tmc42x.firmware import TMC42xDriver
+from axes.chips.tmc42x.registers import DEFAULT_CLOCK_HZ
 from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
-from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
+from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, Reg, TMC429Motor
 from axes.core import MotorDriverLink
 from axes.firmware import AxisFirmware
 from axes.interface import Axis
 from axes.stallguard import CoolStep
 from axes.world import AxisWorld
 from tmcl_spec.parameters import AP, ParamSpec
-from tmcl_spec.tmc429_modules import AXIS_PARAMETERS_6110
 
 #: IF_CONFIGURATION at power-up: Step/Dir outputs, a right switch input per motor (REFR1..3),
 #: nINT on its own pin (the stepRocker firmware's Init429).
@@ -177,15 +176,15 @@ class TMC429Driver(TMC42xDriver):
 
     def setup_chip(self) -> None:
         """Step/Dir, right switches on REFR, nINT on its own pin; the TMC262 configured."""
-        self._write_global(GlobalReg.IF_CONFIGURATION, IF_CONFIGURATION_FIRMWARE)
-        self._write_global(GlobalReg.SMGP, SMGP_FIRMWARE)
+        self._write_global(Reg.IF_CONFIGURATION, IF_CONFIGURATION_FIRMWARE)
+        self._write_global(Reg.SMGP, SMGP_FIRMWARE)
         if self.motor_driver is not None:
             self.motor_driver.configure()
 
     def levels(self) -> tuple[bool, bool, bool]:
         """(left, right) from REFERENCE_SWITCHES (motor m: r at bit 2m, l at 2m + 1); the
         home switch is not a TMC429 input: the microcontroller reads it from its own pin."""
-        switches = self._read_global(GlobalReg.REFERENCE_SWITCHES) >> 2 * self.motor
+        switches = self._read_global(Reg.REFERENCE_SWITCHES) >> 2 * self.motor
         home = self.board.pins(self.chip.motor_position)[2]
         return bool(switches & 2), bool(switches & 1), home
 
@@ -193,7 +192,7 @@ class TMC429Driver(TMC42xDriver):
 class TMC429Axis(AxisFirmware):
     """One axis of a TMC429 module: the TMCL firmware layer over a TMC429 motor and its TMC262."""
 
-    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS_6110,
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec],
                  world: AxisWorld | None = None, clock_hz: int | None = None, *,
                  chip: TMC429 | None = None, motor: int | None = None) -> None:
         if chip is None:  # an axis of its own: motor 0 of a chip with one TMC262

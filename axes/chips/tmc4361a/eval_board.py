@@ -17,8 +17,9 @@ from collections.abc import Mapping
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Reg, Status, datagram
 from axes.chips.tmc4361a.registers import MASK32, POWER_ON, RESET_KEY, signed32
-from axes.interface import Axis, AxisEvent, AxisStatus
-from axes.world import AxisWorld, LoadZone, Switch
+from axes.interface import AxisEvent, AxisStatus
+from axes.rig import RiggedAxis
+from axes.world import AxisWorld
 from tmcl_spec.eval_boards import EvalError
 from tmcl_spec.numbers import NS_PER_MS, to_int32
 from tmcl_spec.parameters import ParamSpec
@@ -97,8 +98,10 @@ def _c_div(value: int, divisor: int) -> int:
     return -quotient if value < 0 else quotient
 
 
-class TMC4361AEvalAxis(Axis):
+class TMC4361AEvalAxis(RiggedAxis):
     """Motor 0 of a TMC4361A-EVAL, as the evaluation firmware drives it."""
+
+    board: EvalBoardInputs
 
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec] | None = None,
                  world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
@@ -362,69 +365,16 @@ class TMC4361AEvalAxis(Axis):
             right_switch=right, encoder_position=signed32(self._read(Reg.ENC_POS)),
             mechanical_position=self.board.mechanical(chip.motor_position))
 
-    # == the world =============================================================================
+    # == the rig's hooks (axes/rig.py: the world and the faults around the axis) ==================
 
-    @property
-    def world(self) -> AxisWorld:
-        return self.board.world
+    def _motor_position(self) -> int:
+        return self.chip.motor_position
+
+    def _rig_begin(self) -> None:
+        self._sync()
 
     def _pins_changed(self) -> None:
         self.chip.set_pins(*self.board.pins(self.chip.motor_position))
-
-    def set_world(self, world: AxisWorld) -> None:
-        self._sync()
-        self.board.set_world(world)
-        self.board.set_stuck(world.stuck, self.chip.motor_position)
-        self._pins_changed()
-
-    def set_switch(self, name: str, switch: Switch | None) -> None:
-        self._sync()
-        self.board.set_switch(name, switch)
-        self._pins_changed()
-
-    def set_load(self, zones: list[LoadZone], free_load: int | None = None) -> None:
-        self.board.world.load_zones = list(zones)  # no driver board: nothing measures load
-        if free_load is not None:
-            self.board.world.free_load, self.board.world.free_blocked = free_load, None
-
-    def set_encoder_slip(self, slip: float) -> None:
-        if not 0.0 <= slip <= 1.0:
-            raise ValueError("slip must be between 0 and 1")
-        self.board.world.encoder_slip = slip
-
-    # == faults of the mechanics and the wiring (tmcl_server/faults.py) ==========================
-
-    def set_stuck(self, stuck: bool, load: int | None = None) -> None:
-        """From now on the motor no longer follows its steps (or follows them again): the chip
-        keeps counting (XACTUAL moves on), the mechanics and the switches they actuate stay
-        where they stopped.  ENC_POS is the chip's own count of the steps on this board (no
-        encoder is modelled behind it), so it does not stop; ``load`` is kept in the world,
-        but nothing measures it without a driver board."""
-        self._sync()
-        world = self.board.world
-        world.stuck = stuck
-        world.stuck_load = load if stuck else None
-        self.board.set_stuck(stuck, self.chip.motor_position)
-        self.board.world_changed()
-        self._pins_changed()
-
-    def break_switch(self, name: str, level: bool | None) -> None:
-        """A broken switch: its line stays at the electrical ``level`` wherever the axis is
-        (as the world's levels are, before the board's pull-ups); None repairs it."""
-        self._sync()
-        if level is None:
-            self.board.world.broken_switches.pop(name, None)
-        else:
-            self.board.world.broken_switches[name] = level
-        self.board.world_changed()
-        self._pins_changed()
-
-    def place_mechanics(self, mechanical: int) -> None:
-        """After a restart: the mechanics stand at ``mechanical`` (world units) while the
-        chip's counters start from 0, so the world's switches stay where they are."""
-        self._sync()
-        self.board.place(mechanical, self.chip.motor_position)
-        self._pins_changed()
 
 
 def _velocity_register(pps: int) -> int:

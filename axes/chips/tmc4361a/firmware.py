@@ -21,7 +21,6 @@ from axes.firmware import AxisFirmware
 from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_S, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
-from tmcl_spec.tmcm6212 import AXIS_PARAMETERS
 
 DEFAULT_CLOCK_HZ = 16_000_000
 
@@ -483,7 +482,7 @@ class TMC4361ADriver(ChipDriver):
 class TMC4361AAxis(AxisFirmware):
     """One TMCM-6212 axis on a TMC4361A: the TMCL firmware layer over the TMC4361A driver."""
 
-    def __init__(self, index: int, parameters: Mapping[int, ParamSpec] = AXIS_PARAMETERS,
+    def __init__(self, index: int, parameters: Mapping[int, ParamSpec],
                  world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
         clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         super().__init__(index, parameters, world,

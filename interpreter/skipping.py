@@ -1,0 +1,417 @@
+"""Loop skipping: the passes of a loop that are certain to repeat are left out, exactly.
+
+Most TMCL programs poll (``GAP 8`` / ``COMP 1`` / ``JC NE`` until a move ends).  Each
+instruction costs 10 µs of simulated time and microseconds of Python, so stepping them cannot
+be much faster than real time.  Like an emulator's idle-loop detection (mGBA, Dolphin), the
+interpreter analyses one pass of a loop, instruction by instruction, while the module says of
+every command the pass sends whether it changed anything and until when its answer holds
+(:meth:`interpreter.machine.ModulePort.probe`), and then leaves out the passes certain to do
+the same: time and the instruction count advance as if they had run.  docs/scheduling.md
+("Loops that change nothing") tells the story; the proof that the result is exactly what
+stepping every instruction gives is these invariants, each cited where the code relies on it:
+
+I1. Nothing intervenes within a batch.  A batch (one ``Interpreter._advance`` up to its
+    ``limit``) ends no later than the module's next hardware event (the caller's ``end_ns``),
+    the next timer interrupt, and the clock; host requests, world changes and faults are
+    applied between batches, never inside one, and a program command that may move an event
+    ends the batch (``YIELD``).  Inside a batch the module changes only through the program.
+I2. A repeat is a repeat.  The interpreter is deterministic in its registers
+    (:meth:`Program.registers`: PC, accumulator, X, flags, error flags, stack, interrupt
+    context, program memory) and the answers it gets.  A pass that changed nothing (no call
+    ``changed``) and left the registers as it found them, run again from them while every
+    command answers the same, does exactly the same again.
+I3. Steady answers.  A call's ``steady_until``: executed again at any time before it, with
+    nothing intervening (I1), the command answers the same and changes nothing.
+I4. The ceiling.  Pass k >= 1 after the analysed pass (which began at ``start``) sends the
+    command at offset o at ``start + k * period + o``; its answer is certain (I3) while that
+    is < ``steady_until``, i.e. for k <= ceil((steady_until - start - o) / period) - 1.  The
+    pass must also end by the batch's ``limit``: k <= (limit - start) // period - 1.
+I5. Flips are found on time.  A pass that reads moving values (a position, a rotation's
+    speed) and uses them only through COMP and JC (:func:`boundaries`) takes a path that is a
+    function of how each value compares with each boundary (<, =, >).  The axis answers when
+    it first compares otherwise with one of them (``first_time_at``, axes/forecast.py F3-F4);
+    every pass whose read comes strictly before that instant compares as the analysed one
+    did and takes its path, so stopping there is never late.
+I6. What the next pass reads first it finds as this one did.  A register the pass reads
+    before writing must be left as it was found and must not hold a moving read's value
+    (equal now by chance, it would differ in the passes left out).
+I7. One real pass is kept.  The passes left out before a flip do not compute their moving
+    reads, so the registers hold the analysed pass's values, not the last left-out pass's;
+    the last whole pass before ``limit`` is therefore stepped, and whenever the batch ends
+    (and a host, an interrupt or the next analysis can look) the registers are stepping's.
+I8. A WAIT TICKS inside a pass lasts the same in every pass (its deadline is a fixed offset
+    from the WAIT's instant), so it is part of the pass's period.
+I9. A loop that touches nothing but registers (no command, no WAIT) is, by I2 with no
+    answers to hold, skipped again without an analysis whenever its registers are the same.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+from interpreter.isa import (
+    CONTINUE,
+    INTERNAL_OPCODES,
+    OP_AAP,
+    OP_ACO,
+    OP_AGP,
+    OP_CALC,
+    OP_COMP,
+    OP_GAP,
+    OP_GCO,
+    OP_JA,
+    OP_JC,
+    OP_RFS,
+    OP_WAIT,
+    WAITING,
+    Instruction,
+)
+from tmcl_spec.commands import MOTOR_ALL, STATUS_OK, CalcOp, Opcode, RfsType
+
+#: A loop is analysed after this many backward jumps; while it cannot be skipped, the wait
+#: doubles up to LOOP_BACKOFF_MAX (docs/scheduling.md, "Loops that change nothing").
+LOOP_PROBE_AFTER = 2
+LOOP_BACKOFF_MAX = 1024
+#: A pass longer than this many instructions is not analysed.
+MAX_PASS = 256
+#: "Steady until something intervenes" (axes.interface.FOREVER's value).
+FOREVER = 1 << 62
+
+#: Commands that, in a program, load the value they read into the accumulator.
+LOADS_ACCUMULATOR = frozenset({Opcode.GAP.value, Opcode.GGP.value, Opcode.GIO.value, OP_GCO})
+_RFS_STATUS = RfsType.STATUS.value
+
+
+def loads_accumulator(op: int, ty: int, motor: int) -> bool:
+    """Whether a command's answer goes to the accumulator (when it succeeds): the reads, but
+    not GCO of all coordinates, and RFS STATUS."""
+    return ((op in LOADS_ACCUMULATOR and not (op == OP_GCO and motor == MOTOR_ALL))
+            or (op == OP_RFS and ty == _RFS_STATUS))
+
+
+@dataclass(slots=True)
+class Call:
+    """One module command of a pass being analysed."""
+
+    time_ns: int
+    status: int
+    value: int
+    changed: bool
+    steady_until: int
+    request: tuple[int, int, int, int]  # opcode, type, motor, value sent
+
+
+class Program(Protocol):
+    """What the analysis needs of the interpreter it serves (``interpreter.machine``)."""
+
+    code: list[Instruction]
+    pc: int
+    time_ns: int
+    executed: int
+    loops_skipped: int
+    #: While a pass is analysed, every module command is appended here (None otherwise).
+    recording: list[Call] | None
+
+    def registers(self) -> tuple[object, ...]:
+        """What a pass may read of the program's state besides the module (I2)."""
+        ...
+
+    def interrupt_due(self) -> bool:
+        """An interrupt is pending and may be taken now."""
+        ...
+
+    def execute_one(self) -> int:
+        """Execute the instruction at the PC; the outcome (``interpreter.isa``)."""
+        ...
+
+    def tick_wait_ends(self, limit_ns: int) -> bool:
+        """A WAIT has begun: True (and the program past it) if it is a WAIT TICKS that ends
+        before ``limit_ns``."""
+        ...
+
+    def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
+                      values: tuple[int, ...]) -> int:
+        """The module's forecast for a moving read (``ModulePort.first_time_at``)."""
+        ...
+
+
+class LoopSkipper:
+    """Decides, at a loop head, how many passes of the loop can be left out, and leaves them
+    out (one per interpreter)."""
+
+    def __init__(self, program: Program) -> None:
+        self.program = program
+        #: Backward jumps until the next analysis (the dispatch loop counts it down).
+        self.countdown = LOOP_PROBE_AFTER
+        self._backoff = 1
+        #: Loop head -> (registers, pass ns, pass instructions) of loops that touch nothing
+        #: but registers: skipped again without an analysis (I9).
+        self._idle_loops: dict[int, tuple[tuple[object, ...], int, int]] = {}
+
+    def at_loop_head(self, limit: int) -> int:
+        """A backward jump brought the program to a loop head: skip the passes that would do
+        exactly what the last one did (or analyse one pass to learn whether they would)."""
+        program = self.program
+        idle = self._idle_loops.get(program.pc)
+        if idle is not None and idle[0] == program.registers():
+            self._skip(idle[1], idle[2], limit, (), program.time_ns - idle[1])  # I9
+            return CONTINUE
+        return self._analyse(limit)
+
+    def _give_up(self) -> None:
+        """This loop cannot be skipped now: analyse again later, less often each time."""
+        self.countdown = self._backoff
+        self._backoff = min(self._backoff * 2, LOOP_BACKOFF_MAX)
+
+    def _run_pass(self, limit: int, calls: list[Call],
+                  path: list[int]) -> tuple[int, bool] | None:
+        """Execute one pass from the loop head, recording its commands and path: (outcome,
+        whether it waited), or None when it cannot be analysed (too long, past ``limit``, a
+        WAIT that goes on)."""
+        program = self.program
+        head = program.pc
+        waited = False
+        program.recording = calls
+        try:
+            while True:
+                if program.time_ns >= limit or len(path) >= MAX_PASS:
+                    return None
+                path.append(program.pc)
+                outcome = program.execute_one()
+                if outcome == WAITING:
+                    if not program.tick_wait_ends(limit):
+                        return None  # the wait goes on: the caller waits
+                    waited = True  # I8
+                elif outcome != CONTINUE:
+                    return outcome, waited
+                if program.pc == head:
+                    return CONTINUE, waited
+        finally:
+            program.recording = None
+
+    def _analyse(self, limit: int) -> int:
+        """Run one pass instruction by instruction, recording what it asks the module, then
+        skip the passes after it that are certain to do the same (exactly as stepping)."""
+        program = self.program
+        if program.interrupt_due():
+            self._give_up()
+            return CONTINUE
+        head, start, executed = program.pc, program.time_ns, program.executed
+        before = program.registers()
+        calls: list[Call] = []
+        path: list[int] = []
+        ran = self._run_pass(limit, calls, path)
+        if ran is None or ran[0] != CONTINUE or any(call.changed for call in calls):
+            self._give_up()
+            return CONTINUE if ran is None else ran[0]
+        analysed = _Pass(head, start, program.time_ns - start, program.executed - executed,
+                         before, program.registers(), calls, path, ran[1])
+        repeats = analysed.repeats()
+        skipped = (self._skip_repeats(analysed, limit) if repeats
+                   else self._skip_to_flip(analysed, limit))
+        if skipped:
+            self._backoff = 1
+            self.countdown = 1 if repeats else 2
+        else:
+            self._give_up()
+        return CONTINUE
+
+    def _skip_repeats(self, analysed: _Pass, limit: int) -> int:
+        """I2: the next passes do exactly the same while every answer holds (I3, I4)."""
+        if not analysed.calls and not analysed.waited:  # I9
+            self._idle_loops[analysed.head] = (analysed.before, analysed.period, analysed.length)
+        horizons = tuple((call.time_ns - analysed.start, call.steady_until)
+                         for call in analysed.calls)
+        return self._skip(analysed.period, analysed.length, limit, horizons, analysed.start)
+
+    def _skip(self, period: int, length: int, limit: int,
+              horizons: tuple[tuple[int, int], ...], start: int, real_passes: int = 0) -> int:
+        """Skip the whole passes after the one that began at ``start`` whose every module
+        command (offset in the pass, steady until) still answers the same, keeping
+        ``real_passes`` whole passes before ``limit`` to be stepped; returns how many."""
+        program = self.program
+        passes = (limit - start) // period - 1 - real_passes  # I4: the pass ends by the limit
+        for offset, steady_until in horizons:
+            # I4: pass k sends at start + k * period + offset, certain while < steady_until
+            passes = min(passes, -(-(steady_until - start - offset) // period) - 1)
+        if passes <= 0:
+            return 0
+        program.time_ns = start + (passes + 1) * period
+        program.executed += passes * length
+        program.loops_skipped += passes
+        return passes
+
+    def _skip_to_flip(self, analysed: _Pass, limit: int) -> int:
+        """A pass that reads moving values (positions) and only compares them: skip to the pass
+        where a comparison could flip, the first time a value reaches one of its boundaries."""
+        calls, start = analysed.calls, analysed.start
+        moving = analysed.moving_reads()
+        if moving is None:
+            return 0
+        found = boundaries(self.program.code, analysed.path, calls, moving, analysed.before,
+                           analysed.after)
+        if found is None:
+            return 0
+        horizons = []
+        for index, call in enumerate(calls):
+            horizon = call.steady_until
+            if index in found:
+                values = found[index]
+                if call.value in values:
+                    return 0  # on a boundary now: the next pass may compare otherwise
+                opcode, type_, motor, _ = call.request
+                horizon = self.program.first_time_at(call.time_ns, opcode, type_, motor,
+                                                     values) if values else FOREVER  # I5
+            horizons.append((call.time_ns - start, horizon))
+        return self._skip(analysed.period, analysed.length, limit, tuple(horizons), start,
+                          real_passes=1)  # I7
+
+
+@dataclass(slots=True)
+class _Pass:
+    """One pass of a loop, analysed: where and when it began, how long it took (ns and
+    instructions), the registers before and after, its module commands and its path."""
+
+    head: int
+    start: int
+    period: int
+    length: int
+    before: tuple[object, ...]
+    after: tuple[object, ...]
+    calls: list[Call]
+    path: list[int]
+    waited: bool
+
+    def moving_reads(self) -> set[int] | None:
+        """The indices of the calls whose answers are not steady, if all of them are GAPs
+        answered (the only moving values a flip is forecast for); None otherwise."""
+        moving = {index for index, call in enumerate(self.calls)
+                  if call.steady_until <= call.time_ns}
+        if any(self.calls[i].status != STATUS_OK or self.calls[i].request[0] != OP_GAP
+               for i in moving):
+            return None
+        return moving
+
+    def repeats(self) -> bool:
+        """I2: every answer steady and the registers as found: the next passes do the same."""
+        return self.after == self.before and all(call.steady_until > call.time_ns
+                                                 for call in self.calls)
+
+
+#: Registers of the pass analysis (the indices in Program.registers()).
+_ACC, _X, _ZERO, _CMP, _ERRORS, _STACK = 1, 2, 3, 4, 5, 6
+
+
+class _PassShape:
+    """Follows a pass's path symbolically: which registers hold a moving read's value (plus
+    an offset), which the pass reads before writing, and the values each moving read is
+    compared with (the boundaries of I5)."""
+
+    def __init__(self, calls: list[Call], moving: set[int]) -> None:
+        self.moving = moving
+        self.pending = iter(enumerate(calls))  # the pass's module commands, in order
+        #: register -> (index of the moving read, offset): the read's value + offset
+        self.symbolic: dict[int, tuple[int, int]] = {}
+        self.written: set[int] = set()
+        self.first_read: set[int] = set()
+        self.boundaries: dict[int, set[int]] = {index: set() for index in moving}
+
+    def follow(self, instruction: Instruction) -> bool:
+        """One instruction of the path; False if the pass is not of the analysable shape."""
+        op, ty, motor, va = instruction
+        handler = _FOLLOW.get(op)
+        if handler is not None:
+            return handler(self, ty, motor, va)
+        if op in INTERNAL_OPCODES:
+            return False  # CALCX, subroutines, interrupts, error flags: not analysed
+        index, call = next(self.pending)
+        if call.status == STATUS_OK and loads_accumulator(op, ty, motor):
+            source = (index, 0) if index in self.moving else None
+            self.writes(_ACC, source)
+            self.writes(_ZERO, source)
+        return True
+
+    def reads(self, register: int) -> None:
+        if register not in self.written:
+            self.first_read.add(register)
+
+    def writes(self, register: int, source: tuple[int, int] | None = None) -> None:
+        self.written.add(register)
+        if source is None:
+            self.symbolic.pop(register, None)
+        else:
+            self.symbolic[register] = source
+
+    def calc(self, ty: int, motor: int, va: int) -> bool:
+        """CALC: not analysed if it computes with a moving value."""
+        if ty != CalcOp.LOAD:
+            self.reads(_ACC)
+            if _ACC in self.symbolic:
+                return False
+        self.writes(_ACC)
+        self.writes(_ZERO)
+        return True
+
+    def comp(self, ty: int, motor: int, va: int) -> bool:
+        self.reads(_ACC)
+        source = self.symbolic.get(_ACC)
+        compared = None if source is None else (source[0], source[1] - va)
+        self.writes(_CMP, compared)
+        self.writes(_ZERO, compared)
+        return True
+
+    def jc(self, ty: int, motor: int, va: int) -> bool:
+        register = _ZERO if ty <= 1 else _CMP if ty <= 7 else _ERRORS
+        self.reads(register)
+        if register in self.symbolic:
+            index, offset = self.symbolic[register]
+            self.boundaries[index].add(-offset)
+        return True
+
+    def jump(self, ty: int, motor: int, va: int) -> bool:
+        return True  # JA, and a WAIT TICKS that ended (I8): no register, no answer
+
+    def accumulator_write(self, ty: int, motor: int, va: int) -> bool:
+        """AAP, AGP: a command sending the accumulator (not analysed if it is moving)."""
+        self.reads(_ACC)
+        if _ACC in self.symbolic:
+            return False
+        next(self.pending)
+        return True
+
+    def aco(self, ty: int, motor: int, va: int) -> bool:
+        """ACO: as AAP, but ACO of all coordinates (motor 255) sends nothing to the module."""
+        self.reads(_ACC)
+        if _ACC in self.symbolic:
+            return False
+        if motor != MOTOR_ALL:
+            next(self.pending)
+        return True
+
+    def keeps_what_the_next_pass_reads(self, before: tuple[object, ...],
+                                       after: tuple[object, ...]) -> bool:
+        """I6: what the next pass reads before writing is what this one found, and does not
+        come from a moving read (equal now by chance, it would differ in the passes skipped)."""
+        return not any(before[register] != after[register] or register in self.symbolic
+                       for register in self.first_read)
+
+
+_FOLLOW = {OP_CALC: _PassShape.calc, OP_COMP: _PassShape.comp, OP_JC: _PassShape.jc,
+           OP_JA: _PassShape.jump, OP_WAIT: _PassShape.jump, OP_AAP: _PassShape.accumulator_write,
+           OP_AGP: _PassShape.accumulator_write, OP_ACO: _PassShape.aco}
+
+
+def boundaries(code: list[Instruction], path: list[int], calls: list[Call], moving: set[int],
+               before: tuple[object, ...],
+               after: tuple[object, ...]) -> dict[int, tuple[int, ...]] | None:
+    """For each moving read (an index of ``calls``), the values at which the pass's branches
+    could decide otherwise (I5), if the pass depends on the moving reads only through COMP
+    and JC and leaves every register it reads before writing as it found it (I6); None if the
+    pass is not of that shape."""
+    shape = _PassShape(calls, moving)
+    if not all(shape.follow(code[pc]) for pc in path):
+        return None
+    if not shape.keeps_what_the_next_pass_reads(before, after):
+        return None
+    return {index: tuple(sorted(values)) for index, values in shape.boundaries.items()}
