@@ -91,6 +91,10 @@ def readme_blocks() -> list[tuple[str, str, int]]:
     return blocks
 
 
+#: The device a block names when it is about a module on the user's desk (``tmcl proxy``).
+REAL_MODULE = "/dev/ttyACM0"
+
+
 def _is_setup(text: str) -> bool:
     return text.startswith("python3 scripts/serve.py")
 
@@ -153,6 +157,9 @@ def test_python_block_runs_as_pasted(block: tuple[str, str, int], server: Simula
 def test_shell_block_runs_as_pasted(block: tuple[str, str, int], server: SimulatorThread,
                                     tmp_path: Path) -> None:
     _, text, _ = block
+    if REAL_MODULE in text:
+        pytest.skip(f"a block for a real module on {REAL_MODULE}: tests/tmcl_server/test_proxy.py "
+                    "and test_replay.py run the proxy and the replay against the simulator")
     in_checkout = text.startswith("source .venv/bin/activate")
     if in_checkout and not (ROOT / ".venv" / "bin" / "activate").exists():
         pytest.skip("the block uses the .venv that scripts/serve.py or test.py makes")
