@@ -75,6 +75,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from local_server import wait_for_ready
+
 from tmcl_spec.commands import FACTORY_RESET_KEY, Opcode, Status
 from tmcl_spec.modules import module_type
 
@@ -550,12 +552,8 @@ class ServerProcess:
             stdout=subprocess.DEVNULL, stderr=self.stderr, cwd=str(SERVER_ROOT[0]),
             env={**os.environ, "PYTHONPATH": os.pathsep.join(
                 [str(SERVER_ROOT[0]), *filter(None, [os.environ.get("PYTHONPATH")])])})
-        deadline = time.monotonic() + 30
-        while not ready.exists():
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"server did not start: {self.stderr_path.read_text()}")
-            time.sleep(0.01)
-        endpoints = json.loads(ready.read_text())
+        endpoints = wait_for_ready(self.proc, ready, what="server",
+                                   details=self.stderr_path.read_text)
         host, port = endpoints["tcp"][0].rsplit(":", 1)
         self.tcp = (host, int(port))
 

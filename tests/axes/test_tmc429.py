@@ -31,30 +31,17 @@ from axes.chips.tmc42x.tmc429 import (
 from axes.chips.tmc42x.units import (
     choose_pulse_div,
     choose_ramp_div,
-    pmul_pdiv,
-    stop_speed,
     velocity_register,
 )
 from axes.core import Stop
 from tests.axes.reference_tmc4210 import ReferenceChip
+from tests.helpers.tmc42x import configure
 
 IDLE_STATUS = 0x15  # no INT, no CDGW, no switch, all three motors at target
 
 
 def status(chip: TMC429) -> int:
     return chip.spi(datagram(Reg.TYPE_VERSION, read=True)) >> 24
-
-
-def configure(motor: TMC429Motor, *, v_max: int, a_max: int, pulse_div: int, ramp_div: int,
-              v_min: int | None = None, mode: RampMode = RampMode.RAMP) -> None:
-    pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
-    motor.write(Reg.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div)
-                if v_min is None else v_min)
-    motor.write(Reg.V_MAX, v_max)
-    motor.write(Reg.A_MAX, a_max)
-    motor.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
-    motor.write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
-    motor.write(Reg.REF_CONF_RAMP_MODE, mode)
 
 
 def step_dir_chip(**kwargs) -> TMC429:

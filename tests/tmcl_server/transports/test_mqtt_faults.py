@@ -18,13 +18,6 @@ from tmcl_spec.commands import Opcode
 pytestmark = needs(missing_reason())
 
 
-@pytest.fixture
-def broker(tmp_path):
-    b = Broker(tmp_path)
-    yield b
-    b.stop()
-
-
 def test_sim_fault_alters_and_loses_replies_and_is_listed(broker: Broker) -> None:
     sim = start_sim(broker, mqtt_faults=True)
 
