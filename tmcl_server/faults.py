@@ -412,6 +412,26 @@ def load_fault_file(path: str | Path) -> list[FaultSpec]:
     (a FIFO or a device is refused before it is opened); a UTF-8 byte order mark is skipped; an
     error names the line (text) or the fault's place in the list (TOML, JSON)."""
     source = Path(path)
+    text = _read_fault_file(source, path)
+    try:
+        if source.suffix == ".toml":
+            import tomllib
+
+            data: Any = tomllib.loads(text)
+        elif source.suffix == ".json":
+            data = json.loads(text)
+        else:
+            return _faults_of_lines(text)
+        return _faults_of_tables(data)
+    except (ValueError, TypeError) as exc:  # tomllib and json errors are ValueErrors
+        raise FaultSpecError(f"fault file {path}: {exc}") from exc
+    except RecursionError:  # JSON nested deeper than the parser goes
+        raise FaultSpecError(f"fault file {path}: nested too deeply") from None
+
+
+def _read_fault_file(source: Path, path: str | Path) -> str:
+    """The file's text, if it is a regular file of at most MAX_FAULT_FILE bytes of UTF-8
+    (a byte order mark skipped); FaultSpecError naming ``path`` otherwise."""
     try:
         info = source.stat()
         if not stat.S_ISREG(info.st_mode):
@@ -423,40 +443,32 @@ def load_fault_file(path: str | Path) -> list[FaultSpec]:
             raw = stream.read(MAX_FAULT_FILE + 1)
         if len(raw) > MAX_FAULT_FILE:  # it grew since
             raise FaultSpecError(f"fault file {path}: more than {MAX_FAULT_FILE:,} bytes")
-        text = raw.decode("utf-8-sig")
+        return raw.decode("utf-8-sig")
     except OSError as exc:
         raise FaultSpecError(f"fault file {path}: {exc.strerror or exc}") from None
     except UnicodeDecodeError as exc:
         raise FaultSpecError(f"fault file {path}: not UTF-8 text ({exc.reason} at byte "
                              f"{exc.start})") from None
-    try:
-        if source.suffix == ".toml":
-            import tomllib
 
-            data: Any = tomllib.loads(text)
-        elif source.suffix == ".json":
-            data = json.loads(text)
-        else:
-            return _faults_of_lines(text)
-        if isinstance(data, dict):
-            unknown = set(data) - {"fault", "faults"}
-            if unknown:
-                raise FaultSpecError(f"unknown top-level key(s) {sorted(unknown)[:5]}: use [[fault]]")
-            data = data.get("fault", data.get("faults", []))
-        if not isinstance(data, list) or not all(isinstance(t, dict) for t in data):
-            raise FaultSpecError("expected a list of fault tables")
-        _check_count(len(data))
-        specs = []
-        for number, table in enumerate(data, 1):
-            try:
-                specs.append(fault_from_mapping(table))
-            except FaultSpecError as exc:
-                raise FaultSpecError(f"fault {number}: {exc}") from None
-        return specs
-    except (ValueError, TypeError) as exc:  # tomllib and json errors are ValueErrors
-        raise FaultSpecError(f"fault file {path}: {exc}") from exc
-    except RecursionError:  # JSON nested deeper than the parser goes
-        raise FaultSpecError(f"fault file {path}: nested too deeply") from None
+
+def _faults_of_tables(data: Any) -> list[FaultSpec]:
+    """A TOML or JSON file's faults: a list of tables, or one under ``fault``/``faults``;
+    an error names the fault's place in the list."""
+    if isinstance(data, dict):
+        unknown = set(data) - {"fault", "faults"}
+        if unknown:
+            raise FaultSpecError(f"unknown top-level key(s) {sorted(unknown)[:5]}: use [[fault]]")
+        data = data.get("fault", data.get("faults", []))
+    if not isinstance(data, list) or not all(isinstance(t, dict) for t in data):
+        raise FaultSpecError("expected a list of fault tables")
+    _check_count(len(data))
+    specs = []
+    for number, table in enumerate(data, 1):
+        try:
+            specs.append(fault_from_mapping(table))
+        except FaultSpecError as exc:
+            raise FaultSpecError(f"fault {number}: {exc}") from None
+    return specs
 
 
 def _faults_of_lines(text: str) -> list[FaultSpec]:
