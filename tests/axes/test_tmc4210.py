@@ -26,7 +26,7 @@ from axes.chips.tmc42x.tmc4210 import (
     signed,
 )
 from tests.axes.reference_tmc4210 import ReferenceChip
-from tests.helpers.tmc42x import configure
+from tests.helpers.tmc42x import apply_change, configure, run_alongside
 
 IDLE_STATUS = 0x15
 
@@ -215,13 +215,7 @@ def _reference_for(chip: TMC4210) -> ReferenceChip:
 
 
 def _run_both(chip: TMC4210, ref: ReferenceChip, until: int, arrivals: list[int]) -> None:
-    while ref.t < until:
-        ref.tick()
-    while chip.t < until:
-        if chip.run(until) is Stop.ARRIVED:
-            arrivals.append(chip.t)
-    assert (chip.x_actual, chip.v, chip.v_target) == (ref.x_actual, ref.v, ref.v_target), (
-        f"at clk32 tick {until}")
+    run_alongside(chip, ref, until, arrivals, f"at clk32 tick {until}")
 
 
 change = st.one_of(
@@ -243,18 +237,7 @@ def _replay_changes(chip, ref, changes: list[tuple[int, tuple[str, int]]], conf:
     for gap, (what, value) in changes:
         t += gap
         _run_both(chip, ref, t, arrivals)
-        if what == "x_target":
-            chip.write(Reg.X_TARGET, value & MASK24)
-            ref.x_target = value & MASK24
-        elif what == "v_target":
-            chip.write(Reg.V_TARGET, value & 0xFFF)
-            ref.v_target = value
-        elif what == "mode":
-            chip.write(Reg.REF_CONF_RAMP_MODE, conf | value)
-            ref.mode = RampMode(value)
-        else:
-            chip.write(getattr(Reg, what.upper()), value)
-            setattr(ref, what, value)
+        apply_change(chip, ref, what, value, conf)
     _run_both(chip, ref, t + 150_000, arrivals)
     assert arrivals == ref.arrivals
 
