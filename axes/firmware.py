@@ -380,14 +380,18 @@ class AxisFirmware(RiggedAxis):
             return False  # already stopping (or stopped) in velocity mode: nothing to change
         self._command()
         self.homing.abort()
+        self._ramp_stop()
+        self._after_command()
+        return True
+
+    def _ramp_stop(self) -> None:
+        """MST's stop (and RFS STOP's): velocity mode, target speed 0, errors cleared."""
         self._velocity_command = self._params[AP.TARGET_SPEED] = 0
         self._conclude_move()
         self.driver.ramp_stop()
         self._positioning = False
         self._awaiting_arrival = False
         self._errors = 0
-        self._after_command()
-        return True
 
     def emergency_stop(self) -> None:
         self._command()
@@ -432,9 +436,10 @@ class AxisFirmware(RiggedAxis):
             return homing.state
         self._command()
         if action == 1:
-            if homing.active:
+            if homing.active:  # stop() would find nothing to do once the search is gone
                 homing.abort()
-                self.stop()
+                self._ramp_stop()
+                self._after_command()
             return 0
         search = homing.plan(self._params[AP.RFS_MODE])
         homing.abort()
