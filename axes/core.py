@@ -120,13 +120,12 @@ class MotorDriverLink(ABC):
     """The firmware's routines for a modelled motor driver IC (the TMC262 on the TMC429
     modules), reached by the chip driver: the current, microsteps, stallGuard2 and coolStep
     parameters act on the driver chip's registers and are read back from it.  Without one,
-    :class:`axes.firmware.AxisFirmware` computes them itself (axes/stallguard.py)."""
+    :class:`axes.firmware.AxisFirmware` computes them itself (axes/stallguard.py).  The
+    firmware reads the driver's readings in its periodic pass (axes/tasks.py, TMCL-LITE-1110
+    SysControl.c line 104) and answers AP 206/180/208 from what that pass read."""
 
     #: Axis parameters whose writes go to the driver chip (:meth:`configure`).
     parameters: frozenset[int]
-    #: True while the firmware lets coolStep regulate (then it is told the speed at every
-    #: position read, :meth:`regulate`).
-    regulating: bool
 
     @abstractmethod
     def configure(self, number: int | None = None) -> None:
@@ -134,27 +133,38 @@ class MotorDriverLink(ABC):
 
     @abstractmethod
     def set_current(self, value: int) -> None:
-        """Run or standby current now, 0..255 (AP 6 / AP 7)."""
+        """The motor current now, 0..255 (AP 6, AP 7 or AP 183)."""
 
     @abstractmethod
-    def regulate(self, speed: int) -> None:
-        """The firmware's coolStep switch: on at or above AP 182 (and below AP 22), else off."""
+    def switch_coolstep(self, on: bool) -> None:
+        """The firmware's coolStep switch: SEMIN = AP 172 (on) or 0 (off)."""
+
+    @abstractmethod
+    def sample(self) -> None:
+        """Read the driver's stallGuard2 value, coolStep current and flags, as the firmware's
+        pass does; :meth:`load`, :meth:`current_scale` and :meth:`flags` answer from it."""
+
+    @abstractmethod
+    def observe(self) -> None:
+        """Let the driver catch up with the steps the motor made (at a load edge: its
+        measurements so far read the load before it), reading nothing for the firmware."""
 
     @abstractmethod
     def load(self) -> int:
-        """AP 206: the stallGuard2 value the driver measured."""
+        """AP 206: the stallGuard2 value the last :meth:`sample` read."""
 
     @abstractmethod
     def stalled(self) -> bool:
-        """The driver's stallGuard2 flag: its last measurement read 0."""
+        """The driver's stall output now (its stallGuard2 flag: the last measurement read 0)."""
 
     @abstractmethod
-    def current_scale(self) -> int | None:
-        """AP 180: the current scale coolStep set (0..31), None while coolStep is off."""
+    def current_scale(self) -> int:
+        """AP 180: the coolStep current scale (0..31) the last :meth:`sample` read (the
+        current's own scale while coolStep is off)."""
 
     @abstractmethod
     def flags(self) -> int:
-        """AP 208: the driver's status flags."""
+        """AP 208: the driver's status flags the last :meth:`sample` read."""
 
 
 class ChipDriver(ABC):

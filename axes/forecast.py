@@ -30,8 +30,10 @@ F4. A rotation's ramp only heads for the speed asked for, monotonically, until t
     bisecting a copy of the chip over the clock ticks.
 F5. A crossing found is kept while the look-ahead it was found for is the current one (its
     identity): a new look-ahead is made after every change (F1).
-F6. Reads that change model state are not forecast: while coolStep follows the reads, AP 8's
-    shortcut is not taken (its reads would change the current a later read sees).
+F6. What the firmware's periodic pass keeps for reads (AP 180, a modelled driver's AP
+    206/208) changes only at that pass (axes/tasks.py, T3): it holds until the next pass that
+    may change it.  No read changes anything a later read sees, so a read left out (skipped,
+    or answered from the look-ahead as AP 8 is) is never missed.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from typing import Protocol
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, Stop
 from axes.interface import FOREVER
+from axes.tasks import FirmwareTasks
 from tmcl_spec.numbers import to_int32
 from tmcl_spec.parameters import AP, Motion
 
@@ -64,6 +67,7 @@ class ForecastedAxis(Protocol):
 
     driver: ChipDriver
     board: AxisBoard
+    tasks: FirmwareTasks
 
     def present_ns(self) -> int:
         """The simulated time the axis was last brought to."""
@@ -86,9 +90,6 @@ class ForecastedAxis(Protocol):
 
     def error_flags(self) -> int:
         """AP 207 as a read would answer it now (and clear it)."""
-        ...
-
-    def coolstep_follows_reads(self) -> bool:
         ...
 
 
@@ -132,6 +133,9 @@ class AxisForecast:
         motion = self._motions.get(number)
         if motion is Motion.SETTING or motion is Motion.PROGRAM:  # (an Enum hashes slowly)
             return FOREVER  # only a command changes it
+        tasks = self._axis.tasks
+        if tasks.kept(number):
+            return tasks.steady_until()  # F6
         if motion is Motion.ACCESS:
             # reading clears the error flags: steady only while there are none (F2)
             return FOREVER if number == AP.ERROR_FLAGS and not self._axis.error_flags() else 0
@@ -165,8 +169,6 @@ class AxisForecast:
         chip, as :meth:`steady_until` does).  A host or program polling AP 8 through a long
         move then costs a comparison a poll, not a run of the chip's ramp to every poll."""
         axis = self._axis
-        if axis.coolstep_follows_reads():
-            return False  # F6
         ahead = self.lookahead()
         if ahead is None:
             return False  # at rest: the plain read is cheap

@@ -19,6 +19,7 @@ from enum import Enum
 from typing import TYPE_CHECKING
 
 from axes.world import DEFAULT_ENCODER_COUNTS_PER_REV
+from tmcl_spec.modules import FirmwareClock
 from tmcl_spec.parameters import ParamSpec
 
 if TYPE_CHECKING:
@@ -148,6 +149,12 @@ class AxisControl(ABC):
         the core cannot tell.  A loop comparing a moving position with a threshold jumps to
         the pass where the comparison flips with it."""
         return 0
+
+    def start_firmware_clock(self, clock: FirmwareClock, origin_ns: int, axes: int) -> None:
+        """The module's firmware starts at ``origin_ns`` (power-up): its periodic pass over
+        its ``axes`` axes runs as ``clock`` says (axes/tasks.py).  An axis that is no TMCL
+        firmware's (the evaluation board's) has none: nothing happens."""
+        return
 
     def reset_board(self) -> None:
         """Command 143 type 0 of the evaluation system: the board is detected again and its

@@ -63,7 +63,7 @@ def tmc262_rows(v_max: int) -> tuple[ParamSpec, ...]:
         axis_row(177, "Short protection disable", "RW", s, *_BOOL),
         axis_row(178, "Short detection timer", "RW", s, 0, 3, 0),
         axis_row(179, "Vsense", "RW", s, *_BOOL, 1),
-        axis_row(180, "smartEnergy actual current", "R", Motion.AXIS, 0, 31),
+        axis_row(180, "smartEnergy actual current", "R", Motion.TASKS, 0, 31),
         axis_row(181, "Stop on stall", "RW", s, 0, v_max, 0),
         axis_row(182, "smartEnergy threshold speed", "RW", s, 0, v_max, 0),
         axis_row(183, "smartEnergy slow run current", "RW", s, 0, 255, 0),

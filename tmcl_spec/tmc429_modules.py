@@ -39,9 +39,9 @@ from tmcl_spec.family import (
     tmc262_rows,
     without_can,
 )
-from tmcl_spec.modules import ModuleType
+from tmcl_spec.modules import FirmwareClock, ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
-from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, GP, SETTING, Motion, ParamSpec
+from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, GP, SETTING, TASKS, Motion, ParamSpec
 
 #: The TMC429's velocity and acceleration registers (11 bits): the firmware's units.
 V_MAX = 2047
@@ -89,9 +89,9 @@ COMMON_AXIS_ROWS: tuple[ParamSpec, ...] = (
     _p(195, "Reference switch speed", "RWE", SETTING, 0, V_MAX, 50),
     _p(196, "Distance end switches", "R", EVENTS),
     _p(204, "Freewheeling delay", "RWE", SETTING, 0, 65535, 0),
-    _p(206, "Actual load value", "R", AXIS, 0, 1023),
+    _p(206, "Actual load value", "R", TASKS, 0, 1023),  # read in the pass
     _p(207, "Extended error flags", "R", ACCESS, 0, 3),
-    _p(208, "TMC262 driver error flags", "R", AXIS, 0, 255),
+    _p(208, "TMC262 driver error flags", "R", TASKS, 0, 255),
     _p(213, "Group index", "RW", SETTING, 0, 255, 0),
     _p(214, "Power down delay", "RWE", SETTING, 1, 65535, 200),
     # Not a parameter of these modules: MVP REL counts from the actual position (the
@@ -194,6 +194,9 @@ _FAMILY: dict[str, Any] = dict(
     nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
     baud_rates=BAUD_RATES,  # the TMCL family's GP 65 and GP 69 (inferred)
     can_bit_rates=CAN_BIT_RATES,
+    # The stepRocker's firmware (TMCL-LITE-1110): the pass also stops a stalled motor, from
+    # the TMC262's stall output (SysControl.c lines 106-114).
+    firmware_clock=FirmwareClock(stall_in_pass=True),
 )
 
 TMCM_1110 = ModuleType(

@@ -36,7 +36,7 @@ from tmcl_spec.family import (
     bank3,
     tmc262_rows,
 )
-from tmcl_spec.modules import ModuleType
+from tmcl_spec.modules import FirmwareClock, ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
 from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, SETTING, Motion, ParamSpec
 
@@ -198,4 +198,7 @@ TMCM_1111 = ModuleType(
     encoder_counts_per_rev=ENCODER_COUNTS_PER_REV,
     baud_rates=BAUD_RATES,
     can_bit_rates=CAN_BIT_RATES,
+    # TMCL-LITE-1111: the TMC4361 switches the current itself (STDBY_DELAY, Commands.c lines
+    # 1048-1050), and its SystemControl leaves coolStep as AP 172 wrote it (lines 191-293).
+    firmware_clock=FirmwareClock(current_in_pass=False, coolstep_by_speed=False),
 )

@@ -29,11 +29,20 @@ READS = [
     "GAP 8, 0", "GAP 1, 0", "GAP 1, 1", "GAP 3, 0", "GAP 10, 0", "GAP 11, 0", "GAP 4, 0",
     "GAP 250, 0", "GIO 0, 0", "GIO 1, 1", "GIO 2, 2", "GGP 0, 2", "GGP 132, 0", "GAP 206, 0",
     "GAP 209, 0", "GAP 8, 1", "RFS STATUS, 0", "GAP 3, 1", "GAP 1, 1",
+    "GAP 180, 0", "GAP 207, 0", "GAP 206, 1", "GAP 180, 1",
 ]
 #: Writes that change nothing once they are in force (and some that always change).
 WRITES = [
     "SAP 4, 0, 100000", "SAP 4, 0, 120000", "ROR 1, 30000", "ROR 1, 40000", "AAP 2, 1",
     "SIO 0, 2, 1", "SGP 1, 2, 7", "AGP 2, 2", "MST 1", "SCO 1, 0, 5",
+    "SAP 172, 0, 0", "SAP 181, 0, 0",
+]
+#: stallGuard and coolStep as a program sets them up (AP 168-174, 181-182; issue 34).
+STALLGUARD_SETUPS = [
+    [], ["SAP 172, 0, 2", "SAP 170, 0, 1", "SAP 169, 0, 2", "SAP 182, 0, 20000"],
+    ["SAP 172, 1, 1", "SAP 173, 1, 1", "SAP 171, 1, 3"],
+    ["SAP 174, 0, 2", "SAP 181, 0, 10000", "SAP 173, 0, 1"],
+    ["SAP 174, 1, 1", "SAP 181, 1, 20000", "SAP 172, 1, 3", "SAP 182, 1, 0"],
 ]
 CONDITIONS = ["EQ", "NE", "GT", "GE", "LT", "LE", "ZE", "NZ"]
 
@@ -44,6 +53,7 @@ def programs(draw: st.DrawFn) -> str:
     lines = [
         f"SAP 4, 0, {draw(st.sampled_from([20000, 100000, 300000]))}",
         f"SAP 5, 0, {draw(st.sampled_from([50000, 400000, 2000000]))}",
+        *draw(st.sampled_from(STALLGUARD_SETUPS)),
         f"MVP ABS, 0, {draw(st.integers(-60000, 60000))}",
     ]
     if draw(st.booleans()):
@@ -83,6 +93,8 @@ class World:
     actions: list[tuple[int, str, int]] = field(default_factory=list)
     end_ms: int = 300
     core: str = "tmc4210"
+    #: Load zones (axis, from, to, load value): light, heavy, blocked (0) stretches.
+    loads: list[tuple[int, int, int, int]] = field(default_factory=list)
 
 
 @st.composite
@@ -90,8 +102,12 @@ def worlds(draw: st.DrawFn) -> World:
     actions = draw(st.lists(st.tuples(st.integers(1, 299), st.sampled_from(
         ["input", "analog", "gap", "sap", "sgp", "switch", "ror"]), st.integers(-50000, 50000)),
         max_size=6))
+    loads = draw(st.lists(st.tuples(st.integers(0, 1), st.integers(-60000, 50000),
+                                    st.integers(100, 30000), st.sampled_from([0, 20, 300, 900])),
+                          max_size=3))
     return World(draw(st.none() | st.integers(-50000, 50000)), sorted(actions),
-                 core=draw(st.sampled_from(["tmc4210", "tmc4361a"])))
+                 core=draw(st.sampled_from(["tmc4210", "tmc4361a"])),
+                 loads=[(axis, start, start + length, load) for axis, start, length, load in loads])
 
 
 def run(source: str, world: World, skip: bool) -> list[object]:
@@ -106,6 +122,10 @@ def run(source: str, world: World, skip: bool) -> list[object]:
     module.listeners.append(listen)
     if world.switch_at is not None:
         module.set_switch(0, "right", world.switch_at)
+    for axis in (0, 1):
+        zones = [(start, end, load) for on, start, end, load in world.loads if on == axis]
+        if zones:
+            module.set_load(axis, zones)
 
     def host(opcode: int, type_: int, motor: int, value: int) -> None:
         reply = module.execute(Request(1, opcode, type_, motor, value))
@@ -202,6 +222,14 @@ Down:
 @example("SAP 4, 0, 20000\nMVP ABS, 0, 0\nROR 1, -40000\nMain:\nCOMP 0\nJC NE, Main\n"
          "GAP 8, 0\nGAP 1, 1\nJA Main\nNext:\nNext2:\nJA Main\nTick:\nRETI", World(None, []))
 @example(POLL_SPEED, World(None, [(100, "gap", 0), (500, "gap", 0)], 900, "tmc4361a"))
+# issue 33's D1: coolStep read after a poll of the position through a ramp (it read 11 stepping
+# and 7 skipping), and issue 34's item 2: a stall the program's reads must not postpone
+@example("SAP 172, 0, 2\nSAP 169, 0, 2\nSAP 182, 0, 10000\nSAP 5, 0, 20000\nROR 0, 40000\n"
+         "Main:\nGAP 1, 0\nCOMP 5000\nJC LT, Main\nGAP 180, 0\nAGP 0, 2\nNext:\nNext2:\n"
+         "GAP 180, 0\nJA Next2\nTick:\nRETI", World(None, [], 400, loads=[(0, -90000, 90000, 600)]))
+@example("SAP 173, 0, 1\nSAP 174, 0, 1\nSAP 181, 0, 29000\nROL 0, 30000\nMain:\nGAP 3, 0\n"
+         "COMP 0\nJC NE, Main\nNext:\nNext2:\nJA Next2\nTick:\nRETI",
+         World(None, [(5, "gap", 0)], 900, loads=[(0, -9000, -3000, 0)]))
 def test_skipping_loops_is_exactly_as_stepping(source: str, world: World) -> None:
     fast, slow = run(source, world, skip=True), run(source, world, skip=False)
     assert fast[:-1] == slow[:-1]  # the last entry: how many passes were skipped

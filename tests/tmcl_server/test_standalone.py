@@ -537,6 +537,9 @@ class ScriptedAxis:
     def next_event_ns(self) -> int | None:
         return self.script[0].time_ns if self.script else None
 
+    def start_firmware_clock(self, *args: object) -> None:
+        """No firmware pass: the test scripts every event."""
+
     def rotate(self, velocity: int) -> None:
         self.params[2] = velocity
 

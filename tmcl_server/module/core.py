@@ -151,7 +151,8 @@ class ModuleCore:
         self._stale_axes: set[int] = set(range(len(self.axes)))
         #: Axes the command in progress touched (they are re-planned if it may reschedule).
         self._touched: set[int] = set()
-        for axis in self.axes:
+        for axis in self.axes:  # the firmware's clock starts now (axes/tasks.py)
+            axis.start_firmware_clock(self.type.firmware_clock, self.now_ns, len(self.axes))
             axis.advance_to(self.now_ns)
             if mechanics and mechanics[axis.index]:
                 axis.place_mechanics(mechanics[axis.index])

@@ -30,7 +30,6 @@ from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, 
 from axes.core import MotorDriverLink
 from axes.firmware import AxisFirmware
 from axes.interface import Axis
-from axes.stallguard import CoolStep
 from axes.world import AxisWorld
 from tmcl_spec.parameters import AP, ParamSpec
 
@@ -72,9 +71,11 @@ class TMC262Link(MotorDriverLink):
         self.params = params
         self.motor = motor
         self.parameters = frozenset(self.REGISTER_OF)
-        #: coolStep may regulate (SEMIN is written as AP 172; else 0: off).
+        #: coolStep is switched on (SEMIN is written as AP 172; else 0: off).
         self.regulating = False
         self._current = 0  # CS as last written
+        #: What the firmware's last pass read from the driver: SG, SE, flags (Read262State).
+        self._sampled = (0, 0, 0)
 
     def _get(self, number: int) -> int:
         return self.params.get(number, 0)
@@ -123,33 +124,39 @@ class TMC262Link(MotorDriverLink):
             self._current = value >> 3
             self._send(DrvReg.SGCSCONF)
 
-    def regulate(self, speed: int) -> None:
-        active = CoolStep.active(self.params, speed)
-        if active != self.regulating:
-            self.regulating = active
+    def switch_coolstep(self, on: bool) -> None:
+        if on != self.regulating:
+            self.regulating = on
             self._send(DrvReg.SMARTEN)
 
     def _poll(self) -> int:
         """A datagram that changes nothing (DRVCONF again), for the status word it answers."""
         return self._send(DrvReg.DRVCONF)
 
-    def load(self) -> int:
-        return self._poll() >> 10  # RDSEL = 1: SG in bits 19..10
+    def observe(self) -> None:
+        """The model's driver measures when it is looked at (tmc262.py): a datagram that
+        changes nothing makes it catch up (the real one measures as the motor goes)."""
+        self._poll()
 
-    def flags(self) -> int:
-        return self._poll() & 0xFF
-
-    def stalled(self) -> bool:
-        return bool(self.flags() & DriverFlag.SG)
-
-    def current_scale(self) -> int | None:
-        """SE, read with RDSEL = 2 for one datagram (then back to SG)."""
-        if not self.regulating:
-            return None
+    def sample(self) -> None:
+        """SG and the flags (RDSEL = 1), then SE with RDSEL = 2 for one datagram (then back)."""
+        word = self._poll()
         drvconf = self._data(DrvReg.DRVCONF) & ~(3 << 4)
         self.motor.driver_spi(drv_datagram(DrvReg.DRVCONF, drvconf | ReadSelect.SG_SE << 4))
-        word = self._send(DrvReg.DRVCONF)
-        return word >> 10 & 0x1F
+        se = self._send(DrvReg.DRVCONF) >> 10 & 0x1F
+        self._sampled = (word >> 10, se, word & 0xFF)
+
+    def load(self) -> int:
+        return self._sampled[0]
+
+    def flags(self) -> int:
+        return self._sampled[2]
+
+    def stalled(self) -> bool:
+        return bool(self._poll() & DriverFlag.SG)
+
+    def current_scale(self) -> int:
+        return self._sampled[1]
 
 
 class TMC429Driver(TMC42xDriver):
