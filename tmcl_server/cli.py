@@ -354,6 +354,12 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
     if len(faults) > MAX_FAULTS:
         raise UsageError(f"argument --fault/--faults: {len(faults)} faults, at most {MAX_FAULTS} "
                          "at once")
+    if args.axis_core:  # a module type and a core that cannot work together: one line now
+        from tmcl_server.module.core import chip_core_problem
+
+        problem = chip_core_problem(module_type(args.module_type), args.axis_core)
+        if problem is not None:
+            raise UsageError(f"argument --axis-core: {problem}")
     record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock=args.clock, speed=args.speed, ready_file=args.ready_file,

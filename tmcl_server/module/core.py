@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from axes.cores import make_axes
+from axes.cores import CHIP_CORES, make_axes, refusal
 from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind
 from axes.world import DEFAULT_SIDES, INFINITY, AxisWorld, LoadZone, Switch, World, check_supply_voltage
 from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
@@ -47,6 +47,19 @@ _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
 #: The heartbeat period (GP 68 / GP 82, ms) watching each kind of interface.
 HEARTBEAT_PARAMETERS = {Interface.SERIAL: GP.SERIAL_HEARTBEAT, Interface.CAN: GP.CAN_HEARTBEAT}
+
+
+def chip_core_problem(kind: ModuleType, core: str) -> str | None:
+    """One line saying why the module type cannot run on chip core ``core`` and which cores
+    it runs on; None if it can (issue 34, item 10: refused at start, never a crash later)."""
+    reason = refusal(core, kind.axis_parameters)
+    if reason is None:
+        return None
+    if len(reason) > 100:  # a core's own message may list every parameter it lacks
+        reason = f"{reason[:97]}..."
+    fits = [name for name in sorted(CHIP_CORES) if refusal(name, kind.axis_parameters) is None]
+    return (f"the {kind.name} does not run on the {core} core ({reason}); "
+            f"it runs on {', '.join(fits)}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,7 +205,14 @@ class ModuleCore:
         if self._axis_factory is not None:
             axes = [self._axis_factory(index) for index in range(count)]
         else:
-            axes = make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+            try:
+                axes = make_axes(self.chip_core, count, self.type.axis_parameters,
+                                 self.world.clock_hz)
+            except ValueError:
+                problem = chip_core_problem(self.type, self.chip_core)
+                if problem is None:
+                    raise
+                raise ValueError(problem) from None
         if self.type.encoder_counts_per_rev is not None:
             for axis in axes:  # the module's own encoder, where the world names none
                 axis.builtin_encoder_counts = self.type.encoder_counts_per_rev

@@ -484,6 +484,9 @@ class TMC4361AAxis(AxisFirmware):
 
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec],
                  world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
+        if AP.PULSE_DIVISOR in parameters:
+            raise ValueError("its speeds are TMC429 register values at the divisors of "
+                             "AP 153/154, which only a TMC42x core has")
         clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         super().__init__(index, parameters, world,
                          lambda params, board: TMC4361ADriver(index, params, board, clock))
