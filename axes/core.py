@@ -193,6 +193,12 @@ class ChipDriver(ABC):
     #: How far the firmware runs a look-ahead copy of the chip (:data:`LOOKAHEAD_NS` keeps
     #: 24-bit position registers unambiguous; a chip with a 32-bit position may look further).
     lookahead_ns: int = LOOKAHEAD_NS
+    #: The width of AP 1 as the firmware reads it (two's complement): past
+    #: ``2**(position_bits - 1) - 1`` it goes on at ``-2**(position_bits - 1)``, and the other
+    #: way round.  A comparison with the position flips there without meeting its boundary,
+    #: so loop skipping's forecast stops at the wrap too (axes/forecast.py, F3).  32: the
+    #: whole TMCL value; a firmware that reads a narrower register as AP 1 says so.
+    position_bits: int = 32
 
     def horizon_ns(self) -> int:
         """How far the next look-ahead may run: :attr:`lookahead_ns`, or as far as the chip's

@@ -30,7 +30,7 @@ from axes.rig import RiggedAxis
 from axes.tasks import FirmwareTasks
 from axes.world import AxisWorld
 from tmcl_spec.modules import FirmwareClock
-from tmcl_spec.numbers import to_int32
+from tmcl_spec.numbers import to_signed
 from tmcl_spec.parameters import AP, Motion, ParamSpec
 
 ERROR_STALL = 1
@@ -412,7 +412,8 @@ class AxisFirmware(RiggedAxis):
     def move_to(self, target: int) -> None:
         self._command()
         self.homing.abort()
-        self.start_positioning(to_int32(target), self._params[AP.MAX_SPEED])
+        self.start_positioning(to_signed(target, self.driver.position_bits),
+                               self._params[AP.MAX_SPEED])
         self._after_command()
 
     def _command(self) -> None:
@@ -610,9 +611,10 @@ class AxisFirmware(RiggedAxis):
         self._command()
         if number == AP.TARGET_POSITION:
             self.homing.abort()
-            self.start_positioning(to_int32(value), self._params[AP.MAX_SPEED])
+            self.start_positioning(to_signed(value, self.driver.position_bits),
+                                   self._params[AP.MAX_SPEED])
         elif number == AP.ACTUAL_POSITION:
-            self._set_position(to_int32(value))
+            self._set_position(to_signed(value, self.driver.position_bits))
         elif number == AP.TARGET_SPEED:
             self.homing.abort()
             self._velocity_command = value

@@ -45,6 +45,8 @@ from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, GP, SETTING, TASKS, M
 
 #: The TMC429's velocity and acceleration registers (11 bits): the firmware's units.
 V_MAX = 2047
+#: Its position registers (X_TARGET, X_ACTUAL) are 24 bits: AP 0/1's range (docs/modules.md).
+POSITION_MAX = 2**23 - 1
 A_MAX = 2047
 DIVIDER_MAX = 13
 _BOOL = (0, 1)
@@ -58,8 +60,8 @@ def _p(number: int, name: str, access: str, motion: Motion, lo: int = INT32_MIN,
 #: Rows every TMC429 module has (pytrinamic names them for all three).  "E": STAP/RSAP store
 #: them (PyStepRocker's access letters).
 COMMON_AXIS_ROWS: tuple[ParamSpec, ...] = (
-    _p(0, "Target (next) position", "RW", EVENTS),
-    _p(1, "Actual position", "RW", AXIS),
+    _p(0, "Target (next) position", "RW", EVENTS, -POSITION_MAX, POSITION_MAX),
+    _p(1, "Actual position", "RW", AXIS, -POSITION_MAX, POSITION_MAX),
     _p(2, "Target (next) speed", "RW", SETTING, -V_MAX, V_MAX),
     _p(3, "Actual speed", "R", AXIS, -V_MAX, V_MAX),
     _p(4, "Maximum positioning speed", "RWE", SETTING, 0, V_MAX, 1000),

@@ -281,12 +281,12 @@ def test_coolstep_lowers_the_tmc262_current_at_light_load_above_the_threshold_sp
     assert axis.chip.driver.semin == 0
 
 
-def test_a_move_across_the_32_bit_wrap_takes_the_shorter_way() -> None:
-    """The TMC429 modules share the firmware's 32-bit arithmetic (docs/motion.md, "MVP across
-    the 32-bit wrap"): 2000 steps forward across the wrap, not 4.3 billion back."""
+def test_a_move_across_the_24_bit_wrap_takes_the_shorter_way() -> None:
+    """The TMC429 modules' positions are the chip's 24-bit registers (docs/modules.md, "AP 0 /
+    AP 1"): 2000 steps forward across the wrap, not 16.7 million back."""
     axis = six_axes()[4]
-    axis.set_parameter(AP.ACTUAL_POSITION, 2**31 - 1000)
-    axis.move_to(-(2**31) + 1000)
+    axis.set_parameter(AP.ACTUAL_POSITION, 2**23 - 1000)
+    axis.move_to(-(2**23) + 1000)
     events = run([axis], 30)
     assert AxisEventKind.TARGET_REACHED in [event.kind for event in events]
-    assert (axis.get_parameter(AP.ACTUAL_POSITION), axis.chip.motor_position) == (-(2**31) + 1000, 2000)
+    assert (axis.get_parameter(AP.ACTUAL_POSITION), axis.chip.motor_position) == (-(2**23) + 1000, 2000)

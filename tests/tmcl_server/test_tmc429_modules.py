@@ -291,3 +291,31 @@ def test_end_switch_polarity_pull_ups_and_analogue_channels_of_the_tmcm_3110() -
     assert send(Opcode.GIO, 1, 1).status == Status.WRONG_TYPE  # IN1 is digital only
     with pytest.raises(ValueError):
         module.set_analog_input(0, 4096)  # a 12-bit ADC
+
+
+def test_positions_are_the_tmc429s_24_bit_registers() -> None:
+    """Issue 34, item 5: AP 0 and AP 1 are X_TARGET and X_ACTUAL sign-extended from 24 bits
+    (TMCL-LITE-1110 Commands.c ``Read429Int``): a rotation counts on past 8,388,607 at
+    -8,388,608, the manual's range +-8,388,607 bounds SAP 0/1 and MVP ABS, and a relative move
+    across the wrap takes the short way and arrives."""
+    module = TMCLModule(kind="tmcm-1110")
+
+    def send(opcode: int, type_: int, value: int) -> tuple[int, int]:
+        reply = module.execute(Request(1, opcode, type_, 0, value))
+        return reply.status, reply.value
+
+    assert send(Opcode.SAP, AP.ACTUAL_POSITION, 2**23)[0] == Status.INVALID_VALUE
+    assert send(Opcode.MVP, 0, -(2**23))[0] == Status.INVALID_VALUE
+    assert send(Opcode.SAP, AP.ACTUAL_POSITION, 2**23 - 5000)[0] == Status.OK
+    send(Opcode.ROR, 0, 200)  # about 12,000 steps a second
+    module.advance_to(module.now_ns + 1_000_000_000)
+    position = send(Opcode.GAP, AP.ACTUAL_POSITION, 0)[1]
+    assert -(2**23) <= position < -(2**23) + 10_000  # past the top: counting on from the bottom
+    send(Opcode.MST, 0, 0)
+    module.advance_to(module.now_ns + 1_000_000_000)
+    here = send(Opcode.GAP, AP.ACTUAL_POSITION, 0)[1]
+    assert send(Opcode.MVP, 1, -20_000) == (Status.OK, -20_000)  # back across the wrap
+    module.advance_to(module.now_ns + 5_000_000_000)
+    assert send(Opcode.GAP, AP.TARGET_POSITION, 0)[1] == here - 20_000 + 2**24
+    assert send(Opcode.GAP, AP.ACTUAL_POSITION, 0)[1] == here - 20_000 + 2**24
+    assert send(Opcode.GAP, AP.POSITION_REACHED, 0)[1] == 1

@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from axes.board import AxisBoard
-from axes.chips.tmc42x.engine import DEFAULT_CLOCK_HZ
+from axes.chips.tmc42x.engine import DEFAULT_CLOCK_HZ, HALF24
 from axes.chips.tmc42x.firmware import TMC42xDriver
 from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
 from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
@@ -163,6 +163,10 @@ class TMC429Driver(TMC42xDriver):
     """The firmware's routines for one motor of a TMC429 (an :class:`axes.core.ChipDriver`)."""
 
     chip_name = "TMC429"
+    #: AP 0 and AP 1 are the chip's 24-bit X_TARGET and X_ACTUAL, sign-extended (TMCL-LITE-1110
+    #: Commands.c lines 488-496, 734-741: ``Read429Int``/``Write429Int``): positions wrap at
+    #: +-2**23, as the TMC429 modules' manuals give their range (docs/modules.md).
+    position_bits = 24
 
     def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard, chip: TMC429,
                  motor: int) -> None:
@@ -172,6 +176,13 @@ class TMC429Driver(TMC42xDriver):
         super().__init__(index, params, board, model, motor)
         #: The axis's TMC262, on the microcontroller's SPI (None: a Step/Dir output only).
         self.motor_driver = TMC262Link(params, model) if model.driver is not None else None
+
+    def read_position(self) -> int:
+        """AP 1: X_ACTUAL as it is, sign-extended from 24 bits (no 32-bit count)."""
+        x = self.chip.spi_data(self._read_x_actual)
+        self._x_last = x
+        self.position = x - ((x & HALF24) << 1)
+        return self.position
 
     def register_access(self, address: int, value: int | None = None) -> int:
         """Commands 146/147 on a TMC429 axis: addresses 0x00..0x0F are this axis's own motor
