@@ -140,9 +140,11 @@ class MotorDriverLink(ABC):
         """The firmware's coolStep switch: SEMIN = AP 172 (on) or 0 (off)."""
 
     @abstractmethod
-    def sample(self) -> None:
+    def sample(self, chip: ChipModel | None = None) -> None:
         """Read the driver's stallGuard2 value, coolStep current and flags, as the firmware's
-        pass does; :meth:`load`, :meth:`current_scale` and :meth:`flags` answer from it."""
+        pass does; :meth:`load`, :meth:`current_scale` and :meth:`flags` answer from it.
+        ``chip``: read the driver of that copy of the axis's chip instead (a pass taken on a
+        copy made before the chip went past its instant, axes/tasks.py T2)."""
 
     @abstractmethod
     def observe(self) -> None:

@@ -140,7 +140,6 @@ class AxisFirmware(RiggedAxis):
         #: The reference search (axes/reference_search.py).
         self.homing = ReferenceSearcher(self, self._params)
         self._errors = 0
-        self._standstill_since: int | None = 0
         self._motion_origin = 0  # motor position where the motion last started
         #: The firmware's periodic pass: current, coolStep, the driver's readings, stall.
         self.tasks = FirmwareTasks(self, self._params)
@@ -193,9 +192,6 @@ class AxisFirmware(RiggedAxis):
 
     def error_flags(self) -> int:
         return self._errors
-
-    def resting_since(self) -> int | None:
-        return self._standstill_since
 
     def start_firmware_clock(self, clock: FirmwareClock, origin_ns: int, axes: int) -> None:
         self.tasks.start(clock, origin_ns, self.index, axes)
@@ -301,7 +297,6 @@ class AxisFirmware(RiggedAxis):
         self.update_marks()
 
     def _came_to_rest(self) -> None:
-        self._standstill_since = self._now_ns
         self.tasks.came_to_rest(self._now_ns)
 
     def _check_levels(self) -> None:
@@ -314,7 +309,6 @@ class AxisFirmware(RiggedAxis):
         self._levels = levels
 
     def _motion_started(self) -> None:
-        self._standstill_since = None
         self._motion_origin = self.chip.motor_position
         self.tasks.motion_started(self._now_ns)  # the current follows at the next pass
         self._errors = 0
@@ -360,7 +354,7 @@ class AxisFirmware(RiggedAxis):
         firmware's own records: a raw register write is noticed at the next real command)."""
         return (self._velocity_command == velocity and self._params[AP.TARGET_SPEED] == velocity
                 and not self._positioning and not self.homing.active and self._errors == 0
-                and self._standstill_since is None)
+                and self.tasks.rest_since is None)
 
     def rotate(self, velocity: int) -> bool:
         if self._rotating_at(velocity):
@@ -405,7 +399,7 @@ class AxisFirmware(RiggedAxis):
         self._positioning = False
         self._awaiting_arrival = False
         self._velocity_command = 0
-        if self._standstill_since is None:
+        if self.tasks.rest_since is None:
             self._came_to_rest()
         self.update_marks()
 
@@ -419,10 +413,13 @@ class AxisFirmware(RiggedAxis):
     def _command(self) -> None:
         """Every host command first brings the chip to the present."""
         self.sync()
-        self.tasks.feed()  # coolStep's measurements so far, before a setting may change
+        tasks = self.tasks
+        tasks.feed()  # coolStep's measurements so far, before a setting may change
+        tasks.touch()  # the next pass may decide otherwise
         self._invalidate()
 
     def _after_command(self) -> None:
+        self.tasks.touch()  # a setting the current's pass depends on (AP 214) may be new
         self.tasks.check_stall()
         self.update_marks()
         self._invalidate()
@@ -478,6 +475,7 @@ class AxisFirmware(RiggedAxis):
         """AP 206: the stallGuard2 reading, after threshold (AP 174) and filter (AP 173): what
         the last pass read from a modelled driver (axes/tasks.py), else the reading now."""
         if self.motor_driver is not None:
+            self.tasks.settle()
             return self.motor_driver.load()
         return self.generic_load()
 
@@ -500,7 +498,7 @@ class AxisFirmware(RiggedAxis):
 
     def _check_deviation(self) -> None:
         limit = self._params[AP.MAX_DEVIATION]
-        if limit and self._standstill_since is None and self.encoder.deviation(
+        if limit and self.tasks.rest_since is None and self.encoder.deviation(
                 self._position, self.chip.motor_position) > limit:
             self.homing.abort()
             self.hard_stop()
@@ -579,6 +577,7 @@ class AxisFirmware(RiggedAxis):
         if number == AP.MEASURED_SPEED:  # the driver's step-rate measurement: a magnitude
             return abs(self.actual_speed())
         if number == AP.DRIVER_ERROR_FLAGS and self.motor_driver is not None:
+            self.tasks.settle()
             return self.motor_driver.flags()
         if number == AP.ABSOLUTE_ENCODER:
             return self.encoder.absolute(self.chip.motor_position)
@@ -708,6 +707,7 @@ class AxisFirmware(RiggedAxis):
 
     def _rig_begin(self) -> None:
         self._command()
+        self.tasks.settle()  # a pass left for a read saw the world as it was
 
     def _rig_end(self) -> None:
         self._after_command()  # a new load or stuck mechanics may stall the motor now

@@ -30,9 +30,11 @@ T1. A pass that can do something a host sees at its instant (an event: the curre
 T2. Every other pass changes only what the firmware keeps for reads (AP 180, the driver's
     readings, the coolStep switch, the current's level); it is run later, when the chip is
     next brought forward, but at its own instant with the chip as it was then
-    (:meth:`FirmwareTasks.lazy_pass`): the chip never passes the instant of a pass that
-    matters before the pass has run, and the passes that cannot matter (nothing to switch,
-    nothing read since) are left out.
+    (:meth:`FirmwareTasks.lazy_pass`): the chip never passes the instant of a pass that may
+    switch something before the pass has run; of the passes that only read the driver, the
+    last one before the chip moves on is kept with a copy of the chip from before it, and
+    run on that copy when something reads what it read (:meth:`FirmwareTasks.settle`); the
+    passes that cannot matter are left out.
 T3. A read changes nothing: AP 180 (and a TMC262's AP 206/208) answer what the last pass read,
     the generic load reading is a function of the position, and the coolStep regulation is
     fed only at the passes, at the world's load edges and at commands, where feeding is
@@ -47,7 +49,7 @@ from typing import Protocol
 
 from axes import stallguard
 from axes.board import AxisBoard
-from axes.core import ChipDriver, MotorDriverLink
+from axes.core import ChipDriver, ChipModel, MotorDriverLink
 from axes.interface import FOREVER, AxisEventKind
 from axes.stallguard import CoolStep
 from tmcl_spec.modules import FirmwareClock
@@ -73,10 +75,6 @@ class TaskedAxis(Protocol):
         ...
 
     def actual_speed(self) -> int:
-        ...
-
-    def resting_since(self) -> int | None:
-        """When the motor came to rest (None while it moves)."""
         ...
 
     def mechanical(self) -> int:
@@ -120,7 +118,9 @@ class FirmwareTasks:
         #: The last pass that saw the motor move (``StandbyTimer``); None: none since power-up
         #: (the firmware's INT_MAX: standby at the first pass).
         self._moved_at: int | None = None
-        #: When the motion in progress began (None at rest).
+        #: When the motor came to rest (None while it moves: the firmware's standstill), and
+        #: when the motion in progress began (None at rest).
+        self.rest_since: int | None = 0
         self._moving_since: int | None = None
         #: coolStep switched on (the driver's SEMIN = AP 172), and its regulation (no driver).
         self.coolstep_on = False
@@ -129,6 +129,16 @@ class FirmwareTasks:
         self._scale_read = 0
         #: A stall may come: a pass (or a sample) is an event (T1).
         self.stall_watch = False
+        #: The last pass that only reads the driver, left for a read: its instant, and a copy
+        #: of the chip from before the chip went past it (T2).
+        self._deferred: tuple[int, ChipModel] | None = None
+        #: Something changed since the last pass ran (a command, the motor stopping or
+        #: starting, the current or coolStep switching): at rest, the next pass may decide
+        #: otherwise than the last one; passes after it decide alike.
+        self.dirty = True
+        #: The current's next switch (:meth:`_current_due`) as last computed, while known.
+        self._due: int | None = None
+        self._due_known = False
 
     # == the clock =============================================================================
 
@@ -139,6 +149,12 @@ class FirmwareTasks:
         step = profile.pass_ms * NS_PER_MS
         self._period = step * axes if profile.one_axis_per_pass else step
         self.next_pass_ns = origin_ns + step * ((slot if profile.one_axis_per_pass else 0) + 1)
+        self._due_known = False
+
+    def touch(self) -> None:
+        """A command may have changed what the next pass decides (a setting, AP 214)."""
+        self.dirty = True
+        self._due_known = False
 
     def _pass_from(self, t_ns: int) -> int:
         """The first pass at or after ``t_ns`` (and not before the next one to run)."""
@@ -152,8 +168,19 @@ class FirmwareTasks:
 
     def due(self) -> int | None:
         """The next instant this axis's firmware does something a host sees (T1)."""
-        profile, axis = self.profile, self._axis
-        rest = axis.resting_since()
+        due = self._due if self._due_known else self._current_due()
+        if self.stall_watch:
+            check = (self.next_pass_ns if self.profile.stall_in_pass
+                     else self._sample_after(self._axis.present_ns()))
+            if due is None or check < due:
+                due = check
+        return due
+
+    def _current_due(self) -> int | None:
+        """The pass that switches the current (to standby, or back to run), kept until
+        something changes it."""
+        profile = self.profile
+        rest = self.rest_since
         due: int | None = None
         if not profile.current_in_pass:
             if rest is not None and not self.standby:
@@ -166,11 +193,7 @@ class FirmwareTasks:
             if self._moved_at is not None:
                 delay = self._params[AP.POWER_DOWN_DELAY] * POWER_DOWN_UNIT_NS
                 due = self._pass_from(max(due, self._moved_at + delay + 1))
-        if self.stall_watch:
-            check = (self.next_pass_ns if profile.stall_in_pass
-                     else self._sample_after(axis.present_ns()))
-            if due is None or check < due:
-                due = check
+        self._due, self._due_known = due, True
         return due
 
     def lazy_pass(self, until_ns: int) -> int | None:
@@ -179,20 +202,40 @@ class FirmwareTasks:
         first = self.next_pass_ns
         if first >= until_ns:
             return None
-        if self._switches() and self._axis.resting_since() is None:
+        axis = self._axis
+        if self._switches() and (self.dirty or self.rest_since is None):
             return first  # each pass may switch coolStep or the current: all run, in turn
         last = first + (until_ns - 1 - first) // self._period * self._period
-        if self._keeps_readings():
-            self.next_pass_ns = last
-            return last  # only the last one's readings can be read
         self.next_pass_ns = last + self._period
+        self._due_known = False
+        if axis.motor_driver is not None:  # only the last one's readings can be read
+            self._deferred = (last, axis.driver.chip.clone())
         return None
+
+    def settle(self) -> None:
+        """Something reads what the last pass read from the driver: a pass left for it runs
+        now on the copy of the chip made before the chip went past it (T2)."""
+        deferred = self._deferred
+        if deferred is None:
+            return
+        self._deferred = None
+        at, twin = deferred
+        until = twin.ticks_at(at)
+        while twin.t < until and twin.run(until) is not None:
+            pass  # a notable instant on the way (the firmware reacted to it on the chip)
+        motor_driver = self._axis.motor_driver
+        assert motor_driver is not None
+        motor_driver.sample(twin)
+        self._scale_read = motor_driver.current_scale()
 
     def _switches(self) -> bool:
         """A pass may switch coolStep or the current by the speed (else all passes of a
-        stretch decide alike)."""
+        stretch decide alike).  coolStep regulated by the firmware's own model is fed at
+        every pass while it is on."""
         p, profile = self._params, self.profile
         if p[AP.SMARTENERGY_HYSTERESIS_START] and profile.coolstep_by_speed:
+            return True
+        if self.coolstep_on and self._axis.motor_driver is None:
             return True
         slow = p.get(AP.SMARTENERGY_SLOW_RUN_CURRENT)
         return (profile.current_in_pass and slow is not None
@@ -208,9 +251,12 @@ class FirmwareTasks:
         """This axis's pass at ``t_ns``, the chip brought there (SysControl.c lines 57-137)."""
         axis, p, profile = self._axis, self._params, self.profile
         self.next_pass_ns = t_ns + self._period
+        self._deferred = None  # this one's readings are the last ones
+        self.dirty = False
+        self._due_known = False
         self.feed()
         speed = abs(axis.actual_speed())
-        resting = axis.resting_since() is not None
+        resting = self.rest_since is not None
         if profile.current_in_pass:
             if resting:
                 if not self.standby and (self._moved_at is None or t_ns - self._moved_at
@@ -239,6 +285,7 @@ class FirmwareTasks:
 
     def _set_current(self, standby: bool, slow: bool) -> None:
         self.standby, self.slow = standby, slow
+        self.touch()
         self._axis.current_changed()
 
     def switch_coolstep(self, on: bool) -> None:
@@ -247,6 +294,7 @@ class FirmwareTasks:
             return
         self.feed()  # the steps so far count with the switch as it was
         self.coolstep_on = on
+        self.dirty = True
         axis = self._axis
         if axis.motor_driver is not None:
             axis.motor_driver.switch_coolstep(on)
@@ -268,6 +316,8 @@ class FirmwareTasks:
 
     def motion_started(self, t_ns: int) -> None:
         """A command set the motor going at ``t_ns``."""
+        self.touch()
+        self.rest_since = None
         if self._moving_since is None:
             self._moving_since = t_ns
         if not self.profile.current_in_pass and self.standby:
@@ -277,6 +327,8 @@ class FirmwareTasks:
     def came_to_rest(self, t_ns: int) -> None:
         """The motor stopped at ``t_ns``: the last pass that saw it move is the standby
         timer's start (every pass in between saw it move)."""
+        self.touch()
+        self.rest_since = t_ns
         since, self._moving_since = self._moving_since, None
         if since is None or not self.profile.current_in_pass:
             return
@@ -287,7 +339,7 @@ class FirmwareTasks:
     def standby_due(self, t_ns: int) -> None:
         """Where the controller switches the current (not the pass): the delay has run out."""
         if not self.profile.current_in_pass and not self.standby:
-            rest = self._axis.resting_since()
+            rest = self.rest_since
             delay = self._params[AP.POWER_DOWN_DELAY] * POWER_DOWN_UNIT_NS
             if rest is not None and t_ns >= rest + delay:
                 self._set_current(standby=True, slow=False)
@@ -305,6 +357,7 @@ class FirmwareTasks:
         setting = self.current_setting()
         motor_driver = self._axis.motor_driver
         if motor_driver is not None:
+            self.settle()
             scale = motor_driver.current_scale() if self.coolstep_on else None
         else:
             scale = self._scale_now() if self.coolstep.scale is not None else None
@@ -326,6 +379,7 @@ class FirmwareTasks:
         """AP 180: what the last pass read (the current's scale at once where nothing the
         motor does moves it: no driver, coolStep off)."""
         if self._keeps_readings() or self.coolstep.scale is not None:
+            self.settle()
             return self._scale_read
         return self.current_setting() >> stallguard.CURRENT_SCALE_SHIFT
 
@@ -340,7 +394,7 @@ class FirmwareTasks:
         it (T3); with nothing the motor does behind it, until an event or a command."""
         if not self._keeps_readings() and self.coolstep.scale is None:
             return FOREVER
-        if self._axis.motor_driver is None and self._axis.resting_since() is not None:
+        if self._axis.motor_driver is None and self.rest_since is not None:
             return FOREVER  # at rest coolStep's scale stays; the current switches at events
         return self.next_pass_ns
 
@@ -356,7 +410,7 @@ class FirmwareTasks:
             act = not self.profile.stall_in_pass
         threshold = self._params[AP.STOP_ON_STALL]
         watching = False
-        if threshold and axis.resting_since() is None:
+        if threshold and self.rest_since is None:
             stalled = self._stalled()
             if stalled and act and abs(axis.actual_speed()) > threshold:
                 axis.stall_stop()

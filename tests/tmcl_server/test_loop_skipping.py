@@ -106,7 +106,7 @@ def worlds(draw: st.DrawFn) -> World:
                                     st.integers(100, 30000), st.sampled_from([0, 20, 300, 900])),
                           max_size=3))
     return World(draw(st.none() | st.integers(-50000, 50000)), sorted(actions),
-                 core=draw(st.sampled_from(["tmc4210", "tmc4361a"])),
+                 core=draw(st.sampled_from(["tmc4210", "tmc4361a", "tmc429"])),
                  loads=[(axis, start, start + length, load) for axis, start, length, load in loads])
 
 

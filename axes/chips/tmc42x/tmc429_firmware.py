@@ -27,7 +27,7 @@ from axes.chips.tmc42x.engine import DEFAULT_CLOCK_HZ, HALF24
 from axes.chips.tmc42x.firmware import TMC42xDriver
 from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
 from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
-from axes.core import MotorDriverLink
+from axes.core import ChipModel, MotorDriverLink
 from axes.firmware import AxisFirmware
 from axes.interface import Axis
 from axes.world import AxisWorld
@@ -138,12 +138,18 @@ class TMC262Link(MotorDriverLink):
         changes nothing makes it catch up (the real one measures as the motor goes)."""
         self._poll()
 
-    def sample(self) -> None:
+    def sample(self, chip: ChipModel | None = None) -> None:
         """SG and the flags (RDSEL = 1), then SE with RDSEL = 2 for one datagram (then back)."""
-        word = self._poll()
-        drvconf = self._data(DrvReg.DRVCONF) & ~(3 << 4)
-        self.motor.driver_spi(drv_datagram(DrvReg.DRVCONF, drvconf | ReadSelect.SG_SE << 4))
-        se = self._send(DrvReg.DRVCONF) >> 10 & 0x1F
+        own = self.motor
+        if isinstance(chip, TMC429Motor):
+            self.motor = chip  # a copy of this motor (axes/tasks.py, T2)
+        try:
+            word = self._poll()
+            drvconf = self._data(DrvReg.DRVCONF) & ~(3 << 4)
+            self.motor.driver_spi(drv_datagram(DrvReg.DRVCONF, drvconf | ReadSelect.SG_SE << 4))
+            se = self._send(DrvReg.DRVCONF) >> 10 & 0x1F
+        finally:
+            self.motor = own
         self._sampled = (word >> 10, se, word & 0xFF)
 
     def load(self) -> int:
