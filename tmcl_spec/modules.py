@@ -72,6 +72,9 @@ class ModuleType:
     commands: frozenset[int]
     #: Input lines whose analogue value ``GIO n, 1`` reads (None: every input line).
     analog_channels: frozenset[int] | None = None
+    #: The GIO port of each input line, in order (None: line n is port n).  The world file,
+    #: the run-time API, WAIT and the input interrupts number the lines; GIO the ports.
+    input_ports: tuple[int, ...] | None = None
     #: ``SIO n, 0, 0|1`` switches pull-up resistors n = 0..pullup_ports-1 (0: no such bank).
     pullup_ports: int = 0
     #: Full scale of an analogue input reading, and where its digital reading switches.

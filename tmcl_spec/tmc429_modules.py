@@ -109,7 +109,8 @@ ENCODER_MODE = _p(201, "Encoder mode", "RWE", SETTING, 0, 255, 0)
 ENCODER_ROWS = (
     _p(209, "Encoder position", "RW", AXIS),
     # AP 209 = encoder counts * prescaler / 512; 512: the counts themselves (docs/modules.md).
-    _p(210, "Encoder prescaler", "RWE", SETTING, 0, 65535, 512),
+    # The whole positive 32-bit value: published programs for the TMCM-3110 write 4674113.
+    _p(210, "Encoder prescaler", "RWE", SETTING, 0, INT32_MAX, 512),
     _p(212, "Maximum encoder deviation", "RWE", SETTING, 0, 65535, 0),
 )
 STEP_DIRECTION_MODE = _p(254, "Step/direction mode", "RWE", SETTING, 0, 2, 0)
@@ -308,6 +309,9 @@ TMCM_1141 = ModuleType(
     storable_axis_parameters=storable(AXIS_PARAMETERS_1141),
     digital_inputs=4,
     analog_inputs=4,
+    # IN3 is GIO port 4 (pytrinamic's TMCM1141.IO: IN0..IN2 = 0..2, IN3 = 4, where its 1140
+    # and 1161 classes say 3; docs/modules.md, "TMCM-1141: IN3")
+    input_ports=(0, 1, 2, 4),
     has_can=False,  # USB, RS485 and Step/Dir (hardware manual's title)
     **_ONE_AXIS,
 )

@@ -319,3 +319,37 @@ def test_positions_are_the_tmc429s_24_bit_registers() -> None:
     assert send(Opcode.GAP, AP.TARGET_POSITION, 0)[1] == here - 20_000 + 2**24
     assert send(Opcode.GAP, AP.ACTUAL_POSITION, 0)[1] == here - 20_000 + 2**24
     assert send(Opcode.GAP, AP.POSITION_REACHED, 0)[1] == 1
+
+
+def test_ror_beyond_2047_writes_the_12_bit_v_target_as_the_firmware_does() -> None:
+    """Issue 34, item 6: TMCL-LITE-1110 writes ROR's value into the 12-bit V_TARGET
+    (``Write429Short``): 3000 is -1096 there, so the motor runs left at 1096 and AP 2 reads
+    -1096; ROL 3000 writes -3000, +1096: right.  SAP 2 keeps the manual's range."""
+    module = TMCLModule(kind="tmcm-1110")
+
+    def send(opcode: int, type_: int, value: int) -> tuple[int, int]:
+        reply = module.execute(Request(1, opcode, type_, 0, value))
+        return reply.status, reply.value
+
+    assert send(Opcode.SAP, AP.TARGET_SPEED, 3000)[0] == Status.INVALID_VALUE
+    send(Opcode.ROR, 0, 3000)
+    module.advance_to(module.now_ns + 2_000_000_000)
+    assert send(Opcode.GAP, AP.TARGET_SPEED, 0)[1] == -1096
+    assert send(Opcode.GAP, AP.ACTUAL_SPEED, 0)[1] == -1096
+    send(Opcode.ROL, 0, 3000)
+    module.advance_to(module.now_ns + 2_000_000_000)
+    assert send(Opcode.GAP, AP.ACTUAL_SPEED, 0)[1] == 1096
+
+
+@pytest.mark.parametrize("kind", ["tmcm-3110", "tmcm-1110"])
+def test_the_encoder_prescaler_takes_what_published_programs_write(kind: str) -> None:
+    """Issue 34, item 12: four published FLIR programs for the TMCM-3110 write SAP 210, m,
+    4674113; the range was 0..65535 (inferred), the module takes it."""
+    module = TMCLModule(kind=kind)
+    for motor in range(module.type.number_of_axes):
+        reply = module.execute(Request(1, Opcode.SAP, AP.ENCODER_RESOLUTION, motor, 4674113))
+        assert reply.status == Status.OK
+        assert module.execute(Request(1, Opcode.GAP, AP.ENCODER_RESOLUTION, motor, 0)).value == 4674113
+    module.execute(Request(1, Opcode.MVP, 0, 0, 1000))
+    module.advance_to(module.now_ns + 1_000_000_000)
+    assert module.execute(Request(1, Opcode.GAP, AP.ENCODER_POSITION, 0, 0)).status == Status.OK

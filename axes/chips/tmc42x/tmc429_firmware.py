@@ -31,6 +31,7 @@ from axes.core import ChipModel, MotorDriverLink
 from axes.firmware import AxisFirmware
 from axes.interface import Axis
 from axes.world import AxisWorld
+from tmcl_spec.numbers import to_signed
 from tmcl_spec.parameters import AP, ParamSpec
 
 #: IF_CONFIGURATION at power-up: Step/Dir outputs, a right switch input per motor (REFR1..3),
@@ -40,6 +41,8 @@ IF_CONFIGURATION_FIRMWARE = EN_SD | EN_REFR | SDO_INT
 SMGP_FIRMWARE = 0x000002
 #: The firmware reads the TMC262's stallGuard2 value (RDSEL = 1) between its other reads.
 READ_SELECT = ReadSelect.SG
+#: V_TARGET is a 12-bit two's complement register.
+V_TARGET_BITS = 12
 
 
 class TMC262Link(MotorDriverLink):
@@ -236,6 +239,15 @@ class TMC429Axis(AxisFirmware):
             for first in range(0, count, NUMBER_OF_MOTORS)]
         return [cls(index, parameters, chip=chips[index // NUMBER_OF_MOTORS],
                     motor=index % NUMBER_OF_MOTORS) for index in range(count)]
+
+    def rotate(self, velocity: int) -> bool:
+        """ROR/ROL in the chip's units (no unit mode) write the 12-bit V_TARGET as it is
+        (TMCL-LITE-1110 Commands.c lines 401 and 420: ``Write429Short(IDX_VTARGET, value)``),
+        so ROR 3000 runs left at 1096 and AP 2 reads -1096 (docs/modules.md, "ROR beyond
+        2047")."""
+        if not self._params[AP.UNIT_MODE]:
+            velocity = to_signed(velocity, V_TARGET_BITS)
+        return super().rotate(velocity)
 
     def get_parameter(self, number: int) -> int:
         """AP 9 is the reference switch status: the left switch, the one the TMC429 calls
