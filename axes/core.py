@@ -202,6 +202,14 @@ class ChipDriver(ABC):
     #: whole TMCL value; a firmware that reads a narrower register as AP 1 says so.
     position_bits: int = 32
 
+    #: Parameters whose writes :meth:`check_write` sees first (a value the chip cannot run).
+    checked_parameters: frozenset[int] = frozenset()
+
+    def check_write(self, number: int, value: int) -> None:
+        """Refuse a write of one of :attr:`checked_parameters` the chip cannot follow
+        (ValueError: status 4; ``axes.interface.NotAvailable``: status 6)."""
+        return
+
     def horizon_ns(self) -> int:
         """How far the next look-ahead may run: :attr:`lookahead_ns`, or as far as the chip's
         present settings keep its position registers unambiguous (TMC42x)."""

@@ -119,6 +119,8 @@ class AxisFirmware(RiggedAxis):
         self.motor_driver: MotorDriverLink | None = self.driver.motor_driver
         #: Chip-specific parameters the driver reads from its chip (e.g. AP 135, AP 138).
         self._chip_live: frozenset[int] = frozenset(self.driver.live_parameters & known)
+        #: Parameters whose writes the driver checks first (values its chip cannot run).
+        self._checked: frozenset[int] = frozenset(self.driver.checked_parameters)
         motions = {self._keys.get(n, n): spec.motion for n, spec in parameters.items()
                    if spec.motion is not None}
         self._check_motions(motions)
@@ -603,6 +605,8 @@ class AxisFirmware(RiggedAxis):
     def set_parameter(self, number: int, value: int) -> bool:
         if self._keys:
             number = self._keys.get(number, number)
+        if number in self._checked:
+            self.driver.check_write(number, value)  # ValueError: the module's status 4 (or 6)
         if number == AP.TARGET_SPEED and self._rotating_at(value):
             return False
         if number not in _ACTION_PARAMETERS and self._params.get(number) == value:

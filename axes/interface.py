@@ -73,6 +73,11 @@ class AxisStatus:
     mechanical_position: int = 0
 
 
+class NotAvailable(ValueError):
+    """The firmware refuses a parameter write in its present state (the module answers
+    status 6, "command not available due to current state")."""
+
+
 #: A time no simulation reaches: "steady until something intervenes".
 FOREVER = 1 << 62
 

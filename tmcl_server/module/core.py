@@ -170,7 +170,11 @@ class ModuleCore:
             if mechanics and mechanics[axis.index]:
                 axis.place_mechanics(mechanics[axis.index])
             for key, value in (ee.get("axis_parameters", axis.index) or {}).items():
-                axis.set_parameter(int(key), value)
+                try:
+                    axis.set_parameter(int(key), value)
+                except ValueError as exc:  # stored on another core, beyond what this one runs
+                    log.warning("axis %d: stored AP %s = %s not restored: %s", axis.index, key,
+                                value, exc)
         self.coordinates = [[0] * self.type.coordinates for _ in self.axes]
         if self.globals[0][GP.COORDINATE_STORAGE] == 1:
             self._copy_coordinates_from_eeprom(range(1, self.type.coordinates))
