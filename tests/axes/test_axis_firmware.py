@@ -584,3 +584,21 @@ def test_a_new_target_in_flight_takes_a_higher_speed_limit_where_there_is_room()
     assert abs(h.gap(3) - 100_000) < 100
     h.until(AxisEventKind.TARGET_REACHED)
     assert h.gap(1) == 1_000_000
+
+
+def test_the_speed_reads_0_right_after_ror_until_the_ramp_makes_a_unit() -> None:
+    """Issue 34, item 11, decided (docs/motion.md, "AP 3"): on the TMC4210 V_ACTUAL moves at
+    ramp ticks by A_MAX/256 of a unit of f/(2^PULSE_DIV * 2^16) pps, so AP 3 reads 0 for
+    about 0.6 ms after ROR 51200 at 51,200 pps^2, where the TMC4361A's VACTUAL counts whole
+    pps every clock."""
+    slow = Harness(axis_class=CORES["tmc4210"])
+    slow.axis.rotate(51_200)
+    slow.advance(10e-6)  # one program instruction later
+    assert slow.gap(3) == 0
+    slow.advance(1.2e-3)
+    assert 0 < slow.gap(3) < 200
+    fast = Harness(axis_class=CORES["tmc4361a"])
+    fast.sap(5, 500_000)
+    fast.axis.rotate(51_200)
+    fast.advance(10e-6)
+    assert fast.gap(3) == 5  # 500,000 pps^2 x 10 us
