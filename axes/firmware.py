@@ -467,9 +467,6 @@ class AxisFirmware(RiggedAxis):
 
     # == stallGuard, encoder, current ==========================================================
 
-    def _mechanical(self) -> int:
-        return self.board.mechanical(self.chip.motor_position)
-
     def mechanical(self) -> int:
         return self.board.mechanical(self.chip.motor_position)
 
@@ -482,7 +479,7 @@ class AxisFirmware(RiggedAxis):
         return self.generic_load()
 
     def generic_load(self) -> int:
-        return stallguard.load_reading(self._params, self.board.world.load_at, self._mechanical(),
+        return stallguard.load_reading(self._params, self.board.world.load_at, self.mechanical(),
                                        self.driver.heading() or self._travel_direction)
 
     def actual_speed(self) -> int:
@@ -755,7 +752,7 @@ class AxisFirmware(RiggedAxis):
             error_flags=self._errors, current=self.current, standby=self.tasks.standby,
             encoder_position=self.encoder.position(self.chip.motor_position),
             reference_search=self.homing.state,
-            mechanical_position=self._mechanical(),
+            mechanical_position=self.mechanical(),
         )
 
 
