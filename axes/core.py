@@ -183,6 +183,12 @@ class ChipDriver(ABC):
     #: How far the firmware runs a look-ahead copy of the chip (:data:`LOOKAHEAD_NS` keeps
     #: 24-bit position registers unambiguous; a chip with a 32-bit position may look further).
     lookahead_ns: int = LOOKAHEAD_NS
+    #: The width of AP 1 as the firmware reads it (two's complement): past
+    #: ``2**(position_bits - 1) - 1`` it goes on at ``-2**(position_bits - 1)``, and the other
+    #: way round.  A comparison with the position flips there without meeting its boundary,
+    #: so loop skipping's forecast stops at the wrap too (axes/forecast.py, F3).  32: the
+    #: whole TMCL value; a firmware that reads a narrower register as AP 1 says so.
+    position_bits: int = 32
 
     def horizon_ns(self) -> int:
         """How far the next look-ahead may run: :attr:`lookahead_ns`, or as far as the chip's
@@ -233,6 +239,15 @@ class ChipDriver(ABC):
             return self.actual_speed()
         finally:
             self.chip = own
+
+    def speed_monotonic_until(self, chip: ChipModel, until: int) -> int:
+        """The last tick, at most ``until``, up to which AP 3 read from ``chip`` (a look-ahead
+        copy of its own, in velocity mode, nothing intervening) moves one way only or not at
+        all: loop skipping bisects a rotation's speed only over such a stretch
+        (axes/forecast.py, F4); ``chip.t`` makes no promise past the present.  The default
+        is a linear ramp's: it only heads for the speed asked for, up to ``until``.  A chip
+        whose ramps bend (S-shaped) says how far that holds."""
+        return until
 
     @abstractmethod
     def levels(self) -> tuple[bool, bool, bool]:

@@ -20,7 +20,9 @@ from functools import lru_cache
 from typing import Protocol, runtime_checkable
 
 from axes.chips.tmc4361a.ramp import (
+    A_FALL,
     A_IDLE,
+    A_SPEED,
     A_START,
     A_WAIT,
     BOW_QUANTUM,
@@ -51,6 +53,7 @@ from axes.chips.tmc4361a.registers import (
     signed32,
 )
 from axes.core import Board, ChipModel, Stop
+from axes.search import first_true
 
 DEFAULT_CLOCK_HZ = 16_000_000
 #: Remembered runs: at most this many states in all (then everything is forgotten and
@@ -84,6 +87,8 @@ MANUAL_ENC_CONST = 1 << 31
 #: The registers read most (plain ints for the hot path of SPI reads).
 _STATUS = int(Reg.STATUS)
 _XACTUAL = int(Reg.XACTUAL)
+#: RAMPMODE(1:0) of an S-shaped ramp (Params.profile).
+S_SHAPED_PROFILE = 2
 #: CURRENTA (8..0) = 0, CURRENTB (24..16) = 247: the sine table's start values.
 CURRENT_AB_POWER_ON = 0x00F7_0000
 
@@ -204,6 +209,58 @@ class TMC4361A(ChipModel):
         twin.regs = dict(self.regs)
         twin._ramp = self._ramp.copy()
         return twin
+
+    def speed_monotonic_until(self, until: int, budget: int) -> int:
+        """The last tick, at most ``until``, up to which a rotation's VACTUAL moves one way
+        only or not at all, if nothing intervenes (``t``: no promise).  Positioning ramps
+        rise and fall: no promise.  A rotation heads for the speed asked for, except:
+
+        * a start from rest jumps to VSTART, which may lie beyond that speed (it comes
+          back): no promise until the ramp has started;
+        * an S-shaped slope first takes back the acceleration of the other slope (REC: a
+          rotation asked for more speed while braking brakes on for a while, one asked for
+          less while accelerating overshoots): it turns where that acceleration reaches 0;
+        * an S-shaped reversal with BOW2 = BOW4 passes through 0 without stopping and may
+          then take back its acceleration again (the new direction's speed overshoots): no
+          promise past the zero crossing.
+
+        Otherwise each slope lands on its goal (``Ramp._s_tick`` clamps there).  The end is
+        the first tick at which the turn, the crossing or a standstill has come, found by
+        bisection over copies run with ``budget`` (a copy stopped short counts as arrived,
+        which only promises less)."""
+        ramp = self._ramp
+        if ramp.P.positioning:
+            return self.t
+        if ramp.wait:  # TZEROWAIT: standing still until the start
+            return min(self.t + ramp.wait, until)
+        if ramp.decide(self._context())[0] == A_START:
+            return self.t
+        if ramp.P.profile != S_SHAPED_PROFILE:
+            return until
+        start, direction = self.t, ramp.s
+        turning = self._takes_back_acceleration()
+
+        def arrived(ticks: int) -> bool:
+            twin = self.clone()
+            twin.run(start + ticks, budget)
+            ahead = twin._ramp
+            return (twin.t < start + ticks or ahead.s != direction or ahead.w == 0
+                    or (turning and not twin._takes_back_acceleration()))
+
+        return min(start + first_true(arrived, until - start), until)
+
+    def _takes_back_acceleration(self) -> bool:
+        """Whether the next tick of an S-shaped rotation moves the speed against where its
+        slope heads (the REC stage: the acceleration points the other way)."""
+        ramp = self._ramp
+        action = ramp.decide(self._context())
+        if action[0] == A_SPEED:
+            slope = (ramp.w < action[1]) - (ramp.w > action[1])
+        elif action[0] == A_FALL:
+            slope = -1
+        else:  # at rest, waiting, a soft stop: no acceleration to take back
+            return False
+        return ramp.a * slope < 0
 
     def at_rest(self) -> bool:
         """Stopped, and nothing will start the motor without a datagram or a pin change."""

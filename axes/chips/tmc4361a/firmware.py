@@ -16,8 +16,9 @@ from collections.abc import Mapping
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
 from axes.chips.tmc4361a.registers import MASK32, WRITE_MASKS, signed32
-from axes.core import ChipDriver
+from axes.core import ChipDriver, ChipModel
 from axes.firmware import AxisFirmware
+from axes.forecast import LOOKAHEAD_BUDGET
 from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_S, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
@@ -187,6 +188,11 @@ class TMC4361ADriver(ChipDriver):
     def actual_speed(self) -> int:
         """AP 3: VACTUAL (integer pps), or in unit mode 0 the manual's internal units."""
         return self._speed_from_pps(signed32(self._read(Reg.VACTUAL)))
+
+    def speed_monotonic_until(self, chip: ChipModel, until: int) -> int:
+        """S-shaped ramps bend: the chip says how far a rotation's speed moves one way."""
+        assert isinstance(chip, TMC4361A)
+        return chip.speed_monotonic_until(until, LOOKAHEAD_BUDGET)
 
     def levels(self) -> tuple[bool, bool, bool]:
         """Logical (left, right, home) levels, read from the input stage.
