@@ -184,6 +184,10 @@ class ProgramSupport:
         self.module.catch_up(time_ns)
         return self.module.axis(motor).reference_search(RfsType.STATUS) != 0
 
+    def steady_until(self, time_ns: int, opcode: int, type_: int, motor: int) -> int:
+        self.module.catch_up(time_ns)
+        return self.module.steady_until(opcode, type_, motor, _OK)
+
     def program_event(self, time_ns: int, kind: str, **data: int) -> None:
         self.module.emit(kind, None, time_ns=time_ns, **data)
 
