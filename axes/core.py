@@ -14,6 +14,7 @@ the module's input stage and the mechanics of the world (``axes/board.py``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from enum import IntEnum
 from typing import TYPE_CHECKING, Protocol, Self
 
@@ -240,14 +241,15 @@ class ChipDriver(ABC):
         finally:
             self.chip = own
 
-    def speed_monotonic_until(self, chip: ChipModel, until: int) -> int:
-        """The last tick, at most ``until``, up to which AP 3 read from ``chip`` (a look-ahead
-        copy of its own, in velocity mode, nothing intervening) moves one way only or not at
-        all: loop skipping bisects a rotation's speed only over such a stretch
-        (axes/forecast.py, F4); ``chip.t`` makes no promise past the present.  The default
-        is a linear ramp's: it only heads for the speed asked for, up to ``until``.  A chip
-        whose ramps bend (S-shaped) says how far that holds."""
-        return until
+    def speed_turns(self, start: ChipModel) -> Callable[[ChipModel], bool] | None:
+        """How far AP 3 moves one way from ``start`` (a look-ahead copy of its own chip, in
+        velocity mode, nothing intervening): a test of a later copy of ``start``, true once
+        the speed may have turned (moved one way, then the other) by that copy's tick, false
+        before (so false, then true: loop skipping bisects a rotation's speed only where it
+        is false, axes/forecast.py F4).  None, the default, is a linear ramp's answer: it
+        only heads for the speed asked for, it never turns.  A chip whose ramps bend
+        (S-shaped) says where they may."""
+        return None
 
     @abstractmethod
     def levels(self) -> tuple[bool, bool, bool]:

@@ -29,13 +29,14 @@ F3. A position moves one microstep at a time, so AP 1 meets every value between 
     chip with a mark at each boundary's motor position and at both ends of the wrap stops at
     the first step that reaches one (AP 1 and the motor position move together).
 F4. A rotation's speed is monotonic only as far as its driver says
-    (:meth:`axes.core.ChipDriver.speed_monotonic_until`): a linear ramp heads for the speed
-    asked for; an S-shaped one first takes back the acceleration of the other slope, so a
-    rotation asked for more speed while braking dips first, and one asked for less while
+    (:meth:`axes.core.ChipDriver.speed_turns`): a linear ramp heads for the speed asked for;
+    an S-shaped one first takes back the acceleration of the other slope, so a rotation
+    asked for more speed while braking dips first, and one asked for less while
     accelerating overshoots.  Over a stretch where it is monotonic, the same speed at both
     ends is the same speed all along, and the first tick at which the speed compares
-    otherwise with a boundary is found by bisecting a copy of the chip over the clock ticks;
-    past that stretch there is no promise.
+    otherwise with a boundary is found by bisecting a copy of the chip over the clock
+    ticks; past the point where it may turn there is no promise (the driver's test is
+    false, then true, so the same bisection finds whichever comes first).
 F5. A crossing found is kept while the look-ahead it was found for is the current one (its
     identity): a new look-ahead is made after every change (F1).  A crossing found from an
     earlier instant of the same look-ahead is still the first one after any later instant
@@ -179,12 +180,11 @@ class AxisForecast:
         if number == AP.ACTUAL_SPEED and self._axis.in_velocity_mode():
             axis = self._axis
             axis.sync()
-            chip = axis.driver.chip
             # F4: the same speed at both ends of a monotonic stretch is the same all along it
-            if (axis.driver.speed_on(ahead.chip.clone()) == axis.actual_speed()
-                    and axis.driver.speed_monotonic_until(chip.clone(), ahead.chip.t)
-                    >= ahead.chip.t):
-                return ahead.time_ns
+            if axis.driver.speed_on(ahead.chip.clone()) == axis.actual_speed():
+                turns = axis.driver.speed_turns(axis.driver.chip)
+                if turns is None or not turns(ahead.chip):
+                    return ahead.time_ns
             self._keep_reading(number, ahead)
         elif number == AP.ACTUAL_POSITION:
             self._keep_reading(number, ahead)
@@ -244,39 +244,36 @@ class AxisForecast:
     def _first_time_speed_crosses(self, values: tuple[int, ...], ahead: Lookahead,
                                   start: ChipModel) -> int:
         """The first time AP 3 compares otherwise with one of ``values`` than on ``start`` (a
-        copy of the chip at the read: reaches one, or passes it), or the end of the stretch
-        over which the speed is monotonic (F4): a copy of the chip is bisected over the
-        clock ticks of that stretch."""
+        copy of the chip at the read: reaches one, or passes it), or where the speed may
+        turn (F4), or the next notable instant: over a stretch where it is monotonic, a copy
+        of the chip is bisected over the clock ticks (one bisection finds whichever comes
+        first: both tests are false, then true)."""
         driver = self._axis.driver
         speed = driver.speed_on(start.clone())
         if speed in values:
             return 0
         above = [speed > value for value in values]
+        turns = driver.speed_turns(start)
+        if turns is not None and turns(start):
+            return 0  # no promise at all (a positioning ramp, a start from rest)
 
         def compares_otherwise(chip: ChipModel) -> bool:
-            now = driver.speed_on(chip)
+            if turns is not None and turns(chip):
+                return True  # no promise past a turn
+            now = driver.speed_on(chip.clone())
             return any(now == value or (now > value) != side
                        for value, side in zip(values, above, strict=True))
 
-        end = driver.speed_monotonic_until(start.clone(), ahead.chip.t)
-        if end >= ahead.chip.t:
-            last, promise = ahead.chip, ahead.time_ns
-        else:  # the speed turns inside the stretch: no promise past the turn
-            last = start.clone()
-            last.run(end, LOOKAHEAD_BUDGET)  # (stopped short: no promise past there either)
-            if last.t <= start.t:
-                return 0
-            promise = last.ns_at(last.t)
-        if not compares_otherwise(last.clone()):
-            return promise
-        low, high = start.clone(), last.t
+        if not compares_otherwise(ahead.chip):
+            return ahead.time_ns
+        low, high = start.clone(), ahead.chip.t
         while high - low.t > 1:
             middle = (low.t + high) // 2
             probe = low.clone()
             probe.run(middle, LOOKAHEAD_BUDGET)
             if probe.t < middle:  # stopped short (its work budget): no promise beyond here
                 return probe.ns_at(probe.t)
-            if compares_otherwise(probe.clone()):
+            if compares_otherwise(probe):
                 high = middle
             else:
                 low = probe

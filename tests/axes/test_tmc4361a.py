@@ -342,18 +342,36 @@ def _one_way(speeds: list[int]) -> bool:
     return all(move > 0 for move in moves) or all(move < 0 for move in moves)
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def _first_turn(chip: TMC4361A, limit: int) -> int:
+    """Clocks from now to the first tick at which chip.speed_turns' test says the speed may
+    have turned (``limit`` + 1 if it never does), checking on every clock up to ``limit``
+    that the test, once true, stays true."""
+    test = chip.speed_turns()
+    if test is None:
+        return limit + 1
+    twin, first = chip.clone(), None
+    for clock in range(limit + 1):
+        while twin.t < chip.t + clock:
+            twin.run(chip.t + clock)
+        if test(twin):
+            first = clock if first is None else first
+        else:
+            assert first is None, "the test turned false again"
+    return limit + 1 if first is None else first
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(regs=ramp_registers((1, 2, 2)), quantum=st.sampled_from([1, 2, 4, 8, 64]),
        changes=st.lists(change, max_size=2), first=st.integers(1, 1500),
        vmax=st.integers(-V_TEST * 256, V_TEST * 256),
        at=st.one_of(st.just(0), st.integers(0, 200), st.integers(0, 3000)))
-def test_a_rotations_speed_moves_one_way_as_far_as_the_chip_says(
+def test_a_rotations_speed_moves_one_way_until_the_chip_says_it_may_turn(
         regs: Registers, quantum: int, changes: list, first: int, vmax: int, at: int) -> None:
     """Loop skipping bisects a rotation's speed only where it is monotonic (axes/forecast.py
-    F4): up to the tick speed_monotonic_until answers, the reference's speed, clock by clock,
-    moves one way only; a positioning ramp gets no promise.  The speed asked for changes
-    mid-ramp shortly before (``at`` clocks): an S-shaped slope may be taking back its
-    acceleration then (about one example in ten)."""
+    F4): before the first tick at which speed_turns' test turns true, the reference's speed,
+    clock by clock, moves one way only; a positioning ramp is turned at once.  The speed
+    asked for changes mid-ramp shortly before (``at`` clocks): an S-shaped slope may be
+    taking back its acceleration then (about one example in ten)."""
     chip, ref = _pair(regs, quantum)
     seen: list[tuple[int, Stop]] = []
     t = 0
@@ -363,12 +381,10 @@ def test_a_rotations_speed_moves_one_way_as_far_as_the_chip_says(
         chip.write(Reg[name.upper()], value & MASK32)
         ref.write(name, value & MASK32)
     _run_both(chip, ref, t + at, seen)
-    until = chip.t + 4000
-    end = chip.speed_monotonic_until(until, 2000)
-    assert chip.t <= end <= until
+    turn = _first_turn(chip, 3000)
     if chip.ramp.P.positioning:
-        assert end == chip.t
-    assert _one_way(_speeds_up_to(ref, end))
+        assert turn == 0
+    assert _one_way(_speeds_up_to(ref, chip.t + turn - 1))
 
 
 def test_an_s_shaped_rotation_asked_for_more_while_braking_turns_where_its_deceleration_ends(
@@ -386,11 +402,10 @@ def test_an_s_shaped_rotation_asked_for_more_while_braking_turns_where_its_decel
     _run_both(chip, ref, 3300, seen)  # braking, the deceleration still growing
     chip.write(Reg.VMAX, 120 * 256)
     ref.write("vmax", 120 * 256)
-    end = chip.speed_monotonic_until(chip.t + 4000, 2000)
-    assert chip.t < end < chip.t + 4000
-    speeds = _speeds_up_to(ref, end + 200)
-    turn = end - 3300
-    assert _one_way(speeds[:turn + 1]) and speeds[turn] < speeds[0]  # braked on: a dip
+    turn = _first_turn(chip, 3000)
+    assert 0 < turn < 3000
+    speeds = _speeds_up_to(ref, chip.t + turn + 200)
+    assert _one_way(speeds[:turn]) and speeds[turn - 1] < speeds[0]  # braked on: a dip
     assert not _one_way(speeds)  # then rises
 
 

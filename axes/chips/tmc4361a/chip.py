@@ -16,6 +16,7 @@ Every modelling choice is written down in ``docs/tmc4361a.md``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 from typing import Protocol, runtime_checkable
 
@@ -53,7 +54,6 @@ from axes.chips.tmc4361a.registers import (
     signed32,
 )
 from axes.core import Board, ChipModel, Stop
-from axes.search import first_true
 
 DEFAULT_CLOCK_HZ = 16_000_000
 #: Remembered runs: at most this many states in all (then everything is forgotten and
@@ -89,6 +89,7 @@ _STATUS = int(Reg.STATUS)
 _XACTUAL = int(Reg.XACTUAL)
 #: RAMPMODE(1:0) of an S-shaped ramp (Params.profile).
 S_SHAPED_PROFILE = 2
+
 #: CURRENTA (8..0) = 0, CURRENTB (24..16) = 247: the sine table's start values.
 CURRENT_AB_POWER_ON = 0x00F7_0000
 
@@ -121,6 +122,11 @@ class EncoderBoard(Board, Protocol):
     def encoder_counts(self, motor_position: int) -> int:
         """Signed count of AB transitions the encoder has made with the motor at this position."""
         ...
+
+
+def _turned_at_once(twin: TMC4361A) -> bool:
+    """TMC4361A.speed_turns' test where no promise is made."""
+    return True
 
 
 class TMC4361A(ChipModel):
@@ -210,44 +216,40 @@ class TMC4361A(ChipModel):
         twin._ramp = self._ramp.copy()
         return twin
 
-    def speed_monotonic_until(self, until: int, budget: int) -> int:
-        """The last tick, at most ``until``, up to which a rotation's VACTUAL moves one way
-        only or not at all, if nothing intervenes (``t``: no promise).  Positioning ramps
-        rise and fall: no promise.  A rotation heads for the speed asked for, except:
+    def speed_turns(self) -> Callable[[TMC4361A], bool] | None:
+        """How far a rotation's VACTUAL moves one way from here, if nothing intervenes: a
+        test of a later copy of this chip, true once the speed may have turned by its tick
+        (false before, true from then on); None: it never turns.  Positioning ramps rise and
+        fall: turned at once.  A rotation heads for the speed asked for, except:
 
         * a start from rest jumps to VSTART, which may lie beyond that speed (it comes
-          back): no promise until the ramp has started;
+          back): turned at once, until the ramp has started (after TZEROWAIT's standstill);
         * an S-shaped slope first takes back the acceleration of the other slope (REC: a
           rotation asked for more speed while braking brakes on for a while, one asked for
-          less while accelerating overshoots): it turns where that acceleration reaches 0;
+          less while accelerating overshoots): turned where that acceleration reaches 0;
         * an S-shaped reversal with BOW2 = BOW4 passes through 0 without stopping and may
-          then take back its acceleration again (the new direction's speed overshoots): no
-          promise past the zero crossing.
+          then take back its acceleration again (the new direction's speed overshoots):
+          turned at the zero crossing (or a standstill).
 
-        Otherwise each slope lands on its goal (``Ramp._s_tick`` clamps there).  The end is
-        the first tick at which the turn, the crossing or a standstill has come, found by
-        bisection over copies run with ``budget`` (a copy stopped short counts as arrived,
-        which only promises less)."""
+        Otherwise each slope lands on its goal (``Ramp._s_tick`` clamps there)."""
         ramp = self._ramp
         if ramp.P.positioning:
-            return self.t
+            return _turned_at_once
         if ramp.wait:  # TZEROWAIT: standing still until the start
-            return min(self.t + ramp.wait, until)
+            started = self.t + ramp.wait
+            return lambda twin: twin.t > started
         if ramp.decide(self._context())[0] == A_START:
-            return self.t
+            return _turned_at_once
         if ramp.P.profile != S_SHAPED_PROFILE:
-            return until
-        start, direction = self.t, ramp.s
-        turning = self._takes_back_acceleration()
+            return None
+        direction, turning = ramp.s, self._takes_back_acceleration()
 
-        def arrived(ticks: int) -> bool:
-            twin = self.clone()
-            twin.run(start + ticks, budget)
-            ahead = twin._ramp
-            return (twin.t < start + ticks or ahead.s != direction or ahead.w == 0
+        def turned(twin: TMC4361A) -> bool:
+            later = twin._ramp
+            return (later.s != direction or later.w == 0
                     or (turning and not twin._takes_back_acceleration()))
 
-        return min(start + first_true(arrived, until - start), until)
+        return turned
 
     def _takes_back_acceleration(self) -> bool:
         """Whether the next tick of an S-shaped rotation moves the speed against where its

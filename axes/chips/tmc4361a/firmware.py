@@ -11,14 +11,14 @@ mapping choice is explained in docs/motion.md ("The TMC4361A core") and docs/tmc
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import cast
 
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
 from axes.chips.tmc4361a.registers import MASK32, WRITE_MASKS, signed32
 from axes.core import ChipDriver, ChipModel
 from axes.firmware import AxisFirmware
-from axes.forecast import LOOKAHEAD_BUDGET
 from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_S, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
@@ -189,10 +189,13 @@ class TMC4361ADriver(ChipDriver):
         """AP 3: VACTUAL (integer pps), or in unit mode 0 the manual's internal units."""
         return self._speed_from_pps(signed32(self._read(Reg.VACTUAL)))
 
-    def speed_monotonic_until(self, chip: ChipModel, until: int) -> int:
+    def speed_turns(self, start: ChipModel) -> Callable[[ChipModel], bool] | None:
         """S-shaped ramps bend: the chip says how far a rotation's speed moves one way."""
-        assert isinstance(chip, TMC4361A)
-        return chip.speed_monotonic_until(until, LOOKAHEAD_BUDGET)
+        assert isinstance(start, TMC4361A)
+        test = start.speed_turns()
+        if test is None:
+            return None
+        return lambda later: test(cast(TMC4361A, later))
 
     def levels(self) -> tuple[bool, bool, bool]:
         """Logical (left, right, home) levels, read from the input stage.
