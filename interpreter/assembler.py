@@ -21,7 +21,9 @@ an error, a file from elsewhere (docs/interpreter.md).
 
 from __future__ import annotations
 
+import os
 import re
+import stat
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -380,6 +382,26 @@ def _report(errors: list[AssemblyError]) -> AssemblyError:
     return report
 
 
+#: A quoted excerpt in a message (``excerpt`` writes them with repr).
+_QUOTED = re.compile(r"'(?:[^'\\]|\\.)*'|\"(?:[^\"\\]|\\.)*\"")
+
+
+def _quoting_only(source: str, error: AssemblyError) -> AssemblyError:
+    """The errors with no text quoted from an included file: an ``#include .env`` must not
+    print the secret the file holds in "undefined symbol '...'" (issue 36, N10); the file,
+    line and column still say where.  Text of the source itself is quoted as before."""
+    def shown(one: AssemblyError) -> AssemblyError:
+        if one.location.file == source or not _QUOTED.search(one.message):
+            return one
+        return type(one)(one.location, _QUOTED.sub("(text of an included file, not shown)",
+                                                   one.message))
+
+    errors = [shown(one) for one in error.errors]
+    if len(errors) == 1:
+        return errors[0]
+    return type(error).of(errors)
+
+
 def assemble(text: str, filename: str = "<source>", include_path: Sequence[str | Path] = (),
              directory: str | Path | None = None, append_stop: bool = False) -> Program:
     """Assemble TMCL source; ``#include`` looks in ``directory`` (the source's folder, whose
@@ -391,7 +413,9 @@ def assemble(text: str, filename: str = "<source>", include_path: Sequence[str |
         assembler.read(text, filename, folder)
         program = assembler.build()
     except LimitError as exc:
-        raise LimitError(exc.location, exc.message) from None  # alone: the rest is noise
+        raise _quoting_only(filename, LimitError(exc.location, exc.message)) from None  # alone
+    except AssemblyError as exc:
+        raise _quoting_only(filename, exc) from None
     if append_stop and (not program.instructions or program.instructions[-1].opcode != Opcode.STOP):
         program.instructions.append(Instruction(int(Opcode.STOP)))
     return program
@@ -400,6 +424,9 @@ def assemble(text: str, filename: str = "<source>", include_path: Sequence[str |
 def assemble_file(path: str | Path, include_path: Sequence[str | Path] = (),
                   append_stop: bool = False) -> Program:
     source = Path(path)
+    if not stat.S_ISREG(os.stat(source).st_mode):  # opening a FIFO waits for a writer (N9)
+        raise AssemblyError(Location(str(source), 1), "not a regular file (a FIFO, a device "
+                            "or a directory cannot be assembled)")
     with source.open("rb") as stream:
         data = stream.read(MAX_SOURCE_BYTES + 1)
     if len(data) > MAX_SOURCE_BYTES:

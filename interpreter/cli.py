@@ -76,9 +76,14 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.write(program.listing())
         return 0
     output = args.output or args.source.with_suffix(".bin")
-    output.write_bytes(program.binary())
-    if args.listing:
-        args.listing.write_text(program.listing(), encoding="utf-8")
+    try:  # an output that is a directory, or cannot be written: one line (N9)
+        output.write_bytes(program.binary())
+        if args.listing:
+            args.listing.write_text(program.listing(), encoding="utf-8")
+    except OSError as exc:
+        print(f"tmcl-asm: cannot write {exc.filename or output}: {exc.strerror or exc}",
+              file=sys.stderr)
+        return 1
     print(f"{args.source}: {len(program.instructions)} commands -> {output}")
     return 0
 

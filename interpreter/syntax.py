@@ -113,6 +113,11 @@ class Token:
     spaced: bool  # whitespace (or the line start) before it
 
 
+#: Longer number texts are beyond VALUE_BITS whatever their leading zeros (and beyond what
+#: int() converts: 4,300 digits).
+MAX_NUMBER_TEXT = 1_000
+
+
 def _number(text: str) -> int:
     if text.startswith("$"):
         return int(text[1:], 16)
@@ -220,6 +225,9 @@ class _ExpressionParser:
         token = self.tokens[self.i]
         self.i += 1
         if token.kind == "number":
+            if len(token.text) > MAX_NUMBER_TEXT:  # int() refuses past 4,300 digits (N9)
+                raise AssemblyError(self.at(token.column),
+                                    f"number {excerpt(token.text)} beyond {VALUE_BITS} bits")
             value = _number(token.text)
             if value >= _VALUE_LIMIT:
                 raise AssemblyError(self.at(token.column),

@@ -56,6 +56,18 @@ Loop:
     JA Loop
 """
 
+#: A loop that writes a new value every pass (issue 36, N11): AAP with the counter, so no two
+#: passes are alike and the loop skipper cannot skip any (passes counted in user variable 1).
+WRITER_PROGRAM = """
+Loop:
+    GGP 1, 2
+    CALC ADD, 1
+    AGP 1, 2
+    AAP 4, 0
+    AAP 4, 1
+    JA Loop
+"""
+
 #: A 1 ms timer counting in user variable 0, target-reached interrupts sending each of six
 #: axes back and forth, and a main loop polling positions (iterations in user variable 1).
 REALISTIC_PROGRAM = """
@@ -119,6 +131,8 @@ SCENARIOS = [
              counters={1: "loops/s"}),
     Scenario("realistic", "1 ms timer, target-reached moves on six axes, GAP loop",
              program=REALISTIC_PROGRAM, counters={0: "timer ticks/s", 1: "loops/s"}),
+    Scenario("writer", "a loop writing a changing value (AAP) every pass", program=WRITER_PROGRAM,
+             counters={1: "loops/s"}),
     Scenario("switch", "positioning move held at an active limit switch (--speed 10)",
              args=["--speed", "10"], world=SWITCH_WORLD,
              setup=[(Opcode.MVP, 0, 0, -1_000_000)]),
@@ -153,15 +167,18 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICKS_PER_S
 
 
-def start_server(scenario: Scenario, tmp: Path) -> tuple[subprocess.Popen[bytes], str]:
+def start_server(scenario: Scenario, tmp: Path,
+                 root: Path = ROOT) -> tuple[subprocess.Popen[bytes], str]:
     ready = tmp / f"{scenario.name}.json"
+    ready.unlink(missing_ok=True)
     args = [sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0", "--ready-file", str(ready),
             "--modules", str(scenario.modules), *scenario.args]
     if scenario.world:
         world = tmp / f"{scenario.name}.toml"
         world.write_text(scenario.world)
         args += ["--world", str(world)]
-    process = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    process = subprocess.Popen(args, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               env={**os.environ, "PYTHONPATH": str(root)})
     deadline = time.monotonic() + 30
     while not ready.exists():
         if process.poll() is not None or time.monotonic() > deadline:
@@ -206,8 +223,8 @@ def lockstep(endpoint: str, modules: int, seconds: float) -> list[int]:
     return times
 
 
-def run(scenario: Scenario, seconds: float, tmp: Path) -> dict[str, object]:
-    process, endpoint = start_server(scenario, tmp)
+def run(scenario: Scenario, seconds: float, tmp: Path, root: Path = ROOT) -> dict[str, object]:
+    process, endpoint = start_server(scenario, tmp, root)
     try:
         control = Client(endpoint)
         for opcode, type_, motor, value in scenario.setup:
@@ -241,47 +258,64 @@ def run(scenario: Scenario, seconds: float, tmp: Path) -> dict[str, object]:
     }
 
 
+def measure(chosen: list[Scenario], args: argparse.Namespace, roots: list[Path],
+            tmp: Path) -> list[tuple[dict[str, float], dict[str, dict[str, object]], list[float]]]:
+    """Per checkout: the median ratio per scenario, its run, and the idle rates; the checkouts
+    alternate within each round, so they meet the same load."""
+    idle_scenario = SCENARIOS[0]
+    out = [({"idle": 1.0}, {}, []) for _ in roots]  # type: ignore[var-annotated]
+    for scenario in chosen:
+        if scenario is idle_scenario:
+            continue
+        # each scenario against an idle module measured right before it, several times: the
+        # machine's load drifts, adjacent windows see much the same
+        pairs: list[list[tuple[float, dict[str, object]]]] = [[] for _ in roots]
+        for _ in range(args.rounds):
+            for index, root in enumerate(roots):
+                print(f"running idle, then {scenario.name} ({root}) ...", file=sys.stderr,
+                      flush=True)
+                idle_run = run(idle_scenario, args.seconds, tmp, root)
+                result = run(scenario, args.seconds, tmp, root)
+                out[index][2].append(float(idle_run["rate"]))  # type: ignore[arg-type]
+                pairs[index].append((float(result["rate"]) / float(idle_run["rate"]), result))  # type: ignore[arg-type]
+                out[index][1].setdefault("idle", idle_run)
+        for index in range(len(roots)):
+            pairs[index].sort(key=lambda pair: pair[0])
+            ratio, result = pairs[index][len(pairs[index]) // 2]
+            out[index][0][scenario.name], out[index][1][scenario.name] = ratio, result
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--only", nargs="*", help="scenario names (idle always runs)")
     parser.add_argument("--rounds", type=int, default=3,
                         help="idle/scenario pairs per scenario; the median ratio is reported")
+    parser.add_argument("--compare", metavar="DIR", type=Path,
+                        help="another checkout (e.g. a worktree of main) whose server runs the "
+                             "same scenarios, alternating with this one's")
     args = parser.parse_args()
     chosen = [s for s in SCENARIOS if not args.only or s.name in args.only or s.name == "idle"]
-    idle_scenario = SCENARIOS[0]
-    results: dict[str, dict[str, object]] = {}
-    ratios: dict[str, float] = {}
-    idle_rates: list[float] = []
+    roots = [ROOT] + ([args.compare.resolve()] if args.compare else [])
     with tempfile.TemporaryDirectory() as tmp:
+        measured = measure(chosen, args, roots, Path(tmp))
+    for root, (ratios, results, idle_rates) in zip(roots, measured, strict=True):
+        idle = statistics.median(idle_rates) if idle_rates else 0.0
+        print(f"== {root}")
+        print(f"{'scenario':<12} {'rate/idle':>9} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "
+              f"{'cpu quiet':>9}  program quiet -> under traffic")
         for scenario in chosen:
-            if scenario is idle_scenario:
+            if scenario.name not in results:
                 continue
-            # each scenario against an idle module measured right before it, several times:
-            # the machine's load drifts, adjacent windows see much the same
-            pairs = []
-            for _ in range(args.rounds):
-                print(f"running idle, then {scenario.name} ...", file=sys.stderr, flush=True)
-                idle_run = run(idle_scenario, args.seconds, Path(tmp))
-                result = run(scenario, args.seconds, Path(tmp))
-                idle_rates.append(idle_run["rate"])
-                pairs.append((result["rate"] / idle_run["rate"], result))
-                results.setdefault("idle", idle_run)
-            pairs.sort(key=lambda pair: pair[0])
-            ratios[scenario.name], results[scenario.name] = pairs[len(pairs) // 2]
-    ratios["idle"] = 1.0
-    idle = statistics.median(idle_rates) if idle_rates else 0.0
-    print(f"{'scenario':<12} {'rate/idle':>9} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} "
-          f"{'cpu quiet':>9}  program quiet -> under traffic")
-    for scenario in chosen:
-        r = results[scenario.name]
-        progress = "; ".join(f"{name} {r['quiet'][name]:,.0f} -> {r['busy'][name]:,.0f}"
-                             for name in scenario.counters.values())
-        print(f"{scenario.name:<12} {ratios[scenario.name]:>9.2f} {r['p50_ms']:>8.3f} "
-              f"{r['p99_ms']:>8.3f} {r['max_ms']:>8.1f} {r['cpu_quiet']:>8.0%}  {progress}")
-    print(f"(idle: median {idle:,.0f} requests/s, one lockstep TCP client, GAP 1; "
-          f"{args.seconds:g} s per window; each row: the median of {args.rounds} ratios to an "
-          "idle module measured right before it)")
+            r = results[scenario.name]
+            progress = "; ".join(f"{name} {r['quiet'][name]:,.0f} -> {r['busy'][name]:,.0f}"  # type: ignore[index]
+                                 for name in scenario.counters.values())
+            print(f"{scenario.name:<12} {ratios[scenario.name]:>9.2f} {r['p50_ms']:>8.3f} "
+                  f"{r['p99_ms']:>8.3f} {r['max_ms']:>8.1f} {r['cpu_quiet']:>8.0%}  {progress}")
+        print(f"(idle: median {idle:,.0f} requests/s, one lockstep TCP client, GAP 1; "
+              f"{args.seconds:g} s per window; each row: the median of {args.rounds} ratios to "
+              "an idle module measured right before it)")
 
 
 if __name__ == "__main__":

@@ -32,7 +32,13 @@ For every frame the server sees it knows the reply the wire rules demand:
 A reply that breaks a rule is a violation (reported with the rounds of frames that led to
 it, then the link is resynchronised and the module reset with 137); a reply later than
 ``--stall-ms`` after it was due (the later of its request's last byte and the previous
-reply) is a stall; no reply for ``--hang-s`` is a hang (the server is killed and restarted);
+reply) is a stall (``stalls_net_of_cpu_wait`` counts those still late once the reply's own
+CPU wait is taken out: what the server's event-loop thread waited for a CPU between when the
+reply was due and when it was read, from schedstat; ``stalls_net_of_both_cpu_waits`` also
+takes out what the fuzzer itself waited meanwhile, and ``stalls_net_server_busy`` counts
+those of ``stalls_net_of_cpu_wait`` during which the server's thread ran for more than half
+of ``--stall-ms``: late by its own work rather than by the kernel's pty buffers or the
+fuzzer's reading); no reply for ``--hang-s`` is a hang (the server is killed and restarted);
 a server that exits, or a ``Traceback`` in its standard error, is a crash.  The seed fixes
 every frame and pause sent; only the server's timing differs between runs.
 
@@ -429,6 +435,8 @@ class Expect:
     echo: bool = False
     end: int = 0  # stream offset of the frame's last byte
     sent: float = 0.0
+    #: (the server's, our own) time waited for a CPU so far, when the frame was sent
+    waits_at_sent: tuple[int, int, int] = (0, 0, 0)
 
 
 def expect_for(frame: bytes, rs485: bool, model: ModuleModel) -> tuple[Expect | None, bool]:
@@ -520,8 +528,10 @@ class Hang(Exception):
     pass
 
 
-#: The module run as the server (``--server-module``: a wrapper that instruments it).
+#: The module run as the server (``--server-module``: a wrapper that instruments it), and the
+#: checkout it runs from (``--server-root``: e.g. a worktree of main, for a baseline).
 SERVER_MODULE = ["tmcl_server"]
+SERVER_ROOT = [Path(__file__).resolve().parent.parent]
 
 
 class ServerProcess:
@@ -537,7 +547,9 @@ class ServerProcess:
             [sys.executable, "-X", "faulthandler", "-m", SERVER_MODULE[0], "--tcp", "127.0.0.1:0",
              "--pty", str(self.link),
              "--state-dir", str(self.dir / "state"), "--ready-file", str(ready)],
-            stdout=subprocess.DEVNULL, stderr=self.stderr, cwd=str(Path(__file__).resolve().parent.parent))
+            stdout=subprocess.DEVNULL, stderr=self.stderr, cwd=str(SERVER_ROOT[0]),
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(
+                [str(SERVER_ROOT[0]), *filter(None, [os.environ.get("PYTHONPATH")])])})
         deadline = time.monotonic() + 30
         while not ready.exists():
             if self.proc.poll() is not None or time.monotonic() > deadline:
@@ -609,6 +621,14 @@ class ServerProcess:
             self.proc.send_signal(signal.SIGUSR1)
 
 
+def own_run_delay_ns() -> int:
+    """How long this thread has waited for a CPU (schedstat), 0 if unknown."""
+    try:
+        return int(Path("/proc/thread-self/schedstat").read_text().split()[1])
+    except (OSError, IndexError, ValueError):
+        return 0
+
+
 def stall_stacks(text: str, depth: int = 8) -> list[str]:
     """The innermost frames of each stack a server printed on SIGUSR1, one string per dump."""
     stacks = []
@@ -675,6 +695,17 @@ class Stats:
     stalls: int = 0
     stalls_with_program: int = 0  # while a program the fuzzer started may be running
     stalls_starved: int = 0  # the server waited for a CPU for over half the stall
+    #: late by more than --stall-ms once the reply's own CPU wait (what the server's
+    #: event-loop thread waited for a CPU between when it was due and when we read it) is
+    #: taken out
+    stalls_net: int = 0
+    #: ... and also once what the fuzzer waited for a CPU meanwhile is taken out (the two
+    #: waits may overlap, so this count errs towards excusing)
+    stalls_net_both: int = 0
+    #: ... of stalls_net, those during which the server's loop thread ran more than half of
+    #: --stall-ms (its own work made them late, not the kernel's pty buffers or our reading)
+    stalls_net_busy: int = 0
+    max_net_latency_ms: float = 0.0
     max_latency_ms: float = 0.0
     latencies: list[float] = field(default_factory=list)  # a sample for percentiles
     by_kind: dict[str, int] = field(default_factory=dict)
@@ -698,6 +729,9 @@ class Fuzzer:
         self.excused: list[dict[str, Any]] = []  # mismatches while the server was starved
         self.starved_ms = 0.0  # how long the server waited for a CPU between our last two reads
         self.delay_at_read = 0
+        #: cpu_waits() at our last read and at the one before it
+        self.waits_at_read: tuple[int, int, int] = (0, 0, 0)
+        self.waits_prev_read: tuple[int, int, int] = (0, 0, 0)
         self.torn_mismatches: list[dict[str, Any]] = []
         self.round_delay_start = 0
         self.stall_list: list[dict[str, Any]] = []
@@ -843,9 +877,11 @@ class Fuzzer:
             except OSError as exc:
                 raise Hang(f"write failed: {exc}") from exc
             now = time.monotonic()
+            waits: tuple[int, int, int] | None = None
             for exp in queue:
                 if not exp.sent and exp.end <= base + written:
                     exp.sent = now
+                    exp.waits_at_sent = waits = waits or self.cpu_waits()
         link.offset += len(data)
         link.last_write = time.monotonic()
         self.stats.bytes_sent += len(data)
@@ -871,10 +907,21 @@ class Fuzzer:
             raise Hang("connection closed by the server")
         now = time.monotonic()
         link.inbox += data
-        delay = self.server.run_delay_ns() if self.server is not None else 0
+        waits = self.cpu_waits()
+        delay = waits[0]
         self.starved_ms = (delay - self.delay_at_read) / 1e6  # since the previous read
         self.delay_at_read = delay
+        self.waits_prev_read, self.waits_at_read = self.waits_at_read, waits
         return self.consume(link, queue, now, prev, rnd, log)
+
+    def cpu_waits(self) -> tuple[int, int, int]:
+        """How long the server's event-loop thread and our own thread have waited for a CPU
+        so far, and how long the server's thread has run (schedstat, ns): a reply's share of
+        the waits is no lateness of the server's, and what the server ran says whether it was
+        busy meanwhile or had nothing to do (the kernel's pty buffers, our own reading)."""
+        if self.server is None:
+            return 0, own_run_delay_ns(), 0
+        return self.server.run_delay_ns(), own_run_delay_ns(), self.server.cpu_ns()
 
     def consume(self, link: Link, queue: deque[Expect], now: float, prev: float,
                 rnd: Round | None, log: Any) -> float:
@@ -896,6 +943,7 @@ class Fuzzer:
                 self.violation(link, rnd, exp, chunk, problem, log)
                 return now
             self.stats.replies_checked += 1
+            prev_in = prev
             due = max(exp.sent or now, prev)
             latency = now - due
             prev = now
@@ -903,6 +951,20 @@ class Fuzzer:
                 self.stats.max_latency_ms = latency * 1000
             if self.stats.replies_checked % 50 == 0:
                 self.stats.latencies.append(latency)
+            # the reply's own CPU wait: the server's and ours between when it was due and now
+            base = exp.waits_at_sent if exp.sent and exp.sent >= prev_in else self.waits_prev_read
+            server_wait = max(0, self.waits_at_read[0] - base[0]) / 1e9
+            own_wait = max(0, self.waits_at_read[1] - base[1]) / 1e9
+            server_ran = max(0, self.waits_at_read[2] - base[2]) / 1e9
+            net = latency - server_wait  # the fuzzer's own wait is reported, not taken out
+            if net > self.stats.max_net_latency_ms / 1000:
+                self.stats.max_net_latency_ms = net * 1000
+            if net * 1000 > self.args.stall_ms:
+                self.stats.stalls_net += 1
+                if server_ran * 1000 > self.args.stall_ms / 2:  # it was busy for most of it
+                    self.stats.stalls_net_busy += 1
+                if (net - own_wait) * 1000 > self.args.stall_ms:  # nor were we late to read it
+                    self.stats.stalls_net_both += 1
             if latency * 1000 > self.args.stall_ms:
                 self.stats.stalls += 1
                 if self.starved_ms > latency * 1000 / 2:  # the OS kept the server off the CPU
@@ -914,6 +976,10 @@ class Fuzzer:
                         "latency_ms": round(latency * 1000, 1), "stream": link.name,
                         "at_monotonic_s": round(now, 4),  # to match a server-side log
                         "server_waited_for_cpu_ms": round(self.starved_ms, 1),
+                        "reply_cpu_wait_ms": {"server": round(server_wait * 1000, 1),
+                                              "fuzzer": round(own_wait * 1000, 1)},
+                        "server_ran_ms": round(server_ran * 1000, 1),
+                        "net_latency_ms": round(net * 1000, 1),
                         "frame": exp.frame.hex(" "), "round": self.stats.rounds,
                         "program": self.model.program_started,
                         "program_words": ([[a, *w] for a, w in sorted(self.model.memory.items())]
@@ -1136,6 +1202,10 @@ class Fuzzer:
             "violations": len(self.violations),
             "stalls": s.stalls, "stalls_with_program": s.stalls_with_program,
             "stalls_starved": s.stalls_starved,
+            "stalls_net_of_cpu_wait": s.stalls_net,
+            "stalls_net_of_both_cpu_waits": s.stalls_net_both,
+            "stalls_net_server_busy": s.stalls_net_busy,
+            "max_latency_net_of_cpu_wait_ms": round(s.max_net_latency_ms, 1),
             "stall_ms": self.args.stall_ms, "max_latency_ms": round(s.max_latency_ms, 1),
             "latency_ms_p50": pct(0.5), "latency_ms_p99": pct(0.99), "hangs": len(self.hangs),
             "crashes": len(self.crashes), "tracebacks": self.tracebacks,
@@ -1288,8 +1358,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--server-module", default="tmcl_server", metavar="MODULE",
                         help="run the server as python -m MODULE (default tmcl_server; a wrapper "
                              "on PYTHONPATH can instrument it, e.g. log slow loop callbacks)")
+    parser.add_argument("--server-root", type=Path, metavar="DIR",
+                        help="run the server from this checkout (e.g. a worktree of main, as a "
+                             "baseline checked by the same fuzzer)")
     args = parser.parse_args(argv)
     SERVER_MODULE[0] = args.server_module
+    if args.server_root is not None:
+        SERVER_ROOT[0] = args.server_root.resolve()
     if args.reduce_report:
         report = json.loads(args.reduce_report.read_text())
         return reduce_hangs(report["hangs"][:args.reduce or None], args)

@@ -129,19 +129,31 @@ def test_importing_the_package_codec_assembler_or_client_loads_no_transport_libr
     loaded = _loaded_after("import tmcl_server, tmcl_server.protocol, interpreter, "
                            "interpreter.assembler, interpreter.disassembler, tmcl_spec, "
                            "tmcl_server.tool, tmcl_server.tool.commands, tmcl_server.upload, "
-                           "tmcl_server.decode")
+                           "tmcl_server.decode, tmcl_server.tool.proxy, tmcl_server.capture")
     libraries = set(TRANSPORT_LIBRARIES) | set(VIEW_LIBRARIES)
     assert not loaded & libraries, sorted(loaded & libraries)
     assert "axes" not in loaded and "asyncio" not in loaded
 
 
-def test_the_client_loads_nothing_of_the_server() -> None:
-    """``tmcl`` (tmcl_server.tool) needs the codec, the names and the decoder, not the model."""
-    loaded = _modules_loaded_after("import tmcl_server.tool.commands")
-    server = {"tmcl_server.simulation", "tmcl_server.server", "interpreter.machine"}
+@pytest.mark.parametrize("code", [
+    "import tmcl_server.tool.commands",
+    # the proxy and its capture; the whole tool's parser, which names `replay` without loading it
+    "import tmcl_server.tool.proxy, tmcl_server.capture\n"
+    "from tmcl_server.tool import build_parser\n"
+    "build_parser().parse_args(['replay', 'x.jsonl'])\n"
+    "build_parser().parse_args(['proxy', '--listen-tcp', '127.0.0.1:0'])",
+])
+def test_the_client_loads_nothing_of_the_server(code: str) -> None:
+    """``tmcl`` (tmcl_server.tool) needs the codec, the names and the decoder, not the model;
+    ``tmcl replay`` loads the simulator itself, when it runs."""
+    loaded = _modules_loaded_after(code)
+    server = {"tmcl_server.simulation", "tmcl_server.server", "interpreter.machine",
+              "tmcl_server.replay", "tmcl_server.cli"}
     assert not {m for m in loaded if m in server or m.startswith(("tmcl_server.module",
                                                                     "tmcl_server.transports"))}
     assert not {m for m in loaded if m.split(".")[0] == "axes"}
+    assert not loaded & {"asyncio", *TRANSPORT_LIBRARIES, *VIEW_LIBRARIES}, sorted(
+        loaded & {"asyncio", *TRANSPORT_LIBRARIES, *VIEW_LIBRARIES})
 
 
 def test_a_server_with_tcp_only_imports_neither_python_can_nor_mqtt() -> None:

@@ -125,8 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "mode=usb")
     parser.add_argument("--no-tcp", action="store_true", help="do not open the default TCP port")
     parser.add_argument("--max-connections", type=_positive_int, default=256, metavar="N",
-                        help="clients each TCP endpoint serves at once; a new one past it "
-                             "closes the client silent longest (default 256)")
+                        help="clients each TCP and socketcand endpoint serves at once; past it "
+                             "a newcomer is refused unless a connection is idle (default 256; "
+                             f"{doc('robustness.md')}, Connection limits)")
     parser.add_argument("--pty", action="append", metavar="PATH[,mode=usb|rs485]", default=[],
                         help="open a virtual serial port and link PATH to it (repeatable); "
                              "mode usb answers any address like the module's USB port, rs485 "
@@ -155,23 +156,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mqtt-faults", action="store_true",
                         help="let MQTT clients inject faults (sim/fault, sim/power_cycle); off by "
                              "default: every client of the broker could silence the module")
-    parser.add_argument("--state-dir", metavar="DIR",
-                        help="keep each module's EEPROM in DIR/module-<address>/ "
-                             "(default: nothing persists)")
+    parser.add_argument("--mqtt-commands", action="store_true",
+                        help="let MQTT clients send TMCL commands that change the module (SAP, "
+                             "STAP, MVP, programs, 137, ...); off by default, since every client "
+                             "of the broker could drive it; reads are always served")
+    add_model_options(parser)
     parser.add_argument("--speed", type=positive, default=1.0, metavar="X",
                         help="run simulated time X times faster than real time")
-    parser.add_argument("--module-type", default=DEFAULT_MODULE_TYPE, choices=sorted(MODULE_TYPES),
-                        help=f"which module every address holds (default {DEFAULT_MODULE_TYPE})")
-    parser.add_argument("--axis-core", choices=sorted(CHIP_CORES),
-                        help="the motion-controller chip the axes run on (default: the module "
-                             "type's own)")
     parser.add_argument("--step-every-instruction", action="store_true",
                         help="execute every TMCL program instruction, even in loops that change "
                              "nothing (the reference the default skipping is checked against; "
                              "same results, slower)")
-    parser.add_argument("--world", metavar="FILE",
-                        help="TOML file placing switches, load zones, encoder slip and inputs "
-                             f"({doc('world.md')}); default: free axes, open switches")
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
     parser.add_argument("--loop", choices=LOOPS, default="auto",
@@ -232,6 +227,41 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def add_model_options(parser: argparse.ArgumentParser,
+                      default_type: str | None = DEFAULT_MODULE_TYPE,
+                      default_said: str = f"default {DEFAULT_MODULE_TYPE}") -> None:
+    """What the simulated modules are: --module-type, --axis-core, --world, --state-dir (one
+    definition for tmcl-server and ``tmcl replay``; checked by :func:`check_model_options`)."""
+    parser.add_argument("--state-dir", metavar="DIR",
+                        help="keep each module's EEPROM in DIR/module-<address>/ "
+                             "(default: nothing persists)")
+    parser.add_argument("--module-type", default=default_type, choices=sorted(MODULE_TYPES),
+                        help=f"which module every address holds ({default_said})")
+    parser.add_argument("--axis-core", choices=sorted(CHIP_CORES),
+                        help="the motion-controller chip the axes run on (default: the module "
+                             "type's own)")
+    parser.add_argument("--world", metavar="FILE",
+                        help="TOML file placing switches, load zones, encoder slip and inputs "
+                             f"({doc('world.md')}); default: free axes, open switches")
+
+
+def check_model_options(args: argparse.Namespace) -> None:
+    """The options of :func:`add_model_options`, before anything starts: no empty names; the
+    state directory is a directory (made if missing)."""
+    for name in ("state_dir", "world"):
+        value = getattr(args, name)
+        if value is not None and not value.strip():
+            raise UsageError(f"argument --{name.replace('_', '-')}: an empty value names nothing")
+    if args.state_dir is not None:
+        if Path(args.state_dir).exists() and not Path(args.state_dir).is_dir():
+            raise UsageError(f"argument --state-dir: {args.state_dir} is not a directory")
+        try:
+            Path(args.state_dir).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UsageError(f"argument --state-dir: cannot use {args.state_dir}: "
+                             f"{exc.strerror or exc}") from None
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -261,7 +291,7 @@ def _record_axes(text: str, kind: str) -> list[int]:
 
 #: Options whose values name something (an endpoint, a file): none may be empty.
 _NAMING_OPTIONS = ("tcp", "pty", "serial", "can", "slcan_pty", "socketcand", "mqtt", "http",
-                   "state_dir", "world", "record", "trace", "faults", "ready_file", "can_bus")
+                   "record", "trace", "faults", "ready_file", "can_bus")
 
 
 def _check_paths(args: argparse.Namespace) -> None:
@@ -283,14 +313,7 @@ def _check_paths(args: argparse.Namespace) -> None:
             file_format(args.record)
         except ValueError as exc:
             raise UsageError(f"argument --record: {exc}") from None
-    if args.state_dir is not None:
-        if Path(args.state_dir).exists() and not Path(args.state_dir).is_dir():
-            raise UsageError(f"argument --state-dir: {args.state_dir} is not a directory")
-        try:
-            Path(args.state_dir).mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UsageError(f"argument --state-dir: cannot use {args.state_dir}: "
-                             f"{exc.strerror or exc}") from None
+    check_model_options(args)
 
 
 def config_from_args(args: argparse.Namespace) -> ServerConfig:
@@ -366,7 +389,8 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
                         processing_time=args.processing_time, max_connections=args.max_connections,
                         skip_loops=not args.step_every_instruction,
                         trace_max=args.trace_max, record_max=args.record_max,
-                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults)
+                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults,
+                        mqtt_commands=args.mqtt_commands)
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given

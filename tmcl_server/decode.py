@@ -9,12 +9,13 @@ transport library and nothing of the running server.
 
 from __future__ import annotations
 
+import io
 import json
 import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from tmcl_server.protocol import FRAME_LENGTH, Reply, Request, checksum
 from tmcl_spec.commands import (
@@ -219,6 +220,8 @@ class Frame:
 
     data: bytes
     can_id: int | None = None
+    #: When it was captured (seconds, the log's own time base), where the capture says.
+    time: float | None = None
 
 
 @dataclass
@@ -352,7 +355,11 @@ class CaptureReader:
         self.line_number += 1
         if len(line) > MAX_LINE:
             raise CaptureError(f"line {self.line_number} is longer than {MAX_LINE} characters: not a dump")
-        is_can, frame = _can_line(line)
+        try:
+            is_can, frame = _can_line(line)
+        except ValueError:  # ``can0 123#0``: an odd number of hex digits (issue 36, N9)
+            raise CaptureError(f"line {self.line_number}: a CAN log line whose data is not "
+                               "whole bytes of hex") from None
         if is_can:
             if frame is not None:
                 yield frame
@@ -449,6 +456,26 @@ class CaptureReader:
             # frames are taken out after each line, so at most MAX_SQUEEZED bytes wait here
 
 
+def text_lines(stream: BinaryIO, name: str, keep_ends: bool = False, kind: str = "a dump",
+               first: int = 1) -> Iterator[str]:
+    """Lines of UTF-8 text, each at most MAX_LINE characters read (bounded memory); errors
+    name ``name`` and the line (numbered from ``first``).  ``keep_ends``: a line keeps its
+    newline, so a last line without one shows (a capture cut short)."""
+    text = io.TextIOWrapper(stream, encoding="utf-8", errors="strict", newline=None)
+    number = first - 1
+    while True:
+        try:
+            line = text.readline(MAX_LINE + 1)
+        except UnicodeDecodeError as exc:
+            raise CaptureError(f"{name}, line {number + 1}: not UTF-8 text ({exc.reason})") from None
+        if not line:
+            return
+        number += 1
+        if len(line) > MAX_LINE:
+            raise CaptureError(f"{name}, line {number}: longer than {MAX_LINE} characters: not {kind}")
+        yield line if keep_ends else line.rstrip("\n")
+
+
 def read_capture(lines: Iterable[str]) -> Iterator[Frame]:
     """Frames from the lines of a capture, as they come."""
     reader = CaptureReader()
@@ -492,7 +519,7 @@ def read_can_log(path: str | Path) -> Iterator[Frame]:
                 count += 1
                 if message.is_error_frame or message.is_remote_frame:
                     continue
-                yield Frame(bytes(message.data), message.arbitration_id)
+                yield Frame(bytes(message.data), message.arbitration_id, message.timestamp)
     except CaptureError:
         raise
     except Exception as exc:  # the readers raise what their parsers raise

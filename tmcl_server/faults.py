@@ -87,7 +87,13 @@ def _shown(text: str, width: int = 40) -> str:
 
 
 def _alternatives(text: str) -> list[str]:
-    return [part.strip() for part in text.split("|") if part.strip()]
+    """``A|B|C``; an empty alternative (``opcode=||``, ``opcode=GAP|``) is refused: it
+    would match nothing and the fault would never strike (issue 36, N9)."""
+    parts = [part.strip() for part in text.split("|")]
+    if not all(parts):
+        raise FaultSpecError(f"an empty alternative in {_shown(text)} (write A|B, no empty "
+                             "part)")
+    return parts
 
 
 def _integer(text: str, what: str, lo: int, hi: int) -> int:
@@ -392,6 +398,9 @@ def fault_spec(fault: FaultSpec | str | Mapping[str, Any], **params: Any) -> Fau
         return fault
     if isinstance(fault, Mapping):
         return fault_from_mapping({**fault, **params})
+    if not isinstance(fault, str):  # sim.fault(123): say what is expected (issue 36, N9)
+        raise FaultSpecError(f"a fault is a spec string (\"noreply:opcode=GAP\"), a table or a "
+                             f"FaultSpec, got {type(fault).__name__} {_shown(repr(fault))}")
     head, items = _split(fault)
     return make_spec(head, [*items, *((k, v) for k, v in params.items() if v is not None)])
 

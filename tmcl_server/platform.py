@@ -14,6 +14,7 @@ Test switch: ``TMCL_SIM_EMULATE_WINDOWS=1`` in the environment (read once, at im
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import signal
 import sys
@@ -145,6 +146,29 @@ def fsync_directory(directory: os.PathLike[str] | str) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+def open_no_follow(path: os.PathLike[str] | str, flags: int, mode: int = 0o644) -> int:
+    """``os.open`` that never follows a symbolic link planted at the path's last component
+    (issue 36, N5: a lock file, a trace or an EEPROM journal in a shared folder): POSIX has
+    ``O_NOFOLLOW``; Windows has none, so a path that is a link (or a junction) is refused
+    before it is opened, and creating a link there needs a privilege an attacker lacks.
+    A link raises OSError ELOOP naming the path."""
+    if POSIX and hasattr(os, "O_NOFOLLOW"):
+        try:
+            return os.open(path, flags | os.O_NOFOLLOW | getattr(os, "O_CLOEXEC", 0), mode)
+        except OSError as exc:
+            if exc.errno != errno.ELOOP:
+                raise
+    elif not (os.path.islink(path) or _is_junction(path)):
+        return os.open(path, flags | getattr(os, "O_BINARY", 0) | getattr(os, "O_NOINHERIT", 0),
+                       mode)
+    raise OSError(errno.ELOOP, "is a symbolic link: refusing to follow it", os.fspath(path))
+
+
+def _is_junction(path: os.PathLike[str] | str) -> bool:
+    is_junction = getattr(os.path, "isjunction", None)  # Python 3.12+
+    return bool(is_junction and is_junction(path))
 
 
 def bytes_waiting(fd: int) -> int:

@@ -20,6 +20,10 @@ in this order, by the factory's ``clock=`` argument, ``@pytest.mark.tmcl_sim(clo
 The marker's other keywords (``modules=3``, ``request_time=0.01``, ...) are defaults for
 every simulator the test makes; ``faults=["noreply:opcode=GAP"]`` injects faults from the start,
 ``with tmcl_sim.fault("delay", ms=50): ...`` for a block (docs/faults.md).
+
+``tmcl_replay("captures/homing.jsonl")`` turns a capture of a real module (``tmcl proxy
+--capture``) into a test: it replays it against a fresh simulator and fails with the list of
+replies the simulator gives otherwise (docs/capture.md, "Captures as tests").
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -115,3 +120,42 @@ def tmcl_sim_factory(request: pytest.FixtureRequest,
 @pytest.fixture
 def tmcl_sim(tmcl_sim_factory: Callable[..., SimulatorThread]) -> SimulatorThread:
     return tmcl_sim_factory()
+
+
+@pytest.fixture
+def tmcl_replay(request: pytest.FixtureRequest) -> Callable[..., Any]:
+    """``tmcl_replay(capture, module_type=None, axis_core=None, world=None, state_dir=None,
+    tolerance=None)``: replay a capture as ``tmcl replay`` does; the test fails with the
+    divergences (or with why the capture cannot be read).  Relative paths are looked up beside
+    the test file first.  Returns the result (``divergences``, ``summary``)."""
+    here = Path(str(request.node.path)).parent
+
+    def beside_the_test(path: str | Path | None) -> str | None:
+        if path is None:
+            return None
+        found = here / path
+        return str(found if not Path(path).is_absolute() and found.exists() else path)
+
+    def replay(capture: str | Path, *, module_type: str | None = None, axis_core: str | None = None,
+               world: str | Path | None = None, state_dir: str | Path | None = None,
+               tolerance: float | None = None) -> Any:
+        from tmcl_server.cli import UsageError  # the simulator: loaded by this call only
+        from tmcl_server.decode import CaptureError
+        from tmcl_server.replay import DEFAULT_TOLERANCE_S, replay_capture
+
+        path = beside_the_test(capture)
+        assert path is not None
+        try:
+            result = replay_capture(
+                path, module_type_name=module_type, axis_core=axis_core,
+                world=beside_the_test(world), state_dir=None if state_dir is None else str(state_dir),
+                tolerance_s=DEFAULT_TOLERANCE_S if tolerance is None else tolerance)
+        except UsageError as exc:
+            pytest.fail(f"tmcl_replay: {exc.message}", pytrace=False)
+        except CaptureError as exc:
+            pytest.fail(f"tmcl_replay: {exc}", pytrace=False)
+        if result.summary.exit_code:
+            pytest.fail(f"{path}: the simulator answers otherwise\n{result.report()}", pytrace=False)
+        return result
+
+    return replay

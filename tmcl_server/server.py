@@ -40,8 +40,9 @@ log = logging.getLogger(__name__)
 #: Wall time the server's timer spends on simulation work before the loop gets a turn.
 SLICE_WALL_S = 0.0002
 #: While hosts are sending (a request came since the last slice) a busy program runs in
-#: slices this short, of chunks this long, so a request waits less for the slice in progress;
-#: with nobody asking, the longer ones above cost less bookkeeping (docs/scheduling.md).
+#: slices this short, of chunks at most this long, so a request waits less for the slice in
+#: progress; with nobody asking, the longer ones above cost less bookkeeping
+#: (docs/scheduling.md).
 SLICE_WALL_TRAFFIC_S = 0.00005
 PROGRAM_CHUNK_TRAFFIC_NS = 100_000
 #: A program this far behind the clock gets the long slices even while hosts send: it must
@@ -49,6 +50,14 @@ PROGRAM_CHUNK_TRAFFIC_NS = 100_000
 #: busy program is woken at least every 10 ms (interpreter.SLICE_NS), so lags below that are
 #: its normal rhythm, not a sign that it falls behind.
 PROGRAM_PRIORITY_LAG_NS = 20_000_000
+#: ... unless it lost time anyway (it skipped, MAX_LAG_NS) within this many wall seconds: such
+#: a program needs more CPU than its instructions' simulated time (an AAP that moves a ramp
+#: costs 100-300 us of Python against its 10 us), and priority would starve the hosts without
+#: saving it.  While hosts send, it gets at most PROGRAM_SHARE_TRAFFIC of the loop's wall
+#: time: after each slice the timer waits (1 - share) / share times as long, the hosts have
+#: the loop meanwhile, and direct mode keeps >= 0.7 x its idle rate (issue 36, N11).
+HOPELESS_HOLD_S = 1.0
+PROGRAM_SHARE_TRAFFIC = 0.25
 
 
 @dataclass
@@ -104,6 +113,9 @@ class ServerConfig:
     http_token: str | None = None
     #: MQTT clients may inject faults (``sim/fault``, ``sim/power_cycle``): off unless asked.
     mqtt_faults: bool = False
+    #: MQTT clients may send commands that change the module (SAP, STAP, MVP, programs, 137,
+    #: ...): off unless asked; reads (GAP, GGP, GIO, the version) are always served.
+    mqtt_commands: bool = False
 
     def make_clock(self) -> Clock:
         if self.clock == "virtual":
@@ -165,9 +177,14 @@ class Server:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.Handle | None = None
         self._timer_when = 0.0
+        #: Loop time before which no slice runs: the hosts' share (PROGRAM_SHARE_TRAFFIC).
+        self._hosts_until = 0.0
         self._running_due = False
         #: Requests the simulation had served when the timer last ran (traffic or quiet).
         self._requests_seen = 0
+        #: Program time skipped so far (all modules), and when it last grew (wall seconds).
+        self._skipped_seen = 0
+        self._skipped_at = float("-inf")
         #: The wall clock the timer measures its slices with (tests hold it still).
         self.wall_s: Callable[[], float] = time.perf_counter
         self._stopped = asyncio.Event()
@@ -200,8 +217,8 @@ class Server:
     async def start(self) -> dict[str, list[str]]:
         self._loop = asyncio.get_running_loop()
         self.simulation.on_change = self._reschedule
-        for module in self.simulation.modules:  # a program's store loop: one write per interval
-            module.eeprom.coalesce(self._loop.call_later)
+        for module in self.simulation.modules:  # stores: a journal append, snapshots in a thread
+            module.eeprom.start_journal(self._loop.call_later)
         limit_repeats()  # what a host can make us log, at most one line per call site in 5 s
         try:
             self.observers.start(self._loop)
@@ -239,13 +256,8 @@ class Server:
             except Exception:  # keep closing the others
                 log.exception("closing %s failed", transport.kind)
         self.transports.clear()
-        for module in self.simulation.modules:  # stores a program made and not yet written
-            try:
-                module.eeprom.flush()
-            except OSError:
-                log.exception("module %d: writing the EEPROM file failed", module.slot)
-        for module in self.simulation.modules[:1]:  # and every file on disk (one syncer)
-            module.eeprom.wait_durable()
+        for module in self.simulation.modules:  # the last snapshot; the journals go
+            module.eeprom.flush()
         if self._can_bus is not None and self._can_bus.timing is not None:
             self._can_bus.timing.close()
         self.observers.close()
@@ -276,7 +288,7 @@ class Server:
         if nxt is None:
             return
         delay = max(0.0, self.clock.wall_seconds(nxt - self.clock.now_ns()))
-        when = self._loop.time() + delay
+        when = max(self._loop.time() + delay, self._hosts_until)
         if self._timer is not None:
             if self._timer_when <= when:
                 return
@@ -289,17 +301,29 @@ class Server:
         work the loop gets its turn (requests, replies) before the rest."""
         self._timer = None
         self._running_due = True  # run_due's change notices must not arm a second timer
-        requests = self.simulation.requests
-        traffic = (requests != self._requests_seen
-                   and self.simulation.lag_ns < PROGRAM_PRIORITY_LAG_NS)
+        simulation = self.simulation
+        requests = simulation.requests
+        hosts = requests != self._requests_seen
         self._requests_seen = requests
+        started = self.wall_s()
+        skipped = sum(simulation.skipped_ns)
+        if skipped != self._skipped_seen:
+            self._skipped_seen, self._skipped_at = skipped, started
+        hopeless = started - self._skipped_at < HOPELESS_HOLD_S
+        traffic = hosts and (hopeless or simulation.lag_ns < PROGRAM_PRIORITY_LAG_NS)
         chunk_ns = PROGRAM_CHUNK_TRAFFIC_NS if traffic else PROGRAM_CHUNK_NS
         try:
-            deadline = self.wall_s() + (SLICE_WALL_TRAFFIC_S if traffic else SLICE_WALL_S)
-            while self.simulation.run_due(chunk_ns):
-                if self.wall_s() >= deadline and self._loop is not None:
-                    self._timer_when = self._loop.time()
-                    self._timer = self._loop.call_soon(self._on_timer)
+            deadline = started + (SLICE_WALL_TRAFFIC_S if traffic else SLICE_WALL_S)
+            while simulation.run_due(chunk_ns):
+                now = self.wall_s()
+                if now >= deadline and self._loop is not None:
+                    if hosts and hopeless:  # the hosts' share first (PROGRAM_SHARE_TRAFFIC)
+                        pause = (now - started) * (1 - PROGRAM_SHARE_TRAFFIC) / PROGRAM_SHARE_TRAFFIC
+                        self._hosts_until = self._timer_when = self._loop.time() + pause
+                        self._timer = self._loop.call_at(self._timer_when, self._on_timer)
+                    else:
+                        self._timer_when = self._loop.time()
+                        self._timer = self._loop.call_soon(self._on_timer)
                     return
         finally:
             self._running_due = False

@@ -16,6 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO, TypeVar
 
+from tmcl_server.platform import open_no_follow
+
 log = logging.getLogger("tmcl_server.sidechannel")
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -62,6 +64,16 @@ class SideChannel:
         return guarded  # type: ignore[return-value]
 
 
+def _create(path: Path) -> TextIO:
+    """A new (or emptied) text file, never through a symbolic link planted at its name (issue
+    36, N5: ``--trace``/``--record`` in a shared folder overwrote the link's target); the
+    system's own links under /dev (``/dev/stdout``) are followed."""
+    if path.parts[:2] == ("/", "dev"):
+        return open(path, "w", encoding="utf-8", newline="")
+    fd = open_no_follow(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+    return open(fd, "w", encoding="utf-8", newline="")
+
+
 class RotatingFile:
     """A text file written through one :class:`SideChannel`: past ``max_bytes`` it becomes
     ``FILE.1`` (replacing an older one) and a fresh ``FILE`` starts, headed by ``header()``
@@ -81,7 +93,7 @@ class RotatingFile:
         self._own = stream is None
         if stream is None:
             assert self.path is not None
-            stream = open(self.path, "w", encoding="utf-8", newline="")  # noqa: SIM115 (close())
+            stream = _create(self.path)
         self._stream: TextIO | None = stream
 
     @property
@@ -115,7 +127,7 @@ class RotatingFile:
         assert self.path is not None
         stream.close()
         os.replace(self.path, self.path.with_name(self.path.name + ROTATED_SUFFIX))
-        self._stream = stream = open(self.path, "w", encoding="utf-8", newline="")  # noqa: SIM115
+        self._stream = stream = _create(self.path)
         self.rotations += 1
         self.size = 0
         if self.header is not None:

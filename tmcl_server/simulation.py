@@ -141,6 +141,9 @@ class Simulation:
         #: How far the modules the last :meth:`run_due` ran are still behind its time (a busy
         #: program on a real clock catching up).
         self.lag_ns = 0
+        #: Per module: the timer's last turn left its program behind the clock (it cannot
+        #: keep up), so a request gives it no extra turn (sync_module).
+        self._behind = [False] * len(self.modules)
         #: A lockstep clock's time per request (0 for the others): see _execute.
         self._request_ns = clock.request_ns
         for module in self.modules:
@@ -203,10 +206,12 @@ class Simulation:
                 due[index] = None
                 ran.append(index)
         lag = 0
+        behind = self._behind
         for index in ran:
             module = self.modules[index]
             self._bring(module, index, t, chunk_ns)
             self.replan(module)
+            behind[index] = module.now_ns < t
             if t - module.now_ns > lag:
                 lag = t - module.now_ns
         self.lag_ns = lag
@@ -221,13 +226,23 @@ class Simulation:
         served at the program's present (it is behind the clock by less than the lag bound),
         the way a module's main loop executes an instruction between two host requests (a host
         that polls right after command 129 sees the first instruction done); the server's
-        timer keeps the program going.
+        timer keeps the program going.  A program the timer left behind the clock (it cannot
+        keep up) gets no such turn: one instruction may cost far more CPU than
+        its 10 us, and every request would pay for it (issue 36, N11); it is served at the
+        program's present, behind the clock by at most the lag bound plus the hosts' share
+        of the timer (Server's PROGRAM_SHARE_TRAFFIC).
         """
         index = self._index[module]
         t = self.clock.now_ns()
         if self.recorder is not None:  # it steps its modules to each sample instant up to t
             t = self._record_up_to(t, None if self.clock.virtual else RECORDER_SAMPLES_PER_TURN)
-        self._bring(module, index, t, None if self.clock.virtual else REQUEST_TURN_NS)
+        if self.clock.virtual:
+            self._bring(module, index, t, None)
+        elif not (self._behind[index] and module.program.busy):
+            self._bring(module, index, t, REQUEST_TURN_NS)
+        # else a program the timer left behind the clock: the request is served at its
+        # present, and the timer alone runs it and keeps its lag bound (a skip here would
+        # execute an instruction per request too)
         due = self._due[index]
         if (due is not None and due <= t) or module.program.busy:
             self.replan(module)  # events were handled or a program ran: its plan moved
@@ -409,6 +424,7 @@ class Simulation:
             routed = faults.after(request, interface, routed)
         if request.opcode not in READ_ONLY_OPCODES:
             for module in targets:
+                self._behind[self._index[module]] = False  # e.g. a new program: a turn again
                 self.replan(module)
             self._changed()
         return routed

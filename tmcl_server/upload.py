@@ -102,6 +102,11 @@ class PytrinamicClient:
         self._interface = ConnectionManager(arguments).connect()
         self.address = address
 
+    @property
+    def interface(self) -> Any:
+        """pytrinamic's interface object (``tmcl proxy`` sends raw frames through it)."""
+        return self._interface
+
     def send(self, opcode: int, type_: int, motor: int, value: int) -> ReplyFields:
         from pytrinamic.tmcl import TMCLReplyStatusError
 

@@ -7,6 +7,7 @@ real Chromium."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import select
 import socket
@@ -288,30 +289,114 @@ def test_deeply_nested_json_gets_one_clear_answer_and_the_page_stays(
 
 # == load =======================================================================================
 
-def test_the_connection_limit_closes_the_connection_silent_longest(sim: SimulatorThread) -> None:
+def _host_port(sim: SimulatorThread) -> tuple[str, int]:
+    host, port = sim.endpoints["http"][0].rstrip("/").removeprefix("http://").rsplit(":", 1)
+    return host, int(port)
+
+
+def _closed(sockets: list[socket.socket], want: int, wait_s: float = 5.0) -> list[int]:
+    """Which of ``sockets`` the server closed: at least ``want`` of them, or those it closed
+    within ``wait_s``."""
+    closed: set[int] = set()
+    deadline = time.monotonic() + wait_s
+    while len(closed) < want and (left := deadline - time.monotonic()) > 0:
+        open_ = [sock for index, sock in enumerate(sockets) if index not in closed]
+        readable, _, _ = select.select(open_, [], [], left)
+        for sock in readable:
+            try:
+                ended = sock.recv(1) == b""
+            except ConnectionResetError:
+                ended = True
+            if ended:
+                closed.add(sockets.index(sock))
+    return sorted(closed)
+
+
+class _HeldClock:
+    """The admission's clock, moved by the test."""
+
+    def __init__(self) -> None:
+        self.t = time.monotonic()
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_at_the_connection_limit_newcomers_are_refused_until_one_had_its_second(
+        sim: SimulatorThread) -> None:
+    """The admission rule (docs/robustness.md, "Connection limits") on the dashboard's port:
+    32 connections that never sent a request hold the port; 20 more are refused at once; once
+    the first are a second old (NEWCOMER_GRACE_S), a live client takes the oldest one's slot."""
     from tmcl_server.dashboard.web import MAX_CONNECTIONS
+    from tmcl_server.transports.admission import NEWCOMER_GRACE_S
 
     url = sim.endpoints["http"][0]
-    host, port = url.rstrip("/").removeprefix("http://").rsplit(":", 1)
-    idle = [socket.create_connection((host, int(port))) for _ in range(MAX_CONNECTIONS + 20)]
+    transport = sim.server.transports[-1]  # type: ignore[union-attr]
+    admission = transport._gate.admission
+    clock = _HeldClock()
+    sim.call(lambda: setattr(admission, "clock", clock))
+    idle = [socket.create_connection(_host_port(sim)) for _ in range(MAX_CONNECTIONS + 20)]
     try:
-        transport = sim.server.transports[-1]  # type: ignore[union-attr]
-        time.sleep(transport._gate.idle_s + 0.1)  # silent long enough to make room
+        assert _closed(idle, 20) == list(range(MAX_CONNECTIONS, MAX_CONNECTIONS + 20))
+        clock.t += NEWCOMER_GRACE_S
+
         async def fetch() -> int:
             async with aiohttp.ClientSession() as session, session.get(f"{url}api/hello") as response:
                 await response.read()
                 return response.status
 
         assert asyncio.run(fetch()) == 200  # a live client gets in
-        assert sim.call(lambda: len(transport._gate.connections)) <= MAX_CONNECTIONS
-        # the last 20 found every connection busy (just opened) and were closed at once; the
-        # fetch closed the one silent longest (the first) to make room
-        readable, _, _ = select.select(idle, [], [], 2.0)
-        closed = [idle.index(sock) for sock in readable if sock.recv(1) == b""]
-        assert sorted(closed) == [0, *range(MAX_CONNECTIONS, MAX_CONNECTIONS + 20)]
+        assert sim.call(lambda: len(admission)) <= MAX_CONNECTIONS
+        assert _closed(idle[:MAX_CONNECTIONS], 1) == [0]  # the oldest newcomer made room
     finally:
         for sock in idle:
             sock.close()
+
+
+def test_a_slow_header_flood_neither_closes_a_quiet_page_nor_holds_the_port(
+        sim: SimulatorThread, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 36, N6: 40 sockets sending one header byte every so often closed every new
+    request for as long as they lasted, and a hidden tab (silent over a second) was closed
+    at the next connect.  Now a page that has spoken keeps its slot, a request head must be
+    complete within HEAD_TIMEOUT_S (made short here), and a client connecting once the
+    dribblers are a second old gets in."""
+    from tmcl_server.dashboard import limits
+    from tmcl_server.dashboard.web import MAX_CONNECTIONS
+
+    monkeypatch.setattr(limits, "HEAD_TIMEOUT_S", 1.5)
+    url = sim.endpoints["http"][0]
+
+    async def scenario() -> tuple[list[int], int, int]:
+        async with aiohttp.ClientSession() as session, \
+                session.ws_connect(f"{url.replace('http', 'ws')}ws") as page:
+            assert (await page.receive_json(timeout=5))["type"] == "hello"
+            await page.send_json({"op": "alive"})
+            await asyncio.sleep(1.2)  # the page is quiet, as a hidden tab is
+            dribblers = [socket.create_connection(_host_port(sim)) for _ in range(40)]
+            for sock in dribblers:
+                sock.sendall(b"GET / HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+            refused = _closed(dribblers, 40 - (MAX_CONNECTIONS - 1))  # past the limit at once
+            for _ in range(4):  # the rest go on dribbling, 0.5 s a byte
+                await asyncio.sleep(0.5)
+                for index, sock in enumerate(dribblers):
+                    if index not in refused:
+                        with contextlib.suppress(OSError):
+                            sock.sendall(b"a")
+            await page.send_json({"op": "command", "id": 1, "cmd": "GAP", "type": 4, "motor": 0})
+            while (answer := await page.receive_json(timeout=5))["type"] != "reply":
+                pass
+            async with session.get(f"{url}api/hello") as response:
+                status = response.status
+            closed = _closed(dribblers, 40)
+            for sock in dribblers:
+                sock.close()
+            return closed, answer["value"], status
+
+    closed, value, status = asyncio.run(scenario())
+    assert value == 51200  # the quiet page was not closed
+    assert status == 200
+    assert len(closed) == 40  # refused at once, or closed by the head deadline
+    assert sim.call(lambda: sim.server.transports[-1]._gate.slow_heads) >= 40 - MAX_CONNECTIONS  # type: ignore[union-attr]
 
 
 def test_a_flood_of_requests_waits_its_turn_and_the_tcp_host_is_served(sim: SimulatorThread) -> None:
@@ -351,3 +436,33 @@ def test_a_flood_of_requests_waits_its_turn_and_the_tcp_host_is_served(sim: Simu
     assert answered <= REQUEST_BURST + REQUEST_RATE * 2.5 + 20
     latencies.sort()
     assert len(latencies) > 200 and latencies[len(latencies) // 2] < 0.01
+
+
+def test_a_token_that_is_not_utf8_is_refused_and_parse_errors_log_one_line(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 36, N7: beyond loopback, an ``Authorization: token`` header or a cookie that is
+    not UTF-8 gave a 500 and a 20-line traceback; a malformed request line carrying
+    ``?token=`` put the token in the log.  Now: 403, and one line without the request."""
+    REPEATS.reset()
+    caplog.set_level(logging.DEBUG)
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], http=["0.0.0.0:0"]) as sim:
+        url = sim.endpoints["http"][0]
+        token = url.split("?token=")[1]
+        port = int(url.split(":")[2].split("/")[0])
+
+        def ask(raw: bytes) -> bytes:
+            with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+                sock.sendall(raw)
+                return sock.recv(64)
+
+        for raw in (b"GET /api/hello HTTP/1.1\r\nHost: x\r\nAuthorization: token \xff\xfe\r\n\r\n",
+                    b"GET /api/hello HTTP/1.1\r\nHost: x\r\nCookie: tmcl-dashboard-token-%d=\xff\r\n\r\n"
+                    % port):
+            assert ask(raw).startswith(b"HTTP/1.1 403"), raw
+        REPEATS.reset()
+        assert ask(b"GET /?token=%s HTTP/1.1 junk\r\nHost: x\r\n\r\n" % token.encode()
+                   ).startswith(b"HTTP/1.0 400")
+    messages = [r.getMessage() for r in caplog.records]
+    assert not any(r.exc_info or r.exc_text for r in caplog.records), messages
+    assert not any(token in m for m in messages[1:]), messages  # the first prints the URL
+    assert any("malformed request" in m for m in messages), messages

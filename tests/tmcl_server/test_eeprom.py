@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 
 import pytest
@@ -124,3 +125,55 @@ def test_memory_only_eeprom_writes_nothing(tmp_path):
     ee.put("globals", 1, 2)
     assert ee.get("globals", 1) == 2
     assert not ee.persistent
+
+
+def test_the_journals_replay_in_sequence_order_and_skip_torn_lines(tmp_path, caplog):
+    """What a server leaves after a crash (docs/eeprom.md, "On a server: a journal"): a
+    snapshot, and stores in two journal files whose lines are replayed by their sequence
+    numbers, whichever file holds them; a store a snapshot already holds changes nothing
+    when replayed again; a torn line (a store cut by a crash or a full disk, never answered
+    OK) is skipped with one warning, also when a later store follows it."""
+    from tmcl_server.eeprom import JOURNAL_NAMES
+
+    (tmp_path / FILE_NAME).write_text(json.dumps(
+        {"format": "tmcl-sim-eeprom", "version": FORMAT_VERSION, "user_variables": {"1": 5, "2": 6}}))
+    older, newer = (tmp_path / name for name in JOURNAL_NAMES)
+    newer.write_bytes(b'{"n":3,"op":"put","s":"user_variables","v":{"1":5}}\n'  # in the snapshot
+                      b'{"n":4,"op":"erase"}\n'
+                      b'{"n":5,"op":"put","s":"user_variables","v":{"3":8}}\n')
+    older.write_bytes(b'{"n":6,"op":"put","s":"user_variables","v":{"4":9}}\n'
+                      b'{"n":7,"op":"put","s":"user_vari\n'  # torn, then a later store
+                      b'{"n":8,"op":"replace","s":"coordinates","v":{"0":{"1":100}}}\n'
+                      b'{"n":9,"op":"put","s":"globals","v":{"7')  # torn at the end
+    with caplog.at_level(logging.WARNING):
+        eeprom = Eeprom(tmp_path)
+    assert eeprom.problem is None and eeprom.replayed == 5
+    assert dict(eeprom.items("user_variables")) == {"3": 8, "4": 9}
+    assert eeprom.get("coordinates", 0) == {"1": 100}
+    assert [r.getMessage() for r in caplog.records if "torn" in r.getMessage()] == [
+        f"EEPROM journal in {tmp_path}: 2 torn or malformed line(s) skipped (a store cut by a "
+        "crash or a full disk, never answered OK)"]
+    eeprom.start_journal(lambda delay, callback: None)  # a server starts: one snapshot ...
+    assert all((tmp_path / name).stat().st_size == 0 for name in JOURNAL_NAMES)  # ... empties them
+    assert json.loads((tmp_path / FILE_NAME).read_text())["user_variables"] == {"3": 8, "4": 9}
+    eeprom.flush()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [FILE_NAME]
+
+
+def test_a_planted_symlink_for_a_journal_is_not_followed(tmp_path):
+    """Issue 36, N5: a journal name that is a symbolic link (planted in a shared state
+    directory) is not written through: the store answers status 5, the link's target is
+    untouched."""
+    from tmcl_server.eeprom import JOURNAL_NAMES, EepromWriteError
+
+    victim = tmp_path / "victim"
+    victim.write_text("precious")
+    state = tmp_path / "state"
+    state.mkdir()
+    eeprom = Eeprom(state)
+    (state / JOURNAL_NAMES[0]).symlink_to(victim)  # planted after the server read the state
+    eeprom.start_journal(lambda delay, callback: None)
+    with pytest.raises(EepromWriteError):
+        eeprom.put("user_variables", 1, 1)
+    assert victim.read_text() == "precious"
+    eeprom.flush()

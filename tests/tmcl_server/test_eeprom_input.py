@@ -148,8 +148,9 @@ def _file_size_limit(limit: int):
 
 
 class LimitedServer(ServerProcess):
-    """A server process whose files cannot grow past 120 bytes (the ready file fits, an
-    EEPROM image does not): a write failure even root cannot get around."""
+    """A server process whose files cannot grow past 40 bytes (the ready file fits; an
+    EEPROM image does not, nor does one store's line in the journal): a write failure even
+    root cannot get around."""
 
     def __init__(self, tmp_path, *args: str) -> None:
         import subprocess
@@ -159,7 +160,7 @@ class LimitedServer(ServerProcess):
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "tmcl_server", "--ready-file", str(self.ready_file), *args],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            preexec_fn=_file_size_limit(120))
+            preexec_fn=_file_size_limit(40))
         deadline = time.monotonic() + 20
         while not self.ready_file.exists():  # written atomically
             if self.proc.poll() is not None or time.monotonic() > deadline:

@@ -8,8 +8,10 @@ direct mode; a host's own store is on disk before its reply.
 
 from __future__ import annotations
 
+import json
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -17,7 +19,7 @@ import pytest
 from interpreter.assembler import assemble
 from tests.conftest import RawClient
 from tmcl_server.clock import VirtualClock
-from tmcl_server.eeprom import FILE_NAME, FLUSH_INTERVAL_S, WRITE_TIME_NS, Eeprom
+from tmcl_server.eeprom import FILE_NAME, FLUSH_INTERVAL_S, WRITE_TIME_NS, WRITER, Eeprom
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request
@@ -77,29 +79,69 @@ def test_a_store_loop_runs_at_the_pace_of_the_part(tmp_path: Path) -> None:
     assert Eeprom(tmp_path / "module-1").get("user_variables", 1) in (passes, passes - 1)
 
 
-def test_program_stores_coalesce_and_host_stores_write_through(tmp_path: Path) -> None:
-    """With a scheduler (a server's loop), a program's stores in quick succession share one
-    file write, done when the interval is over or at a host's store; a host's store is on
-    disk at once."""
-    later: list[tuple[float, object]] = []
+def test_on_a_server_stores_go_to_the_journal_and_snapshots_are_paced(tmp_path: Path) -> None:
+    """With a scheduler (a server's loop), every store (a program's or a host's) is one line
+    in the journal at once (a fresh Eeprom replays it), and the whole file is written at most
+    once per FLUSH_INTERVAL_S, by the snapshot thread, which then empties the old journal."""
+    later: list[tuple[float, Callable[[], None]]] = []
     eeprom = Eeprom(tmp_path)
-    eeprom.coalesce(lambda delay, callback: later.append((delay, callback)))
+    eeprom.start_journal(lambda delay, callback: later.append((delay, callback)))
     on_disk = lambda: Eeprom(tmp_path).get("user_variables", 1)  # noqa: E731
-    eeprom.deferring = True  # as while a program's command runs
     eeprom.put("user_variables", 1, 1)
-    assert on_disk() == 1 and eeprom.file_writes == 1  # the first store is written at once
+    assert on_disk() == 1 and not (tmp_path / FILE_NAME).exists()  # in the journal
     for value in range(2, 50):
         eeprom.put("user_variables", 1, value)
-    assert on_disk() == 1 and eeprom.pending and eeprom.file_writes == 1
-    assert len(later) == 1 and 0 < later[0][0] <= FLUSH_INTERVAL_S
-    later[0][1]()  # the timer fires
-    assert on_disk() == 49 and not eeprom.pending and eeprom.file_writes == 2
-    eeprom.put("user_variables", 1, 50)  # within the interval again: deferred
-    assert on_disk() == 49 and eeprom.pending
-    eeprom.deferring = False
-    eeprom.put("user_variables", 2, 7)  # a host's store writes everything, now
-    assert on_disk() == 50 and not eeprom.pending and eeprom.file_writes == 3
-    assert eeprom.stores == 51
+    assert on_disk() == 49 and eeprom.file_writes == 0
+    assert len(later) == 1 and 0 <= later[0][0] <= FLUSH_INTERVAL_S
+    later.pop()[1]()  # the timer hands the image to the thread
+    assert WRITER.wait(10)
+    assert json.loads((tmp_path / FILE_NAME).read_text())["user_variables"]["1"] == 49
+    assert eeprom.file_writes == 1
+    eeprom.put("user_variables", 2, 7)
+    assert on_disk() == 49 and Eeprom(tmp_path).get("user_variables", 2) == 7
+    assert len(later) == 1 and 0 < later[0][0] <= FLUSH_INTERVAL_S  # paced from the last one
+    eeprom.flush()  # the server stops: the last snapshot, and no journal left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == [FILE_NAME]
+    assert json.loads((tmp_path / FILE_NAME).read_text())["user_variables"] == {"1": 49, "2": 7}
+    assert eeprom.stores == 50
+
+
+def test_the_event_loop_creates_renames_and_syncs_no_file_for_a_store(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 36, item 3: creating, renaming and syncing a file wait for the file system's
+    journal (tens of ms on a loaded disk); on a server none of it happens on the event loop's
+    thread any more (the code before created the temporary file and renamed it there, before
+    each host store's reply)."""
+    import os
+    import tempfile
+    import threading
+
+    calls: list[tuple[str, str]] = []
+
+    def spy(name: str, real: Callable[..., object]) -> Callable[..., object]:
+        def wrapped(*args: object, **kwargs: object) -> object:
+            calls.append((name, threading.current_thread().name))
+            return real(*args, **kwargs)
+        return wrapped
+
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], state_dir=str(tmp_path)) as sim:
+        loop_thread = sim.call(lambda: threading.current_thread().name)
+        for name, module in (("mkstemp", tempfile), ("replace", os), ("fsync", os)):
+            monkeypatch.setattr(module, name, spy(name, getattr(module, name)))
+        client = RawClient(sim.tcp)
+        try:
+            for value in range(20):
+                assert client.request(1, Opcode.SGP, 7, 2, value).status == Status.OK
+                assert client.request(1, Opcode.STGP, 7, 2).status == Status.OK
+                assert client.request(1, Opcode.SAP, 4, 0, 1000 + value).status == Status.OK
+                assert client.request(1, Opcode.STAP, 4, 0).status == Status.OK
+            assert sim.call(lambda: WRITER.wait(10))
+        finally:
+            client.close()
+        on_loop = [name for name, thread in calls if thread == loop_thread]
+        assert calls and not on_loop, calls
+    monkeypatch.undo()
+    assert Eeprom(tmp_path / "module-1").get("user_variables", 7) == 19
 
 
 @pytest.mark.exclusive
@@ -176,9 +218,9 @@ def test_kill_9_during_a_store_loop_leaves_a_valid_file_old_or_new(tmp_path: Pat
 def test_a_slow_disk_holds_up_no_host_on_a_server(tmp_path: Path,
                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     """Issue 27, item 9: an fsync of 300 ms (a loaded disk) used to hold the event loop, so
-    every host waited behind a store.  On a server the store is in the file before its reply
-    and the fsyncs run beside the loop; the shutdown waits for them."""
-    import json
+    every host waited behind a store.  On a server the store is in the journal before its
+    reply and the snapshots (with their fsyncs) run beside the loop; the shutdown waits for
+    them."""
     import os
 
     real_fsync = os.fsync
@@ -201,12 +243,11 @@ def test_a_slow_disk_holds_up_no_host_on_a_server(tmp_path: Path,
                 began = time.monotonic()
                 assert other.request(1, Opcode.GAP, 4, 0).status == Status.OK
                 assert stored < 0.25 and time.monotonic() - began < 0.25
-                state = json.loads((tmp_path / "module-1" / FILE_NAME).read_text())
-                assert state["user_variables"]["7"] == value  # in the file before the reply
+                # on disk before the reply: what the next start-up reads
+                assert Eeprom(tmp_path / "module-1").get("user_variables", 7) == value
         finally:
             storer.close()
             other.close()
-    from tmcl_server.eeprom import SYNCER
-    assert synced and SYNCER.wait(0)  # the shutdown waited for every sync
+    assert synced and WRITER.wait(0)  # the shutdown waited for every snapshot
     monkeypatch.undo()
     assert Eeprom(tmp_path / "module-1").get("user_variables", 7) == 4

@@ -203,4 +203,10 @@ class AccessPolicy:
         if self.token is None:
             return True
         given = self.presented_token(headers, query, cookies)
-        return given is not None and hmac.compare_digest(given.encode(), self.token.encode())
+        if given is None:
+            return False
+        try:  # as bytes: a header or cookie that is not UTF-8 is a wrong token, not a 500 (N7)
+            presented = given.encode("utf-8", "surrogateescape")
+        except UnicodeError:
+            return False
+        return hmac.compare_digest(presented, self.token.encode())

@@ -29,12 +29,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from aiohttp import WSMsgType, web
+from aiohttp.http_exceptions import HttpProcessingError
 
 from tmcl_server.dashboard.core import ActionError, Dashboard, Viewer
 from tmcl_server.dashboard.guard import TOKEN_ENV, AccessPolicy
 from tmcl_server.dashboard.limits import ConnectionGate, Pace
 from tmcl_server.endpoints import parse_host_port
 from tmcl_server.sidechannel import SideChannel
+from tmcl_server.transports.admission import ESTABLISHED_IDLE_S
 from tmcl_server.transports.base import Transport, TransportHost
 from tmcl_server.transports.mqtt.payload import PayloadError, parse_json
 
@@ -55,10 +57,9 @@ SAMPLE_PERIOD_S = 0.02
 #: show the Parameters section.
 PARAMETER_PERIOD_S = 0.5
 #: Connections one ``--http`` port holds at once (pages, scripts, a browser's parallel
-#: fetches); past it the one silent longest is closed if it has been silent a second, else the
-#: newcomer.
+#: fetches); who gets a slot past it: transports/admission.py (docs/robustness.md).
 MAX_CONNECTIONS = 32
-#: Pages (WebSockets) open at once; past it the one silent longest is closed.
+#: Pages (WebSockets) open at once; past it a page silent a minute is closed, else the new one.
 MAX_PAGES = 8
 #: Plain HTTP requests (page, static files, /api/...) answered per second over the whole port,
 #: and at once: more wait their turn with their connection's reading paused.
@@ -78,6 +79,27 @@ HEARTBEAT_S = 20.0
 #: ... and closed if it sent nothing for this long (an open page acknowledges frames, a
 #: hidden one says "alive" every 30 s; it reconnects by itself when shown again).
 PAGE_IDLE_S = 120.0
+
+
+class _ParseErrorInOneLine(logging.Filter):
+    """aiohttp logs a request it cannot parse with a traceback whose message quotes the
+    request line, ``?token=...`` included (issue 36, N7): one line instead, naming the kind of
+    error and the peer, never the request."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        if isinstance(exc, HttpProcessingError):
+            record.msg = "dashboard: a malformed request from %s refused (%s, HTTP %s)"
+            peer = record.args[0] if isinstance(record.args, tuple) and record.args else "?"
+            record.args = (peer, type(exc).__name__, exc.code)
+            record.exc_info = record.exc_text = None
+        return True
+
+
+def _one_line_parse_errors() -> None:
+    server_log = logging.getLogger("aiohttp.server")
+    if not any(isinstance(f, _ParseErrorInOneLine) for f in server_log.filters):
+        server_log.filters.insert(0, _ParseErrorInOneLine())  # before the repeat filter
 
 
 def _compact(message: dict[str, Any]) -> str:
@@ -107,6 +129,8 @@ class DashboardTransport(Transport):
         self._sampling = SideChannel("the dashboard's plots")
         self._requests = Pace(REQUEST_RATE, REQUEST_BURST)
         self._frames = Pace(FRAME_RATE, MAX_PAGES)
+        #: New pages refused because MAX_PAGES were open and heard within the idle time.
+        self.pages_refused = 0
 
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> DashboardTransport:
@@ -116,6 +140,7 @@ class DashboardTransport(Transport):
     # -- lifecycle ----------------------------------------------------------------------------
 
     async def start(self) -> list[str]:
+        _one_line_parse_errors()
         app = web.Application(middlewares=[self._guard], client_max_size=MAX_MESSAGE)
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._websocket)
@@ -175,6 +200,17 @@ class DashboardTransport(Transport):
         its turn (REQUEST_RATE over the port) with its connection's reading paused."""
         refusal = self.policy.refusal(request.headers, request.query, request.cookies,
                                       request.scheme)
+        gate = self._gate
+        assert gate is not None  # set before the port listens
+        if refusal is None:
+            gate.request_complete(request.transport)
+        try:
+            return await self._admitted(request, handler, refusal)
+        finally:
+            gate.answered(request.transport, upgraded=refusal is None and request.path == "/ws")
+
+    async def _admitted(self, request: web.Request, handler: Any,
+                        refusal: str | None) -> web.StreamResponse:
         if refusal is not None:
             peer = request.remote or "?"
             log.warning("dashboard: refused %s %s from %s: %s", request.method, request.path,
@@ -227,11 +263,19 @@ class DashboardTransport(Transport):
         peer = request.transport.get_extra_info("peername") if request.transport else None
         endpoint = f"http {peer[0]}:{peer[1]}" if peer else "http"
         viewer = Viewer(endpoint, next(iter(self.dashboard.modules)))
-        if len(self._heard) >= MAX_PAGES:  # the page silent longest makes room
+        if len(self._heard) >= MAX_PAGES:  # a page silent a minute makes room, else no room
             oldest = min(self._heard, key=self._heard.__getitem__)
+            silent = time.monotonic() - self._heard[oldest]
+            if silent < ESTABLISHED_IDLE_S:
+                self.pages_refused += 1
+                log.warning("dashboard: %d pages open (the limit), each heard within %.0f s: "
+                            "a new one is refused (%d so far)", len(self._heard),
+                            ESTABLISHED_IDLE_S, self.pages_refused)
+                await ws.close(message=b"too many pages open")
+                return ws
             log.warning("dashboard: %d pages open (the limit); closing %s, silent for %.1f s",
-                        len(self._heard), self._pages[oldest].endpoint,
-                        time.monotonic() - self._heard.pop(oldest))
+                        len(self._heard), self._pages[oldest].endpoint, silent)
+            del self._heard[oldest]
             self._closing.add(asyncio.create_task(oldest.close(message=b"too many pages open")))
             self._closing = {task for task in self._closing if not task.done()}
         self._pages[ws] = viewer
@@ -252,6 +296,7 @@ class DashboardTransport(Transport):
                                     WSMsgType.ERROR):
                     break
                 self._heard[ws] = time.monotonic()
+                self._gate.heard(request.transport)  # type: ignore[union-attr]
                 if message.type != WSMsgType.TEXT:
                     continue
                 answer = self._handle(message.data, viewer, acknowledged)

@@ -154,11 +154,7 @@ class ProgramSupport:
             return status, result, False
         eeprom = module.eeprom
         stores = eeprom.stores
-        eeprom.deferring = True  # a program's stores may share a file write (coalesced)
-        try:
-            status, result = module.perform(request)
-        finally:
-            eeprom.deferring = False
+        status, result = module.perform(request)
         if eeprom.stores != stores:  # the program waits for the part's write cycles
             self.interpreter.busy_until(time_ns + (eeprom.stores - stores) * WRITE_TIME_NS)
         return status, result, module.changed and module.may_reschedule(opcode, motor)

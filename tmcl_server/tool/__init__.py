@@ -7,6 +7,8 @@
     tmcl program upload prog.tmc --verify --run    # also: run, stop, step, status, read
     tmcl decode 01 06 04 00 00 00 00 00 0b         # a hex dump or --file capture.txt
     tmcl plot record.csv -o record.png             # a tmcl-server --record file
+    tmcl --serial /dev/ttyACM0 proxy --listen-tcp 127.0.0.1:2323 --capture run.jsonl
+    tmcl replay run.jsonl                          # the capture against the simulator
 
 It reaches the simulator over TCP (``--tcp``, default 127.0.0.1:2323) or its pty
 (``--serial``), and a real module through anything pytrinamic's ConnectionManager accepts
@@ -23,7 +25,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from tmcl_server.tool.connection import EXIT_CODES, ToolError
-from tmcl_spec.package import add_version_option, safe_console, version_text
+from tmcl_spec.package import add_version_option, doc, safe_console, version_text
 
 _EPILOG = """examples:
   tmcl send SAP 4, 0, 51200                     set AP 4 of motor 0, as a TMCL program writes it
@@ -36,6 +38,8 @@ _EPILOG = """examples:
   tmcl program upload prog.tmc --verify --run
   tmcl decode --file capture.txt                  a hex dump or candump log
   tmcl plot record.csv -o record.png
+  tmcl --serial /dev/ttyACM0 proxy --listen-tcp 127.0.0.1:2323 --capture run.jsonl
+  tmcl replay run.jsonl                           every reply compared with the simulator's
 
 exit codes:
 """ + "\n".join(f"  {code:<4} {meaning}" for code, meaning in EXIT_CODES)
@@ -75,6 +79,18 @@ def positive_count(text: str) -> int:
     value = count(text)
     if value == 0:
         raise argparse.ArgumentTypeError("a number above 0 expected, got 0")
+    return value
+
+
+#: ``tmcl program step N`` steps at most this many instructions (one request each): a
+#: mistyped count must not keep the tool busy for hours (issue 36, N9).
+MAX_STEPS = 10_000
+
+
+def step_count(text: str) -> int:
+    value = positive_count(text)
+    if value > MAX_STEPS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_STEPS} steps at once, got {value}")
     return value
 
 
@@ -184,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--wait-timeout", type=positive, default=600.0, metavar="SECONDS")
     action("stop", "stop the program (128)")
     step = action("step", "execute single instructions (130)")
-    step.add_argument("steps", nargs="?", type=positive_count, default=1)
+    step.add_argument("steps", nargs="?", type=step_count, default=1)
     status = action("status", "state, program counter, accumulator and X (135)")
     status.add_argument("--json", action="store_true")
     read = action("read", "read the program back (134) as source")
@@ -213,6 +229,29 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("--all", dest="whole", action="store_true",
                       help="the whole recording (default: from shortly before the first motion "
                            "to shortly after the last)")
+
+    proxy = command("proxy", "forward hosts' frames to the module unchanged, and capture them",
+                    "examples:\n  tmcl --serial /dev/ttyACM0 proxy --listen-tcp 127.0.0.1:2323 "
+                    "--capture run.jsonl\n  tmcl --tcp 10.0.0.5:4001 proxy --listen-pty "
+                    "/tmp/ttyPROXY --capture run.jsonl\n\nThe capture format: "
+                    f"{doc('capture.md')}; replay it with 'tmcl replay run.jsonl'.")
+    proxy.add_argument("--listen-tcp", action="append", metavar="HOST:PORT", default=[],
+                       help="hosts connect here (repeatable; port 0 picks a free port)")
+    proxy.add_argument("--listen-pty", action="append", metavar="PATH", default=[],
+                       help="a pseudo-terminal linked at PATH for a serial host (repeatable; "
+                       "POSIX only)")
+    proxy.add_argument("--capture", metavar="FILE",
+                       help="write every request and reply to FILE as they pass (JSON lines)")
+    proxy.add_argument("--no-identify", action="store_true",
+                       help="do not ask the module's identity (command 136) at start")
+    proxy.add_argument("--ready-file", metavar="PATH",
+                       help="once the hosts can connect, write the endpoints as JSON to PATH")
+
+    # `tmcl replay` needs the simulator: its options (those of tmcl-server among them) are
+    # parsed by tmcl_server.replay, imported only when it runs, so no other command loads it.
+    sub.add_parser("replay", help="replay a capture against the simulator and list every "
+                   "divergence (tmcl replay --help)", add_help=False,
+                   prefix_chars="\0").add_argument("replay_arguments", nargs=argparse.REMAINDER)
     return parser
 
 
@@ -224,7 +263,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     handler = {"send": commands.cmd_send, "info": commands.cmd_info, "dump": commands.cmd_dump,
                "watch": commands.cmd_watch, "program": commands.cmd_program,
-               "decode": commands.cmd_decode, "plot": commands.cmd_plot}[args.subcommand]
+               "decode": commands.cmd_decode, "plot": commands.cmd_plot,
+               "proxy": _proxy, "replay": _replay}[args.subcommand]
     try:
         return handler(args)
     except ToolError as exc:
@@ -236,6 +276,18 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:  # `tmcl dump | head`
         return 0
+
+
+def _proxy(args: argparse.Namespace) -> int:
+    from tmcl_server.tool.proxy import cmd_proxy
+
+    return cmd_proxy(args)
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from tmcl_server.replay import main as replay  # the simulator: loaded for this command only
+
+    return replay(args.replay_arguments)
 
 
 def upload_alias(argv: list[str] | None = None) -> int:

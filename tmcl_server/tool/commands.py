@@ -6,20 +6,18 @@ import argparse
 import codecs
 import csv
 import difflib
-import io
 import json
 import sys
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 from interpreter.assembler import AssemblyError
 from interpreter.disassembler import disassemble, listing
 from interpreter.isa import Instruction
 from tmcl_server.decode import (
     CAN_LOG_SUFFIXES,
-    MAX_LINE,
     CaptureError,
     Conversation,
     Frame,
@@ -31,6 +29,7 @@ from tmcl_server.decode import (
     module_type_by_number,
     read_can_log,
     read_capture,
+    text_lines,
 )
 from tmcl_server.protocol import Reply
 from tmcl_server.tool.connection import (
@@ -538,7 +537,7 @@ def _capture_frames(args: argparse.Namespace) -> Iterator[Frame]:
     if args.file is None and args.hex:
         return read_capture([" ".join(args.hex)])
     if args.file is None or str(args.file) == "-":
-        return read_capture(_text_lines(sys.stdin.buffer, "standard input"))
+        return read_capture(text_lines(sys.stdin.buffer, "standard input"))
     path = Path(args.file)
     if is_can_log(path):
         return _can_log_or_text(path)
@@ -568,7 +567,7 @@ def _can_log_or_text(path: Path) -> Iterator[Frame]:
 
 def _file_lines(path: Path) -> Iterator[Frame]:
     with path.open("rb") as stream:
-        yield from read_capture(_text_lines(stream, str(path)))
+        yield from read_capture(text_lines(stream, str(path)))
 
 
 def _check_text(path: Path) -> None:
@@ -592,23 +591,6 @@ def _not_text(name: str, offset: int, byte: int | None) -> str:
     what = f"byte {byte:#04x} at offset {offset}" if byte is not None else "its last bytes"
     return (f"{name} is not a text dump ({what} is not UTF-8): give a hex dump (xxd FILE | tmcl "
             f"decode) or a CAN log python-can reads ({', '.join(CAN_LOG_SUFFIXES)})")
-
-
-def _text_lines(stream: BinaryIO, name: str) -> Iterator[str]:
-    """Lines of UTF-8 text, each at most MAX_LINE characters read (bounded memory)."""
-    text = io.TextIOWrapper(stream, encoding="utf-8", errors="strict", newline=None)
-    number = 0
-    while True:
-        try:
-            line = text.readline(MAX_LINE + 1)
-        except UnicodeDecodeError as exc:
-            raise CaptureError(f"{name}, line {number + 1}: not UTF-8 text ({exc.reason})") from None
-        if not line:
-            return
-        number += 1
-        if len(line) > MAX_LINE:
-            raise CaptureError(f"{name}, line {number}: longer than {MAX_LINE} characters: not a dump")
-        yield line.rstrip("\n")
 
 
 # -- plot -------------------------------------------------------------------------------------

@@ -131,7 +131,7 @@ class StreamSession:
     """
 
     __slots__ = ("_assembler", "_loop", "_queued", "_resync", "_route", "_write", "closed",
-                 "endpoint", "rs485", "simulation")
+                 "endpoint", "heard_valid", "rs485", "simulation")
 
     def __init__(self, simulation: Simulation, write: Callable[[bytes], None],
                  loop: asyncio.AbstractEventLoop, mode: LinkMode = LinkMode.RS485,
@@ -150,6 +150,8 @@ class StreamSession:
         #: GP 75 (telegram pause) delays replies on RS-485 only.
         self.rs485 = mode is LinkMode.RS485
         self.closed = False
+        #: A frame with a right checksum came (a listener's admission: transports/admission.py).
+        self.heard_valid = False
 
     def feed(self, data: bytes) -> None:
         assembler = self._assembler
@@ -158,6 +160,8 @@ class StreamSession:
         else:
             frames = assembler.feed(data)
         for frame in frames:
+            if not self.heard_valid and sum(frame[:8]) & 0xFF == frame[8]:
+                self.heard_valid = True
             for module, reply in self._route(frame, self):
                 delay = module.reply_delay_s if self.rs485 else 0.0
                 if delay or self.closed or type(reply) is Delivery:

@@ -5,7 +5,8 @@ RS-485 adapter: pytrinamic's ``serial_tmcl``, minicom, or any pyserial program. 
 PATH[,mode=usb|rs485]`` chooses how frames are addressed (docs/protocol.md).  A lock file
 beside the link (``.NAME.lock``, held with ``flock`` while the server runs) keeps a second
 server from taking over a link that a live one serves; the kernel drops the lock when its
-holder dies, so a killed server leaves nothing that blocks the next one.
+holder dies, so a killed server leaves nothing that blocks the next one (the link and its lock:
+tmcl_server/ptylink.py, shared with ``tmcl proxy --listen-pty``).
 """
 
 from __future__ import annotations
@@ -19,12 +20,8 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from tmcl_server.platform import (
-    bytes_waiting,
-    lock_exclusively,
-    open_raw_pty,
-    require_pseudo_terminals,
-)
+from tmcl_server.platform import bytes_waiting, open_raw_pty, require_pseudo_terminals
+from tmcl_server.ptylink import LinkInUseError, LinkLock, remove_link, replace_symlink
 from tmcl_server.simulation import Simulation
 from tmcl_server.transports.base import (
     ByteSession,
@@ -41,69 +38,11 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+__all__ = ["LinkInUseError", "PtyTransport"]
+
 
 #: Output held back while the pty is full (only after a write it took in part).
 MAX_PENDING = 4096
-
-
-class LinkInUseError(FileExistsError):
-    """Another live server serves the pty link."""
-
-
-def replace_symlink(target: str, link: Path) -> None:
-    """Point ``link`` at ``target`` atomically; refuse to clobber anything but a symlink.
-
-    The directory must exist: a mistyped path is reported, not created.
-    """
-    if link.exists() and not link.is_symlink():
-        raise FileExistsError(f"{link} exists and is not a symlink; not replacing it")
-    if not link.parent.is_dir():
-        raise FileNotFoundError(f"cannot create the pty link {link}: directory {link.parent} "
-                                "does not exist")
-    tmp = link.with_name(f".{link.name}.{os.getpid()}.tmp")
-    tmp.unlink(missing_ok=True)
-    os.symlink(target, tmp)
-    os.replace(tmp, link)
-
-
-class LinkLock:
-    """An exclusive claim on a pty link path, held while the server serves it."""
-
-    def __init__(self, link: Path) -> None:
-        self.path = link.with_name(f".{link.name}.lock")
-        self._fd: int | None = None
-
-    def acquire(self, link: Path) -> None:
-        if not link.parent.is_dir():
-            raise FileNotFoundError(f"cannot create the pty link {link}: directory "
-                                    f"{link.parent} does not exist")
-        while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-            try:
-                lock_exclusively(fd)
-            except BlockingIOError:
-                owner = os.read(fd, 32).decode(errors="replace").strip() or "?"
-                os.close(fd)
-                raise LinkInUseError(
-                    f"{link} is already served by another tmcl-server (pid {owner}, lock "
-                    f"{self.path}); stop it or choose another path") from None
-            # The previous holder may have removed the file between our open and our lock:
-            # then the lock is on a file nobody else sees, so take the new one instead.
-            with contextlib.suppress(FileNotFoundError):
-                if os.fstat(fd).st_ino == os.stat(self.path).st_ino:
-                    break
-            os.close(fd)
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        self._fd = fd
-
-    def release(self) -> None:
-        if self._fd is None:
-            return
-        with contextlib.suppress(OSError):
-            self.path.unlink()  # while still locked, so nobody holds a lock on a removed file
-        os.close(self._fd)
-        self._fd = None
 
 
 class PtyTransport(Transport):
@@ -235,7 +174,5 @@ class PtyTransport(Transport):
                     with contextlib.suppress(OSError):
                         os.close(fd)
             self._master = self._slave = None
-        with contextlib.suppress(OSError):
-            if self.link.is_symlink() and os.readlink(self.link) == self.device:
-                self.link.unlink()
+        remove_link(self.link, self.device)
         self._lock.release()

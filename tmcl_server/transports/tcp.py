@@ -18,6 +18,7 @@ from typing import Any, cast
 from tmcl_server.endpoints import parse_host_port
 from tmcl_server.platform import bytes_waiting, descriptor_limit
 from tmcl_server.simulation import Simulation
+from tmcl_server.transports.admission import Admission
 from tmcl_server.transports.base import (
     LinkMode,
     StreamSession,
@@ -87,63 +88,51 @@ def quiet_accept_errors(loop: asyncio.AbstractEventLoop) -> None:
     loop.set_exception_handler(handler)
 
 
-class _Activity:
-    """A count that goes up with every read on any connection: a connection's last value says
-    how recently its client spoke, without reading a clock on the per-frame path."""
-
-    __slots__ = ("count",)
-
-    def __init__(self) -> None:
-        self.count = 0
-
-
 class _TcpProtocol(asyncio.Protocol):
-    def __init__(self, simulation: Simulation, connections: set[_TcpProtocol],
-                 mode: LinkMode, limit: int, activity: _Activity) -> None:
+    __slots__ = ("_admission", "_mode", "_peer", "_session", "_simulation", "connected_at",
+                 "established", "last_heard", "transport")
+
+    def __init__(self, simulation: Simulation, admission: Admission, mode: LinkMode) -> None:
         self._simulation = simulation
-        self._connections = connections
+        self._admission = admission
         self._mode = mode
-        self._limit = limit
-        self._activity = activity
-        #: ``activity.count`` when this client last sent bytes (or connected).
-        self.last_heard = 0
+        #: Admission's bookkeeping (transports/admission.py).
+        self.connected_at = self.last_heard = 0.0
+        self.established = False
         self.transport: asyncio.Transport | None = None
         self._session: StreamSession | None = None
         self._peer = "?"
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        peer = transport.get_extra_info("peername")
-        self._peer = f"{peer[0]}:{peer[1]}" if peer else "?"
-        if len(self._connections) >= self._limit:
-            self._evict_idlest()
-        self._activity.count += 1
-        self.last_heard = self._activity.count
         # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
         self.transport = cast(asyncio.Transport, transport)
+        if not self._admission.admit(self):
+            self.transport = None
+            transport.close()
+            return
+        peer = transport.get_extra_info("peername")
+        self._peer = f"{peer[0]}:{peer[1]}" if peer else "?"
         disable_nagle(transport)
         self.transport.set_write_buffer_limits(high=MAX_WRITE_BUFFER, low=MAX_WRITE_BUFFER // 4)
         sock = transport.get_extra_info("socket")
         self._session = StreamSession(self._simulation, self.transport.write, asyncio.get_running_loop(),
-                                      self._mode, f"tcp {peer[0]}:{peer[1]}" if peer else "tcp",
+                                      self._mode, f"tcp {self._peer}",
                                       partial(bytes_waiting, sock.fileno()) if sock is not None else None)
-        self._connections.add(self)
 
-    def _evict_idlest(self) -> None:
-        """At the limit the client silent longest makes room (idle connections must not lock
-        a live host out; docs/robustness.md)."""
-        victim = min(self._connections, key=lambda c: c.last_heard)
-        log.warning("tcp: %d clients connected (--max-connections); closing %s, the one silent "
-                    "longest, for %s", len(self._connections), victim._peer, self._peer)
-        self._connections.discard(victim)
-        if victim.transport is not None:
-            victim.transport.close()
+    def shut(self) -> None:
+        """The admission gave this slot to a newcomer (it was silent, or never valid)."""
+        if self.transport is not None:
+            self.transport.close()
 
     def data_received(self, data: bytes) -> None:
-        if self._session is not None:  # None: closing
-            activity = self._activity
-            activity.count += 1
-            self.last_heard = activity.count
-            self._session.feed(data)
+        session = self._session
+        if session is None:  # closing
+            return
+        session.feed(data)
+        if self.established:
+            self.last_heard = self._admission.clock()
+        elif session.heard_valid:  # its first frame with a right checksum
+            self._admission.establish(self)
 
     def pause_writing(self) -> None:
         if self.transport is not None:
@@ -159,7 +148,7 @@ class _TcpProtocol(asyncio.Protocol):
         if self._session is not None:
             self._session.close()
             self._session = None
-        self._connections.discard(self)
+            self._admission.release(self)
         self.transport = None
 
 
@@ -174,11 +163,11 @@ class TcpTransport(Transport):
         self.simulation = simulation
         self.host, self.port = parse_host_port(address)
         self.mode = mode
-        #: Clients served at once; a new one past it closes the one silent longest.
+        #: Clients served at once; who gets a slot past it: transports/admission.py.
         self.max_connections = max_connections
         self._server: asyncio.Server | None = None
-        self.connections: set[_TcpProtocol] = set()
-        self._activity = _Activity()
+        self.connections = Admission(f"tcp {self.host}:{self.port} (--max-connections)",
+                                     max_connections, log)
 
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> TcpTransport:
@@ -192,10 +181,10 @@ class TcpTransport(Transport):
         loop = asyncio.get_running_loop()
         quiet_accept_errors(loop)
         self._server = await loop.create_server(
-            lambda: _TcpProtocol(self.simulation, self.connections, self.mode, self.max_connections,
-                                 self._activity),
+            lambda: _TcpProtocol(self.simulation, self.connections, self.mode),
             self.host, self.port, reuse_address=True)
         endpoints = listening_endpoints(self._server)
+        self.connections.name = f"tcp {endpoints[0]} (--max-connections)"
         descriptors = descriptor_limit()
         if descriptors is not None and self.max_connections + 32 > descriptors:
             log.warning("tcp %s: the descriptor limit (%d) is below --max-connections %d: "

@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterator
 import can
 import pytest
 
+from tests.conftest import RawClient as TcpClient
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Reply, Request, decode_can_reply
 from tmcl_spec.commands import Opcode, Status
@@ -287,3 +288,40 @@ def test_echo_to_a_client_that_never_reads_stays_bounded_and_loses_nothing(
         received += len(chunk)
     assert received == expected
     sock.close()
+
+
+def test_a_connection_flood_is_refused_past_the_limit_and_the_hosts_keep_working(
+        tmcl_sim_factory: Callable[..., SimulatorThread]) -> None:
+    """Issue 36, N2: socketcand had no connection limit (1,100 connections took every
+    descriptor and a TCP host's GAP got no reply).  Now ``--max-connections`` bounds it too:
+    a host that opened the bus keeps its slot, the newcomers past the limit are closed at once
+    without a greeting, counted, and the TCP host is served throughout."""
+    limit = 8
+    sim = tmcl_sim_factory(socketcand=["127.0.0.1:0"], tcp=["127.0.0.1:0"], max_connections=limit)
+    host = CanHost(sim)
+    tcp = TcpClient(sim.tcp)
+    flood: list[socket.socket] = []
+    try:
+        assert host.command(1, Opcode.GAP, AP.MAX_SPEED, 0).status == Status.OK
+        address, port = sim.endpoints["socketcand"][0].rsplit(":", 1)
+        greeted = refused = 0
+        for _ in range(3 * limit):
+            sock = socket.create_connection((address, int(port)), timeout=WAIT_S)
+            flood.append(sock)
+            sock.sendall(b"< hi")  # junk, never a valid command
+            try:
+                data = sock.recv(16)
+            except ConnectionResetError:
+                data = b""
+            greeted += data == b"< hi >"
+            refused += data == b""
+        assert (greeted, refused) == (limit - 1, 2 * limit + 1)
+        assert host.command(1, Opcode.GAP, AP.MAX_SPEED, 0).status == Status.OK
+        assert tcp.request(1, Opcode.GAP, AP.MAX_SPEED, 0).status == Status.OK
+        transport = _socketcand(sim)
+        assert sim.call(lambda: transport.connections.refused) == 2 * limit + 1  # type: ignore[attr-defined]
+    finally:
+        for sock in flood:
+            sock.close()
+        tcp.close()
+        host.close()

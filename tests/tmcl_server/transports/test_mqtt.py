@@ -54,6 +54,7 @@ async def probing(broker: Broker, **kwargs) -> AsyncIterator[Probe]:
 
 
 def start_sim(broker: Broker, **config) -> SimulatorThread:
+    config.setdefault("mqtt_commands", True)  # the remote TMCL host the tests play (N8: opt-in)
     cfg = ServerConfig(clock="virtual", mqtt_rate=50,
                        endpoints={"tcp": ["127.0.0.1:0"], "mqtt": [f"{broker.url}/rig/tmcl"]},
                        **config)

@@ -60,7 +60,7 @@ def test_the_outbox_bounds_events_and_replies_apart_and_keeps_the_latest_retaine
     assert not outbox.reply(message("r", 3))
     for n in range(4):
         outbox.retained(message("faults", n, retain=True))
-    assert outbox.dropped == {"events": 2, "replies": 1}
+    assert outbox.dropped == {"events": 2, "replies": 1, "requests": 0}
     assert len(outbox) == 3 + 3 + 1 and outbox.latest["faults"].payload == b"3"
     picked = outbox.batch(size=16)
     assert [(kind, m.payload) for kind, m in picked] == [
@@ -118,7 +118,7 @@ def test_while_the_broker_is_away_events_beyond_the_bound_are_dropped_and_counte
         tcp.close()
         broker.start()
         counts, delivered = asyncio.run(after_restart())
-        assert counts == {"events": dropped_now["events"], "replies": 0}
+        assert counts == {"events": dropped_now["events"], "replies": 0, "requests": 0}
         assert delivered == limit  # the ones kept, none lost beyond those counted
     finally:
         sim.stop()

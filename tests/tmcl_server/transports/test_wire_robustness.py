@@ -29,6 +29,7 @@ from tmcl_server.embed import SimulatorThread
 from tmcl_server.lograte import LIBRARY_LOGGERS, REPEATS, WIRE_LOGGERS, RepeatFilter
 from tmcl_server.loops import uvloop_available
 from tmcl_server.protocol import Request, decode_reply
+from tmcl_server.transports.admission import ESTABLISHED_IDLE_S, NEWCOMER_GRACE_S
 from tmcl_spec.commands import Opcode
 
 GAP = Request(1, Opcode.GAP, 4, 0, 0).encode()  # maximum speed: 51200 by default
@@ -269,49 +270,99 @@ def test_an_over_speed_ror_flood_logs_one_line(wire_log):
     assert len(beyond) == 1
 
 
-def test_at_the_connection_limit_a_new_client_closes_the_one_silent_longest(wire_log):
-    """Idle connections must not lock a live host out: past the limit the client that has
-    been silent longest is closed, the active ones keep their connections."""
+class _HeldClock:
+    """The admission's clock, moved by the test (no test waits a minute of idle time)."""
+
+    def __init__(self) -> None:
+        self.t = time.monotonic()
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _closed_at_once(sock: socket.socket) -> bool:
+    """Whether the server closed a fresh connection without a word (refused at the limit)."""
+    sock.settimeout(5)
+    try:
+        return sock.recv(9) == b""
+    except ConnectionResetError:
+        return True
+
+
+def test_at_the_limit_established_hosts_keep_their_slots_and_a_newcomer_is_refused(wire_log):
+    """Issue 36, N1: clients that sent a valid frame keep their connections; a newcomer past
+    the limit is refused (closed at once), counted and logged once; after ESTABLISHED_IDLE_S
+    of silence the quietest established client makes room for a newcomer."""
     limit = 6
+    clock = _HeldClock()
     with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], max_connections=limit) as sim:
+        admission = sim.server.transports[0].connections
+        sim.call(lambda: setattr(admission, "clock", clock))
         clients = [RawClient(sim.tcp) for _ in range(limit)]
         try:
             for client in clients:  # each served in turn: clients[0] is the one silent longest
                 assert client.request(1, Opcode.GAP, 4, 0).value == 51200
+            refused = socket.create_connection(_host_port(sim.tcp))
+            assert _closed_at_once(refused)
+            refused.close()
+            for client in clients:
+                assert client.request(1, Opcode.GAP, 4, 0).value == 51200
+            assert sim.call(lambda: (admission.refused, admission.evicted)) == (1, 0)
+            clock.t += ESTABLISHED_IDLE_S - 1  # all heard a little while ago: still refused
+            refused = socket.create_connection(_host_port(sim.tcp))
+            assert _closed_at_once(refused)
+            refused.close()
+            for client in clients[1:]:  # clients[0] stays silent for a minute
+                assert client.request(1, Opcode.GAP, 4, 0).value == 51200
+            clock.t += 1
             newcomer = RawClient(sim.tcp)
             clients.append(newcomer)
             assert newcomer.request(1, Opcode.GAP, 4, 0).value == 51200
-            clients[0].sock.settimeout(5)
-            assert clients[0].sock.recv(9) == b""  # closed: end of stream
+            assert _closed_at_once(clients[0].sock)
             for client in clients[1:]:
                 assert client.request(1, Opcode.GAP, 4, 0).value == 51200
         finally:
             for client in clients:
                 client.close()
-    evicted = [r for r in wire_log.records if "--max-connections" in r.getMessage()]
-    assert len(evicted) == 1 and "silent longest" in evicted[0].getMessage()
+    messages = [r.getMessage() for r in wire_log.records if "--max-connections" in r.getMessage()]
+    assert sum("refused" in m for m in messages) == 1  # the second refusal: rate-limited
+    assert sum("silent for 60.0 s" in m for m in messages) == 1, messages
 
 
-def test_600_idle_connections_at_the_256_limit_do_not_lock_a_live_host_out(wire_log):
-    """The issue's case: a host polls while 600 idle connections come; every one of its
-    requests is answered, and a host that connects afterwards is served at once."""
+def test_a_flood_of_connections_never_evicts_an_established_host(wire_log):
+    """Issue 36, N1: a host that polls (once per 300 connections here) while 600 connections
+    arrive, each sending one byte and never a frame: every poll answered (the code before
+    closed the host as soon as 256 newer sockets had said anything); the flood's newcomers
+    are refused while they are young, and past NEWCOMER_GRACE_S the oldest of them makes room
+    for a host that connects late."""
+    clock = _HeldClock()
     with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"]) as sim:
+        admission = sim.server.transports[0].connections
+        sim.call(lambda: setattr(admission, "clock", clock))
         host = RawClient(sim.tcp)
-        idle: list[socket.socket] = []
+        assert host.request(1, Opcode.GAP, 4, 0).value == 51200
+        flood: list[socket.socket] = []
         try:
             for n in range(600):
-                idle.append(socket.create_connection(_host_port(sim.tcp)))
-                if n % 20 == 0:
+                sock = socket.create_connection(_host_port(sim.tcp))
+                with contextlib.suppress(OSError):
+                    sock.sendall(b"\x01")
+                flood.append(sock)
+                if n % 300 == 299:  # 300 newer sockets have spoken since the last poll
                     assert host.request(1, Opcode.GAP, 4, 0).value == 51200
-            late = RawClient(sim.tcp)
-            assert late.request(1, Opcode.GAP, 4, 0).value == 51200
-            assert host.request(1, Opcode.GAP, 4, 0).value == 51200
+            late = socket.create_connection(_host_port(sim.tcp))
+            assert _closed_at_once(late)  # every newcomer is under a second old: refused
             late.close()
-            served = sim.call(lambda: len(sim.server.transports[0].connections))
-            assert served <= 256
+            clock.t += NEWCOMER_GRACE_S
+            late_host = RawClient(sim.tcp)
+            assert late_host.request(1, Opcode.GAP, 4, 0).value == 51200
+            assert host.request(1, Opcode.GAP, 4, 0).value == 51200
+            late_host.close()
+            served, refused = sim.call(lambda: (len(admission), admission.refused))
+            assert served <= 256 and refused >= 600 - 255
         finally:
             host.close()
-            for sock in idle:
+            for sock in flood:
                 sock.close()
     assert sum("--max-connections" in r.getMessage() for r in wire_log.records) <= 2  # rate-limited
 

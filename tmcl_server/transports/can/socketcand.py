@@ -21,9 +21,10 @@ from typing import cast
 import can
 
 from tmcl_server.endpoints import parse_host_port
+from tmcl_server.transports.admission import Admission
 from tmcl_server.transports.base import Transport, TransportHost
 from tmcl_server.transports.can.bus import SimulatedCanBus
-from tmcl_server.transports.tcp import disable_nagle, listening_endpoints
+from tmcl_server.transports.tcp import DEFAULT_MAX_CONNECTIONS, disable_nagle, listening_endpoints
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +88,10 @@ class SocketcandClient(asyncio.Protocol):
 
     def __init__(self, server: SocketcandTransport) -> None:
         self.server = server
+        #: Admission's bookkeeping (transports/admission.py): established by a valid command.
+        self.connected_at = self.last_heard = 0.0
+        self.established = False
+        self._admitted = False
         self.bus: SimulatedCanBus = server.bus
         self.mode = Mode.NO_BUS
         self.transport: asyncio.Transport | None = None
@@ -102,6 +107,10 @@ class SocketcandClient(asyncio.Protocol):
     # -- connection ---------------------------------------------------------------------------
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        if not self.server.connections.admit(self):
+            transport.close()
+            return
+        self._admitted = True
         # not an isinstance check: uvloop's transports are not asyncio.Transport subclasses
         self.transport = cast(asyncio.Transport, transport)
         disable_nagle(transport)
@@ -111,9 +120,18 @@ class SocketcandClient(asyncio.Protocol):
         self.transport.write(HI)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self.bus.detach(self)
-        self.server.clients.discard(self)
+        if self._admitted:
+            self._admitted = False
+            self.server.connections.release(self)
+            self.bus.detach(self)
+            self.server.clients.discard(self)
         self.transport = None
+
+    def shut(self) -> None:
+        """The admission gave this slot to a newcomer."""
+        self.bus.detach(self)
+        if self.transport is not None:
+            self.transport.close()
 
     def _write(self, data: bytes) -> None:
         if self.transport is not None and not self.transport.is_closing():
@@ -134,6 +152,10 @@ class SocketcandClient(asyncio.Protocol):
     # -- client -> bus ------------------------------------------------------------------------
 
     def data_received(self, data: bytes) -> None:
+        if not self._admitted:
+            return
+        if self.established:
+            self.last_heard = self.server.connections.clock()
         buffer = self._buffer
         buffer += data
         while buffer and not self._output_full:
@@ -188,6 +210,8 @@ class SocketcandClient(asyncio.Protocol):
         configuring = len(tokens) >= 2 and tokens[1] in ("B", "C")  # < NAME B|C settings.. >
         if opening or configuring:
             name = tokens[1] if opening else command
+            if name == self.bus.name:  # a valid command: the client keeps its slot
+                self.server.connections.establish(self)
             if name != self.bus.name:
                 self.stats["refused"] += 1
                 self._write(CANNOT_OPEN)
@@ -237,22 +261,28 @@ class SocketcandClient(asyncio.Protocol):
 class SocketcandTransport(Transport):
     kind = "socketcand"
 
-    def __init__(self, bus: SimulatedCanBus, address: str) -> None:
+    def __init__(self, bus: SimulatedCanBus, address: str,
+                 max_connections: int = DEFAULT_MAX_CONNECTIONS) -> None:
         self.host, self.port = parse_host_port(address)
         self.bus = bus
         self.clients: set[SocketcandClient] = set()
+        #: Who gets a slot at ``--max-connections`` (transports/admission.py; issue 36, N2).
+        self.connections = Admission(f"socketcand {address} (--max-connections)",
+                                     max_connections, log)
         self.stats: Counter[str] = Counter()
         self._server: asyncio.Server | None = None
 
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> SocketcandTransport:
-        return cls(host.can_bus(), argument)
+        return cls(host.can_bus(), argument, host.option("max_connections"))
 
     async def start(self) -> list[str]:
         loop = asyncio.get_running_loop()
         self._server = await loop.create_server(lambda: SocketcandClient(self), self.host,
                                                 self.port, reuse_address=True)
-        return listening_endpoints(self._server)
+        endpoints = listening_endpoints(self._server)
+        self.connections.name = f"socketcand {endpoints[0]} (--max-connections)"
+        return endpoints
 
     async def close(self) -> None:
         if self._server is None:

@@ -37,14 +37,16 @@ from urllib.parse import unquote, urlsplit
 import aiomqtt
 from paho.mqtt.packettypes import PacketTypes
 from paho.mqtt.properties import Properties
+from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from tmcl_server.delivery import Delivery
 from tmcl_server.dispatch import Interface
 from tmcl_server.faults import FaultInjector, FaultSpecError
-from tmcl_server.module import ModuleEvent, TMCLModule
+from tmcl_server.module import READ_ONLY_OPCODES, ModuleEvent, TMCLModule
 from tmcl_server.protocol import FRAME_LENGTH, ChecksumError, Reply, decode_request
 from tmcl_server.sidechannel import SideChannel
 from tmcl_server.simulation import Simulation
+from tmcl_server.transports.admission import Pace
 from tmcl_server.transports.base import Transport, TransportHost
 from tmcl_server.transports.mqtt import DEFAULT_RATE_HZ
 from tmcl_server.transports.mqtt.fault_topics import FAULT_TOPICS, apply_fault_message
@@ -65,6 +67,21 @@ MAX_QUEUED = 10_000
 #: Messages sent to the broker before their acknowledgements are awaited together (QoS 1):
 #: one at a time, a broker's round trip limits the bridge to a few hundred a second.
 IN_FLIGHT = 16
+#: Messages from the broker (requests, sim topics) waiting to be handled, at most this many;
+#: past it a message is refused, counted (``requests`` on PREFIX/dropped) and logged at a
+#: bounded rate (issue 36, N3: 20,000 requests at once took 130 MB, 50,000 starved the hosts).
+MAX_INBOX = 1_000
+#: ... and handled at most this many a second (bursts of INBOX_BURST), each followed by a
+#: turn of the event loop: a flood of MQTT requests leaves the TCP hosts their share.
+INBOX_RATE, INBOX_BURST = 1_000.0, 100
+#: Retained messages are never taken as commands (issue 36, N4): the broker sends none on
+#: these topics at subscription (MQTT 5 Retain Handling 2), and one it sends anyway is dropped.
+NO_RETAINED = SubscribeOptions(qos=1, retainHandling=SubscribeOptions.RETAIN_DO_NOT_SEND)
+
+
+#: The answer to a command that changes the module while --mqtt-commands is off.
+COMMANDS_OFF = ("commands that change the module are off over MQTT (only GAP, GGP, GIO and "
+                "the version are served): start tmcl-server with --mqtt-commands to allow them")
 
 
 @dataclass(frozen=True)
@@ -121,8 +138,9 @@ class Outbox:
         self.replies: deque[_Outgoing] = deque()
         self.events: deque[_Outgoing] = deque()
         self.latest: dict[str, _Outgoing] = {}
-        #: Messages dropped so far, by kind (published on PREFIX/dropped).
-        self.dropped = {"events": 0, "replies": 0}
+        #: Messages dropped so far, by kind (published on PREFIX/dropped); ``requests``: messages
+        #: from the broker refused because the inbox was full.
+        self.dropped = {"events": 0, "replies": 0, "requests": 0}
         self.ready = asyncio.Event()
 
     def __len__(self) -> int:
@@ -237,7 +255,8 @@ class MqttBridge(Transport):
     kind = "mqtt"
 
     def __init__(self, simulation: Simulation, url: str, rate_hz: float = DEFAULT_RATE_HZ,
-                 connect_timeout: float = 5.0, allow_faults: bool = False) -> None:
+                 connect_timeout: float = 5.0, allow_faults: bool = False,
+                 allow_commands: bool = False) -> None:
         if rate_hz <= 0:
             raise ValueError("--mqtt-rate must be positive")
         self.simulation = simulation
@@ -247,7 +266,15 @@ class MqttBridge(Transport):
         #: ``--mqtt-faults``: whether ``sim/fault`` and ``sim/power_cycle`` are served (every
         #: client of the broker could otherwise silence or reset the module).
         self.allow_faults = allow_faults
+        #: ``--mqtt-commands``: whether requests that change the module (anything but GAP,
+        #: GGP, GIO and the version) are served (issue 36, N8: every client of the broker
+        #: could otherwise reconfigure, reprogram or factory-reset the module).
+        self.allow_commands = allow_commands
         self.outbox = Outbox()
+        #: Messages from the broker not acted on: ``retained`` (never a command),
+        #: ``commands`` (without --mqtt-commands); a full inbox counts in outbox.dropped.
+        self.refused = {"retained": 0, "commands": 0}
+        self._inbox_pace = Pace(INBOX_RATE, INBOX_BURST)
         #: The dropped counts last queued for PREFIX/dropped.
         self._dropped_shown: dict[str, int] | None = None
         self._connected = asyncio.Event()
@@ -261,7 +288,8 @@ class MqttBridge(Transport):
     @classmethod
     def build(cls, host: TransportHost, argument: str) -> MqttBridge:
         return cls(host.simulation, argument, rate_hz=host.option("mqtt_rate"),
-                   allow_faults=bool(host.option("mqtt_faults")))
+                   allow_faults=bool(host.option("mqtt_faults")),
+                   allow_commands=bool(host.option("mqtt_commands")))
 
     @property
     def status_topic(self) -> str:
@@ -323,12 +351,33 @@ class MqttBridge(Transport):
             protocol=aiomqtt.ProtocolVersion.V5,
             will=aiomqtt.Will(self.status_topic, b"offline", qos=1, retain=True),
             tls_context=tls_context, keepalive=10, timeout=5,
+            queue_type=self._inbox_type(), max_queued_incoming_messages=MAX_INBOX,
             # small request/reply messages: Nagle + delayed ACK would add ~40 ms each way
             socket_options=[(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)])
         # IN_FLIGHT publications (and the state's) await their acknowledgements at once: not a
         # "concerning number of pending calls" for aiomqtt to warn about
         client.pending_calls_threshold = 2 * IN_FLIGHT + len(self._feeds) + 8
         return client
+
+    def _inbox_type(self) -> type[asyncio.Queue[aiomqtt.Message]]:
+        """aiomqtt's queue of received messages, bounded (MAX_INBOX): a message past it is
+        refused and counted here instead of vanishing with aiomqtt's own log line."""
+        bridge = self
+
+        class Inbox(asyncio.Queue[aiomqtt.Message]):
+            def put_nowait(self, item: aiomqtt.Message) -> None:
+                if self.full():
+                    bridge._inbox_full(item)
+                    return
+                super().put_nowait(item)
+
+        return Inbox
+
+    def _inbox_full(self, message: aiomqtt.Message) -> None:
+        self.outbox.dropped["requests"] += 1
+        log.warning("MQTT: %d messages wait to be handled (the limit); %s refused (%d so far, "
+                    "counted on PREFIX/dropped)", MAX_INBOX, message.topic.value,
+                    self.outbox.dropped["requests"])
 
     async def _run(self) -> None:
         backoff = BACKOFF_START_S
@@ -338,8 +387,8 @@ class MqttBridge(Transport):
                     backoff = BACKOFF_START_S
                     await self._session(client)
             except Exception as exc:  # MqttError, or a group of them from the session's tasks
-                log.info("MQTT connection to %s lost (%s); retrying in %.1f s",
-                         self.settings.display, exc, backoff)
+                log.warning("MQTT connection to %s lost (%s); reconnecting in %.1f s",
+                            self.settings.display, exc, backoff)
             finally:
                 self._connected.clear()
             await asyncio.sleep(backoff)
@@ -347,8 +396,8 @@ class MqttBridge(Transport):
 
     async def _session(self, client: aiomqtt.Client) -> None:
         prefix = self.settings.prefix
-        await client.subscribe(f"{prefix}/+/request", qos=1)
-        await client.subscribe(f"{prefix}/+/sim/#", qos=1)
+        await client.subscribe(f"{prefix}/+/request", options=NO_RETAINED)
+        await client.subscribe(f"{prefix}/+/sim/#", options=NO_RETAINED)
         await client.publish(self.status_topic, b"online", qos=1, retain=True)
         for feed in self._feeds:
             feed.last_state = None  # the broker may have lost it: publish afresh
@@ -433,6 +482,11 @@ class MqttBridge(Transport):
             feed = self._feed(parts[0] if parts else "")
             if feed is None:
                 continue
+            if message.retain:  # a command left on the broker: never acted on again
+                self.refused["retained"] += 1
+                log.warning("MQTT: a retained message on %s ignored: commands are never taken "
+                            "from retained messages (docs/mqtt.md, Security)", message.topic.value)
+                continue
             payload = message.payload if isinstance(message.payload, bytes) else (
                 str(message.payload).encode() if message.payload is not None else b"")
             try:
@@ -442,6 +496,8 @@ class MqttBridge(Transport):
                     self._handle_sim(feed, parts[2:], payload)
             except Exception:  # one bad message must never end the session
                 log.exception("MQTT message on %s failed", message.topic.value)
+            await self._inbox_pace.turn()
+            await asyncio.sleep(0)  # a flood waits in the bounded inbox; the hosts go first
 
     def _feed(self, address: str) -> _ModuleFeed | None:
         for feed in self._feeds:
@@ -473,6 +529,13 @@ class MqttBridge(Transport):
                     self.simulation.tracer.bad_checksum(payload, route, [(feed.module, refusal)])
                 route.send(refusal)
                 return
+        if not self.allow_commands and request.opcode not in READ_ONLY_OPCODES:
+            self.refused["commands"] += 1
+            log.warning("MQTT: a command that changes the module refused on %s/request "
+                        "(--mqtt-commands is off)", feed.base)
+            self.enqueue(_Outgoing(topic, json.dumps({"error": COMMANDS_OFF}).encode(),
+                                   correlation=correlation))
+            return
         for _, reply in self.simulation.execute_on([feed.module], request, Interface.SERIAL,
                                                    route):
             route.send(reply)
