@@ -14,6 +14,7 @@ the module's input stage and the mechanics of the world (``axes/board.py``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from enum import IntEnum
 from typing import TYPE_CHECKING, Protocol, Self
 
@@ -259,6 +260,16 @@ class ChipDriver(ABC):
             return self.actual_speed()
         finally:
             self.chip = own
+
+    def speed_turns(self, start: ChipModel) -> Callable[[ChipModel], bool] | None:
+        """How far AP 3 moves one way from ``start`` (a look-ahead copy of its own chip, in
+        velocity mode, nothing intervening): a test of a later copy of ``start``, true once
+        the speed may have turned (moved one way, then the other) by that copy's tick, false
+        before (so false, then true: loop skipping bisects a rotation's speed only where it
+        is false, axes/forecast.py F4).  None, the default, is a linear ramp's answer: it
+        only heads for the speed asked for, it never turns.  A chip whose ramps bend
+        (S-shaped) says where they may."""
+        return None
 
     @abstractmethod
     def levels(self) -> tuple[bool, bool, bool]:

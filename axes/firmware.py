@@ -589,10 +589,10 @@ class AxisFirmware(RiggedAxis):
             number = self._keys.get(number, number)
         return self.forecast.steady_until(number)
 
-    def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
+    def first_time_at(self, number: int, values: tuple[int, ...], read_ns: int) -> int:
         if self._keys:
             number = self._keys.get(number, number)
-        return self.forecast.first_time_at(number, values)
+        return self.forecast.first_time_at(number, values, read_ns)
 
     def in_velocity_mode(self) -> bool:
         """Velocity mode (ROR, ROL, MST) with no reference search: the speed only ever moves

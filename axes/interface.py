@@ -148,11 +148,12 @@ class AxisControl(ABC):
         (docs/scheduling.md); a core that cannot tell answers 0 and is stepped."""
         return 0
 
-    def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
-        """The first time GAP ``number`` answers one of ``values`` (a value that moves by single
-        steps, such as the actual position), or a time before which it surely does not; 0 when
-        the core cannot tell.  A loop comparing a moving position with a threshold jumps to
-        the pass where the comparison flips with it."""
+    def first_time_at(self, number: int, values: tuple[int, ...], read_ns: int) -> int:
+        """For GAP ``number`` read at ``read_ns`` (a moving value that :meth:`steady_until`
+        was asked about right after the read, such as the actual position): the first time
+        it compares otherwise with one of ``values`` than it did then, or a time before
+        which it surely does not; 0 when the core cannot tell.  A loop comparing a moving
+        position with a threshold jumps to the pass where the comparison flips with it."""
         return 0
 
     def start_firmware_clock(self, clock: FirmwareClock, origin_ns: int, axes: int) -> None:

@@ -21,9 +21,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from axes.chips.tmc42x.engine import MASK24, MotorReg, datagram
-from axes.chips.tmc42x.tmc429 import TMC429, GlobalReg, motor_address
-from axes.chips.tmc42x.tmc4210 import EN_SD, TMC4210, Reg
+from axes.chips.tmc42x.registers import MASK24, Reg, datagram
+from axes.chips.tmc42x.tmc429 import TMC429, motor_address
+from axes.chips.tmc42x.tmc4210 import EN_SD, TMC4210
 from axes.chips.tmc42x.units import (
     choose_pulse_div,
     choose_ramp_div,
@@ -40,23 +40,23 @@ HORIZON_NS = 4_000_000_000
 NS_PER_HOUR = 3600 * 1_000_000_000
 
 
-def registers(clock_hz: int) -> dict[MotorReg, int]:
+def registers(clock_hz: int) -> dict[Reg, int]:
     """The axis registers a firmware layer writes for SPEED and ACCELERATION."""
     pulse_div = choose_pulse_div(SPEED, clock_hz)
     ramp_div, a_max = choose_ramp_div(ACCELERATION, pulse_div, clock_hz)
     pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div)
     v_max = velocity_register(SPEED, pulse_div, clock_hz)
-    return {MotorReg.V_MIN: stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div),
-            MotorReg.V_MAX: v_max,
-            MotorReg.A_MAX: a_max, MotorReg.PMUL_PDIV: pmul << 8 | pdiv,
-            MotorReg.DIVIDERS: pulse_div << 12 | ramp_div << 8}
+    return {Reg.V_MIN: stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div),
+            Reg.V_MAX: v_max,
+            Reg.A_MAX: a_max, Reg.PMUL_PDIV: pmul << 8 | pdiv,
+            Reg.DIVIDERS: pulse_div << 12 | ramp_div << 8}
 
 
 def loop(axis, address_of, hours: float) -> tuple[int, object]:
     """Drive one axis (a ChipModel with adopt) for ``hours``; returns (moves, final model)."""
     end = axis.ticks_at(round(hours * NS_PER_HOUR))
     target = DISTANCE
-    axis.spi(datagram(address_of(MotorReg.X_TARGET), target & MASK24))
+    axis.spi(datagram(address_of(Reg.X_TARGET), target & MASK24))
     moves = 0
     while axis.t < end:
         twin = axis.clone()
@@ -66,7 +66,7 @@ def loop(axis, address_of, hours: float) -> tuple[int, object]:
         if stop is Stop.ARRIVED:
             moves += 1
             target = -target
-            axis.spi(datagram(address_of(MotorReg.X_TARGET), target & MASK24))
+            axis.spi(datagram(address_of(Reg.X_TARGET), target & MASK24))
     return moves, axis
 
 
@@ -87,7 +87,7 @@ def bench_tmc4210(hours: float) -> tuple[float, int]:
 def bench_tmc429(hours: float) -> tuple[float, int]:
     """One TMC429, three motors, each driven through its own per-motor view."""
     chip = TMC429()
-    chip.write(GlobalReg.IF_CONFIGURATION, 1 << 5)  # en_sd: Step/Dir, as on the TMCL modules
+    chip.write(Reg.IF_CONFIGURATION, 1 << 5)  # en_sd: Step/Dir, as on the TMCL modules
     for index in range(3):
         for reg, value in registers(chip.clock_hz).items():
             chip.write(motor_address(index, reg), value)

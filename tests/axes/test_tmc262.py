@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from axes.chips.tmc42x.engine import MotorReg
+from axes.chips.tmc42x.registers import Reg
 from axes.chips.tmc42x.tmc262 import (
     SG_PER_SGT,
     STANDSTILL_CLOCKS,
@@ -20,7 +20,7 @@ from axes.chips.tmc42x.tmc262 import (
     ReadSelect,
     drv_datagram,
 )
-from axes.chips.tmc42x.tmc429 import EN_SD, TMC429, GlobalReg
+from axes.chips.tmc42x.tmc429 import EN_SD, TMC429
 from axes.core import Stop
 from axes.world import DEFAULT_LOAD
 
@@ -210,21 +210,21 @@ class LoadedBoard:
 def test_a_tmc262_on_a_tmc429_motor_in_step_dir_mode() -> None:
     driver = TMC262()
     chip = TMC429(boards=[None, LoadedBoard()], drivers=[None, driver])
-    chip.write(GlobalReg.IF_CONFIGURATION, EN_SD)
+    chip.write(Reg.IF_CONFIGURATION, EN_SD)
     driver.spi(drv_datagram(DrvReg.DRVCONF, ReadSelect.SG << 4))  # the MCU's own SPI to the driver
     driver.spi(drv_datagram(DrvReg.DRVCTRL, 8))  # full step: every step is a full step
     motor = chip.motor(1)
-    motor.write(MotorReg.V_MIN, 10)
-    motor.write(MotorReg.V_MAX, 1000)
-    motor.write(MotorReg.A_MAX, 500)
-    motor.write(MotorReg.X_TARGET, 1500)
+    motor.write(Reg.V_MIN, 10)
+    motor.write(Reg.V_MAX, 1000)
+    motor.write(Reg.A_MAX, 500)
+    motor.write(Reg.X_TARGET, 1500)
     motor.run(2_000)
     assert 0 < motor.motor_position < 1500 and driver.spi(0) == 800 << 10
     assert motor.run(10**7) is Stop.ARRIVED
     assert not driver.spi(0) & DriverFlag.STST  # just stopped
     motor.run(motor.t + STANDSTILL_CLOCKS // 32)
     assert driver.spi(0) == 800 << 10 | DriverFlag.STST
-    motor.write(MotorReg.X_TARGET, 3000)
+    motor.write(Reg.X_TARGET, 3000)
     assert motor.run(10**8) is Stop.ARRIVED
     motor.run(motor.t + STANDSTILL_CLOCKS // 32)
     assert driver.spi(0) == DriverFlag.SG | DriverFlag.STST  # stalled zone, and at rest again

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from axes.chips.tmc42x.engine import MASK24, Irq, MotorReg, RampMode, datagram, signed
+from axes.chips.tmc42x.registers import AXIS_REGISTERS, MASK24, Irq, RampMode, Reg, datagram, signed
 from axes.chips.tmc42x.tmc429 import (
     EN_REFR,
     EN_SD,
@@ -24,7 +24,6 @@ from axes.chips.tmc42x.tmc429 import (
     SDO_INT,
     TMC429,
     TYPE_VERSION,
-    GlobalReg,
     StaleTwin,
     TMC429Motor,
     motor_address,
@@ -43,24 +42,24 @@ IDLE_STATUS = 0x15  # no INT, no CDGW, no switch, all three motors at target
 
 
 def status(chip: TMC429) -> int:
-    return chip.spi(datagram(GlobalReg.TYPE_VERSION, read=True)) >> 24
+    return chip.spi(datagram(Reg.TYPE_VERSION, read=True)) >> 24
 
 
 def configure(motor: TMC429Motor, *, v_max: int, a_max: int, pulse_div: int, ramp_div: int,
               v_min: int | None = None, mode: RampMode = RampMode.RAMP) -> None:
     pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
-    motor.write(MotorReg.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div)
+    motor.write(Reg.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div)
                 if v_min is None else v_min)
-    motor.write(MotorReg.V_MAX, v_max)
-    motor.write(MotorReg.A_MAX, a_max)
-    motor.write(MotorReg.PMUL_PDIV, pmul << 8 | pdiv)
-    motor.write(MotorReg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
-    motor.write(MotorReg.REF_CONF_RAMP_MODE, mode)
+    motor.write(Reg.V_MAX, v_max)
+    motor.write(Reg.A_MAX, a_max)
+    motor.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
+    motor.write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
+    motor.write(Reg.REF_CONF_RAMP_MODE, mode)
 
 
 def step_dir_chip(**kwargs) -> TMC429:
     chip = TMC429(**kwargs)
-    chip.write(GlobalReg.IF_CONFIGURATION, EN_SD)
+    chip.write(Reg.IF_CONFIGURATION, EN_SD)
     return chip
 
 
@@ -70,11 +69,11 @@ def step_dir_chip(**kwargs) -> TMC429:
 def test_power_on_values_and_idle_status() -> None:
     chip = TMC429()
     assert chip.spi(0x73000000) == IDLE_STATUS << 24 | TYPE_VERSION  # JDX %1001: $429101
-    assert chip.read(GlobalReg.SMGP) == 0x000F00  # CLK2_DIV = 15, LSMD = 0 (SPI mode, one driver)
-    assert chip.read(GlobalReg.IF_CONFIGURATION) == 0  # en_sd = 0: SPI driver chain
+    assert chip.read(Reg.SMGP) == 0x000F00  # CLK2_DIV = 15, LSMD = 0 (SPI mode, one driver)
+    assert chip.read(Reg.IF_CONFIGURATION) == 0  # en_sd = 0: SPI driver chain
     for motor in range(3):
-        for reg in MotorReg:
-            expected = 0x8000 if reg == MotorReg.PMUL_PDIV else 0  # PMUL bit 15 reads 1
+        for reg in AXIS_REGISTERS:
+            expected = 0x8000 if reg == Reg.PMUL_PDIV else 0  # PMUL bit 15 reads 1
             assert chip.read(motor_address(motor, reg)) == expected, (motor, reg.name)
     # RAM: the driver-chain configuration and the sine table, two 6-bit words per address
     assert chip.read(0x40) == POR_CHAIN_WORDS[1] << 8 | POR_CHAIN_WORDS[0]
@@ -85,40 +84,40 @@ def test_power_on_values_and_idle_status() -> None:
 
 def test_address_map_and_digest_examples() -> None:
     chip = TMC429()
-    assert motor_address(1, MotorReg.X_ACTUAL) << 1 | 1 == 0x23  # motor 2 X_ACTUAL read, first byte
-    assert GlobalReg.SMGP << 1 == 0x7E
+    assert motor_address(1, Reg.X_ACTUAL) << 1 | 1 == 0x23  # motor 2 X_ACTUAL read, first byte
+    assert Reg.SMGP << 1 == 0x7E
     assert chip.spi(0x1A000123) == IDLE_STATUS << 24  # a write answers status + 24 zero bits
     assert chip.spi(0x1B000000) == IDLE_STATUS << 24 | 0x000123  # motor 1 DX_REF_TOLERANCE
     assert chip.spi(0xFE002321) == IDLE_STATUS << 24  # RAM words 126 and 127
     assert chip.spi(0xFF000000) & MASK24 == 0x2321
     assert chip.ram[126:] == [0b100001, 0b100011]
     with pytest.raises(ValueError):
-        motor_address(3, MotorReg.X_TARGET)
+        motor_address(3, Reg.X_TARGET)
 
 
 @pytest.mark.parametrize(("reg", "written", "read_back"), [
-    (MotorReg.V_MAX, 0xFFF, 0x7FF),
-    (MotorReg.V_TARGET, 0xFFFF9C, 0xF9C),
-    (MotorReg.A_THRESHOLD, 0xFFFFFF, 0x7777FF),  # IS_AGTAT, IS_ALEAT, IS_V0, 11-bit threshold
-    (MotorReg.PMUL_PDIV, 0x007A0F, 0xFA0F),
-    (MotorReg.DIVIDERS, 0xFFFFFF, 0xFF07),
-    (MotorReg.USTEP_COUNT, 0x1FF, 0xFF),  # R/W: writes set the sequencer pointer
-    (MotorReg.DX_REF_TOLERANCE, 0xFFFFFF, 0xFFF),
+    (Reg.V_MAX, 0xFFF, 0x7FF),
+    (Reg.V_TARGET, 0xFFFF9C, 0xF9C),
+    (Reg.A_THRESHOLD, 0xFFFFFF, 0x7777FF),  # IS_AGTAT, IS_ALEAT, IS_V0, 11-bit threshold
+    (Reg.PMUL_PDIV, 0x007A0F, 0xFA0F),
+    (Reg.DIVIDERS, 0xFFFFFF, 0xFF07),
+    (Reg.USTEP_COUNT, 0x1FF, 0xFF),  # R/W: writes set the sequencer pointer
+    (Reg.DX_REF_TOLERANCE, 0xFFFFFF, 0xFFF),
 ])
 @pytest.mark.parametrize("motor", [0, 1, 2])
-def test_axis_register_widths(motor: int, reg: MotorReg, written: int, read_back: int) -> None:
+def test_axis_register_widths(motor: int, reg: Reg, written: int, read_back: int) -> None:
     chip = TMC429()
     chip.write(motor_address(motor, reg), written)
     assert chip.read(motor_address(motor, reg)) == read_back
 
 
 @pytest.mark.parametrize(("reg", "written", "read_back"), [
-    (GlobalReg.IF_CONFIGURATION, 0xFFFFFF, 0x1FF),
-    (GlobalReg.SMGP, 0xFFFFFF, 0x31FFFF),
-    (GlobalReg.POS_COMP, 0xFFFFFF, 0xFFFFFF),
-    (GlobalReg.COVER_DATAGRAM, 0xABCDEF, 0xABCDEF),
+    (Reg.IF_CONFIGURATION, 0xFFFFFF, 0x1FF),
+    (Reg.SMGP, 0xFFFFFF, 0x31FFFF),
+    (Reg.POS_COMP, 0xFFFFFF, 0xFFFFFF),
+    (Reg.COVER_DATAGRAM, 0xABCDEF, 0xABCDEF),
 ])
-def test_global_register_widths(reg: GlobalReg, written: int, read_back: int) -> None:
+def test_global_register_widths(reg: Reg, written: int, read_back: int) -> None:
     chip = step_dir_chip()  # no chain: a cover datagram stays waiting
     chip.write(reg, written)
     assert chip.read(reg) == read_back
@@ -126,52 +125,52 @@ def test_global_register_widths(reg: GlobalReg, written: int, read_back: int) ->
 
 def test_read_only_and_unused_global_registers() -> None:
     chip = TMC429()
-    for address in (GlobalReg.TYPE_VERSION, GlobalReg.REFERENCE_SWITCHES, 0x37, 0x3A, 0x3D):
+    for address in (Reg.TYPE_VERSION, Reg.REFERENCE_SWITCHES, 0x37, 0x3A, 0x3D):
         chip.write(address, 0x123456)
-    assert chip.read(GlobalReg.TYPE_VERSION) == TYPE_VERSION
-    assert chip.read(GlobalReg.REFERENCE_SWITCHES) == 0
+    assert chip.read(Reg.TYPE_VERSION) == TYPE_VERSION
+    assert chip.read(Reg.REFERENCE_SWITCHES) == 0
     assert chip.read(0x37) == chip.read(0x3A) == 0
 
 
-_axis_write = st.tuples(st.sampled_from(list(MotorReg)), st.integers(0, MASK24))
+_axis_write = st.tuples(st.sampled_from(list(AXIS_REGISTERS)), st.integers(0, MASK24))
 
 
 @settings(max_examples=60, deadline=None)
 @given(motor=st.integers(0, 2), writes=st.lists(_axis_write, min_size=1, max_size=12))
-def test_writes_to_one_motor_never_touch_another(motor: int, writes: list[tuple[MotorReg, int]]) -> None:
+def test_writes_to_one_motor_never_touch_another(motor: int, writes: list[tuple[Reg, int]]) -> None:
     chip = TMC429()
     for other in range(3):  # distinct contents everywhere first
-        chip.write(motor_address(other, MotorReg.X_TARGET), 1000 + other)
-        chip.write(motor_address(other, MotorReg.V_MAX), 10 + other)
-    before = {(m, r): chip.read(motor_address(m, r)) for m in range(3) for r in MotorReg if m != motor}
+        chip.write(motor_address(other, Reg.X_TARGET), 1000 + other)
+        chip.write(motor_address(other, Reg.V_MAX), 10 + other)
+    before = {(m, r): chip.read(motor_address(m, r)) for m in range(3) for r in AXIS_REGISTERS if m != motor}
     for reg, value in writes:
         chip.write(motor_address(motor, reg), value)
-    after = {(m, r): chip.read(motor_address(m, r)) for m in range(3) for r in MotorReg if m != motor}
+    after = {(m, r): chip.read(motor_address(m, r)) for m in range(3) for r in AXIS_REGISTERS if m != motor}
     assert after == before
     assert chip.motor(motor).writes == len(writes) + 2
 
 
 def test_status_byte_layout() -> None:
     chip = TMC429()
-    chip.write(motor_address(1, MotorReg.X_TARGET), 7)  # motor 2 not at target: xEQt2 (bit 2) clear
+    chip.write(motor_address(1, Reg.X_TARGET), 7)  # motor 2 not at target: xEQt2 (bit 2) clear
     assert status(chip) == IDLE_STATUS & ~0x04
     chip.motor(2).set_pins(True, False)  # motor 3's left switch: RS3 (bit 5)
     assert status(chip) == (IDLE_STATUS & ~0x04) | 0x20
-    chip.write(GlobalReg.IF_CONFIGURATION, INV_REF)  # every input inverted: RS1, RS2 active, RS3 not
+    chip.write(Reg.IF_CONFIGURATION, INV_REF)  # every input inverted: RS1, RS2 active, RS3 not
     assert status(chip) == (IDLE_STATUS & ~0x04) | 0x02 | 0x08
-    chip.write(motor_address(2, MotorReg.INTERRUPT), 1 << (8 + Irq.STOP_LEFT_LOW))
+    chip.write(motor_address(2, Reg.INTERRUPT), 1 << (8 + Irq.STOP_LEFT_LOW))
     chip.motor(2).set_pins(False, False)  # inverted: released -> active, a rising edge
-    assert chip.read(motor_address(2, MotorReg.INTERRUPT)) == 0x1000  # only the mask
+    assert chip.read(motor_address(2, Reg.INTERRUPT)) == 0x1000  # only the mask
     chip.motor(2).set_pins(True, False)  # active -> inactive: stop_left_low
-    assert chip.read(motor_address(2, MotorReg.INTERRUPT)) == 0x1000 | 1 << Irq.STOP_LEFT_LOW
+    assert chip.read(motor_address(2, Reg.INTERRUPT)) == 0x1000 | 1 << Irq.STOP_LEFT_LOW
     assert status(chip) >> 7 == 1  # INT: the OR over all motors' enabled flags
     assert not chip.nint
 
 
 def test_sdo_int_leaves_the_answers_alone_on_the_qfn32() -> None:
     chip = TMC429()
-    chip.write(GlobalReg.IF_CONFIGURATION, SDO_INT)
-    assert chip.spi(datagram(GlobalReg.TYPE_VERSION, read=True)) == IDLE_STATUS << 24 | TYPE_VERSION
+    chip.write(Reg.IF_CONFIGURATION, SDO_INT)
+    assert chip.spi(datagram(Reg.TYPE_VERSION, read=True)) == IDLE_STATUS << 24 | TYPE_VERSION
     assert chip.nint  # the separate nINT pin: high (inactive)
 
 
@@ -180,8 +179,8 @@ def test_sdo_int_leaves_the_answers_alone_on_the_qfn32() -> None:
 
 def _all_pressed(refmux: bool, mot1r: bool, en_refr: bool, en_sd: bool = False) -> TMC429:
     chip = TMC429()
-    chip.write(GlobalReg.IF_CONFIGURATION, (EN_REFR if en_refr else 0) | (EN_SD if en_sd else 0))
-    chip.write(GlobalReg.SMGP, (REFMUX if refmux else 0) | (MOT1R if mot1r else 0))
+    chip.write(Reg.IF_CONFIGURATION, (EN_REFR if en_refr else 0) | (EN_SD if en_sd else 0))
+    chip.write(Reg.SMGP, (REFMUX if refmux else 0) | (MOT1R if mot1r else 0))
     for motor in chip.motors:
         motor.set_pins(True, True)
     return chip
@@ -199,7 +198,7 @@ def _all_pressed(refmux: bool, mot1r: bool, en_refr: bool, en_sd: bool = False) 
 def test_reference_switch_layouts(refmux: bool, mot1r: bool, en_refr: bool, en_sd: bool,
                                   switches: int) -> None:
     chip = _all_pressed(refmux, mot1r, en_refr, en_sd)
-    assert chip.read(GlobalReg.REFERENCE_SWITCHES) == switches
+    assert chip.read(Reg.REFERENCE_SWITCHES) == switches
     rs = (switches >> 1 & 1) << 1 | (switches >> 3 & 1) << 3 | (switches >> 5 & 1) << 5
     assert status(chip) == IDLE_STATUS | rs
 
@@ -207,10 +206,10 @@ def test_reference_switch_layouts(refmux: bool, mot1r: bool, en_refr: bool, en_s
 def test_a_right_switch_stops_only_where_the_layout_wires_it() -> None:
     for mot1r, stops in ((False, False), (True, True)):
         chip = step_dir_chip()
-        chip.write(GlobalReg.SMGP, MOT1R if mot1r else 0)
+        chip.write(Reg.SMGP, MOT1R if mot1r else 0)
         motor = chip.motor(0)
         configure(motor, v_max=1000, a_max=100, pulse_div=0, ramp_div=0, mode=RampMode.VELOCITY)
-        motor.write(MotorReg.V_TARGET, 500)
+        motor.write(Reg.V_TARGET, 500)
         motor.run(20_000)
         motor.set_pins(False, True)
         assert (motor.v == 0) == stops
@@ -221,29 +220,29 @@ def test_inv_ref_on_one_write_acts_on_every_motor() -> None:
     chip = step_dir_chip()
     for motor in chip.motors:
         configure(motor, v_max=1000, a_max=100, pulse_div=0, ramp_div=0, mode=RampMode.VELOCITY)
-        motor.write(MotorReg.V_TARGET, -500 & 0xFFF)
-        motor.write(MotorReg.INTERRUPT, 1 << (8 + Irq.STOP))
+        motor.write(Reg.V_TARGET, -500 & 0xFFF)
+        motor.write(Reg.INTERRUPT, 1 << (8 + Irq.STOP))
     chip.advance(20_000)
-    chip.write(GlobalReg.IF_CONFIGURATION, EN_SD | INV_REF)  # open switches now read active
+    chip.write(Reg.IF_CONFIGURATION, EN_SD | INV_REF)  # open switches now read active
     assert [m.v for m in chip.motors] == [0, 0, 0]
     assert [m.int_flags for m in chip.motors] == [1 << Irq.STOP] * 3
 
 
 def test_latch_on_motor_ones_right_switch_in_the_two_one_zero_layout() -> None:
     chip = step_dir_chip()
-    chip.write(GlobalReg.SMGP, MOT1R)
+    chip.write(Reg.SMGP, MOT1R)
     motor = chip.motor(0)
     configure(motor, v_max=1000, a_max=100, pulse_div=0, ramp_div=0, mode=RampMode.VELOCITY)
-    motor.write(MotorReg.REF_CONF_RAMP_MODE, RampMode.VELOCITY | 1 << 11 | 1 << 9)  # ref_RnL, no stop
-    motor.write(MotorReg.X_LATCHED, 0)  # arm
-    motor.write(MotorReg.V_TARGET, 500)
+    motor.write(Reg.REF_CONF_RAMP_MODE, RampMode.VELOCITY | 1 << 11 | 1 << 9)  # ref_RnL, no stop
+    motor.write(Reg.X_LATCHED, 0)  # arm
+    motor.write(Reg.V_TARGET, 500)
     motor.run(30_000)
     position = motor.x_actual
     chip.motor(2).set_pins(True, True)  # motor 3's switches: not wired in this layout
-    assert motor.read(MotorReg.REF_CONF_RAMP_MODE) >> 16 & 1  # still armed
+    assert motor.read(Reg.REF_CONF_RAMP_MODE) >> 16 & 1  # still armed
     motor.set_pins(False, True)  # motor 1's right switch (REF3)
-    assert motor.read(MotorReg.X_LATCHED) == position and motor.v > 0
-    assert not motor.read(MotorReg.REF_CONF_RAMP_MODE) >> 16 & 1
+    assert motor.read(Reg.X_LATCHED) == position and motor.v > 0
+    assert not motor.read(Reg.REF_CONF_RAMP_MODE) >> 16 & 1
 
 
 def test_time_conversions_are_the_chips() -> None:
@@ -259,12 +258,12 @@ def test_interrupt_flags_are_per_motor_and_int_is_their_or() -> None:
     chip = step_dir_chip()
     for motor in chip.motors:
         configure(motor, v_max=1000, a_max=500, pulse_div=0, ramp_div=0)
-        motor.write(MotorReg.INTERRUPT, 1 << (8 + Irq.POS_END))
-    chip.motor(1).write(MotorReg.X_TARGET, 300)
+        motor.write(Reg.INTERRUPT, 1 << (8 + Irq.POS_END))
+    chip.motor(1).write(Reg.X_TARGET, 300)
     chip.advance(1_000_000)
-    assert [m.read(MotorReg.INTERRUPT) & 0xFF for m in chip.motors] == [0, 1, 0]
+    assert [m.read(Reg.INTERRUPT) & 0xFF for m in chip.motors] == [0, 1, 0]
     assert status(chip) >> 7 == 1
-    chip.motor(1).write(MotorReg.INTERRUPT, 0x0101)  # write 1 to clear
+    chip.motor(1).write(Reg.INTERRUPT, 0x0101)  # write 1 to clear
     assert status(chip) == IDLE_STATUS
 
 
@@ -272,29 +271,29 @@ def test_position_compare_follows_the_selected_motor() -> None:
     chip = step_dir_chip()
     for motor in chip.motors:
         configure(motor, v_max=1000, a_max=500, pulse_div=0, ramp_div=0)
-        motor.write(MotorReg.X_TARGET, 500)
-    chip.write(GlobalReg.POS_COMP, 250)
-    chip.write(GlobalReg.IF_CONFIGURATION, EN_SD | 2 << 6)  # pos_comp_sel = motor 3
-    chip.write(GlobalReg.POS_COMP_INT, 0x100)
+        motor.write(Reg.X_TARGET, 500)
+    chip.write(Reg.POS_COMP, 250)
+    chip.write(Reg.IF_CONFIGURATION, EN_SD | 2 << 6)  # pos_comp_sel = motor 3
+    chip.write(Reg.POS_COMP_INT, 0x100)
     chip.motor(0).run(10**6)
-    assert chip.read(GlobalReg.POS_COMP_INT) == 0x100  # motor 1 passed 250: not selected
+    assert chip.read(Reg.POS_COMP_INT) == 0x100  # motor 1 passed 250: not selected
     chip.motor(2).run(10**6)
-    assert chip.read(GlobalReg.POS_COMP_INT) == 0x101
+    assert chip.read(Reg.POS_COMP_INT) == 0x101
     assert status(chip) >> 7 == 1
-    chip.write(GlobalReg.POS_COMP_INT, 0x101)  # write 1 to clear
-    assert chip.read(GlobalReg.POS_COMP_INT) == 0x100
-    chip.write(GlobalReg.IF_CONFIGURATION, EN_SD | 3 << 6)  # %11: off
+    chip.write(Reg.POS_COMP_INT, 0x101)  # write 1 to clear
+    assert chip.read(Reg.POS_COMP_INT) == 0x100
+    chip.write(Reg.IF_CONFIGURATION, EN_SD | 3 << 6)  # %11: off
     chip.motor(1).run(10**6)
-    assert chip.read(GlobalReg.POS_COMP_INT) == 0x100
+    assert chip.read(Reg.POS_COMP_INT) == 0x100
 
 
 def test_power_down_freezes_every_motor_until_the_next_frame() -> None:
     chip = step_dir_chip()
     for motor in chip.motors:
         configure(motor, v_max=1000, a_max=1000, pulse_div=0, ramp_div=0)
-        motor.write(MotorReg.X_TARGET, 100_000)
+        motor.write(Reg.X_TARGET, 100_000)
     chip.advance(1000)
-    chip.write(GlobalReg.POWER_DOWN, 0)
+    chip.write(Reg.POWER_DOWN, 0)
     frozen = [m.x_actual for m in chip.motors]
     chip.advance(50_000)
     assert [m.x_actual for m in chip.motors] == frozen
@@ -311,11 +310,11 @@ def test_steps_reach_the_motors_in_the_chain_or_all_in_step_dir_mode() -> None:
                                    (0, 0x000F02, [True, True, True]),
                                    (EN_SD, 0x000F00, [True, True, True])):
         chip = TMC429()
-        chip.write(GlobalReg.IF_CONFIGURATION, if_config)
-        chip.write(GlobalReg.SMGP, smgp)
+        chip.write(Reg.IF_CONFIGURATION, if_config)
+        chip.write(Reg.SMGP, smgp)
         for motor in chip.motors:
             configure(motor, v_max=1000, a_max=500, pulse_div=0, ramp_div=0)
-            motor.write(MotorReg.X_TARGET, 321)
+            motor.write(Reg.X_TARGET, 321)
         chip.advance(10**6)
         assert [m.x_actual for m in chip.motors] == [321] * 3
         assert [m.motor_position == 321 for m in chip.motors] == moved
@@ -328,7 +327,7 @@ def test_motors_keep_their_own_time() -> None:
     chip = step_dir_chip()
     for motor in chip.motors:
         configure(motor, v_max=1000, a_max=500, pulse_div=0, ramp_div=0)
-        motor.write(MotorReg.X_TARGET, 5000)
+        motor.write(Reg.X_TARGET, 5000)
     assert chip.motor(0).run(10**7) is Stop.ARRIVED
     assert (chip.motor(1).t, chip.motor(1).x_actual) == (0, 0)
     assert chip.motor(1).run(10**7) is Stop.ARRIVED
@@ -339,25 +338,25 @@ def test_lookahead_clone_and_adopt() -> None:
     chip = step_dir_chip()
     for motor in chip.motors:
         configure(motor, v_max=1000, a_max=500, pulse_div=0, ramp_div=0)
-        motor.write(MotorReg.X_TARGET, 5000)
+        motor.write(Reg.X_TARGET, 5000)
     live = chip.motor(1)
     twin = live.clone()
     assert twin.run(10**7) is Stop.ARRIVED
     assert (live.t, live.x_actual, chip.motor(0).t) == (0, 0, 0)  # nothing moved in the chip
-    chip.motor(0).write(MotorReg.X_TARGET, 7)  # another motor's registers: no matter
+    chip.motor(0).write(Reg.X_TARGET, 7)  # another motor's registers: no matter
     driver_before = live.driver
     adopted = live.adopt(twin)
     assert adopted is live is chip.motor(1) and live.chip is chip and live.driver is driver_before
     assert live.t == twin.t
-    assert chip.read(motor_address(1, MotorReg.X_ACTUAL)) == 5000
+    assert chip.read(motor_address(1, Reg.X_ACTUAL)) == 5000
     assert status(chip) & 0x0C == 0x04  # RS2 clear, xEQt2 set, seen through the live chip
 
     stale = adopted.clone()
-    chip.write(GlobalReg.SMGP, MOT1R)  # a global write after the clone
+    chip.write(Reg.SMGP, MOT1R)  # a global write after the clone
     with pytest.raises(StaleTwin):
         adopted.adopt(stale)
     stale = adopted.clone()
-    adopted.write(MotorReg.X_TARGET, 0)  # this motor's registers after the clone
+    adopted.write(Reg.X_TARGET, 0)  # this motor's registers after the clone
     with pytest.raises(StaleTwin):
         adopted.adopt(stale)
     with pytest.raises(StaleTwin):
@@ -407,12 +406,12 @@ _change = st.one_of(
 def _three_motor_case(setups: list[tuple[int, int, int, int, int]],
                       changes: list[tuple[int, int, tuple[str, int]]], order: list[int]) -> None:
     chip = TMC429()
-    chip.write(GlobalReg.SMGP, 2)  # LSMD = 2: every motor in the (SPI) chain
+    chip.write(Reg.SMGP, 2)  # LSMD = 2: every motor in the (SPI) chain
     refs = []
     for motor, (pulse_div, span, a_max, v_max, target) in zip(chip.motors, setups, strict=True):
         configure(motor, v_max=v_max, a_max=a_max, pulse_div=pulse_div, ramp_div=max(0, pulse_div + span))
         ref = _reference_for(motor)
-        motor.write(MotorReg.X_TARGET, target & MASK24)
+        motor.write(Reg.X_TARGET, target & MASK24)
         ref.x_target = target & MASK24
         refs.append(ref)
     arrivals: list[list[int]] = [[], [], []]
@@ -422,19 +421,19 @@ def _three_motor_case(setups: list[tuple[int, int, int, int, int]],
         _run_all(chip, refs, t, order, arrivals)
         motor, ref = chip.motor(index), refs[index]
         if what == "global":  # global writes that must not disturb motion (no switches wired)
-            chip.write(GlobalReg.SMGP, value & 0x0FFFFF | 2)  # refmux/mot1r off, chain kept
-            chip.write(GlobalReg.IF_CONFIGURATION, value >> 8 & 0x1DE)  # not inv_ref, not en_sd
+            chip.write(Reg.SMGP, value & 0x0FFFFF | 2)  # refmux/mot1r off, chain kept
+            chip.write(Reg.IF_CONFIGURATION, value >> 8 & 0x1DE)  # not inv_ref, not en_sd
         elif what == "x_target":
-            motor.write(MotorReg.X_TARGET, value & MASK24)
+            motor.write(Reg.X_TARGET, value & MASK24)
             ref.x_target = value & MASK24
         elif what == "v_target":
-            motor.write(MotorReg.V_TARGET, value & 0xFFF)
+            motor.write(Reg.V_TARGET, value & 0xFFF)
             ref.v_target = value
         elif what == "mode":
-            motor.write(MotorReg.REF_CONF_RAMP_MODE, value)
+            motor.write(Reg.REF_CONF_RAMP_MODE, value)
             ref.mode = RampMode(value)
         else:
-            motor.write(MotorReg[what.upper()], value)
+            motor.write(Reg[what.upper()], value)
             setattr(ref, what, value)
     _run_all(chip, refs, t + 150_000, order, arrivals)
     assert arrivals == [ref.arrivals for ref in refs]
@@ -496,7 +495,7 @@ def _moves_case(setups: list[tuple[int, int]], targets: list[list[int]]) -> None
     for index, motor in enumerate(chip.motors):
         for target in targets[index]:
             fences[index].target = target
-            motor.write(MotorReg.X_TARGET, target & MASK24)
+            motor.write(Reg.X_TARGET, target & MASK24)
             while motor.x_actual != target & MASK24 or not motor.at_rest():
                 stop = motor.run(motor.t + 10**9)
                 assert stop is not Stop.MARK, f"motor {index}: past or away from {target}"
@@ -547,7 +546,7 @@ def test_long_moves_of_three_motors_match_the_reference(setups, retarget: float)
         ref = _reference_for(motor)
         horizon = 100_000 << min(pulse_div, ramp_div)
         target = round(reach * v_max * (horizon >> pulse_div) / 2048) & MASK24
-        motor.write(MotorReg.X_TARGET, target)
+        motor.write(Reg.X_TARGET, target)
         ref.x_target = target
         refs.append(ref)
         horizons.append(horizon)
@@ -563,7 +562,7 @@ def test_long_moves_of_three_motors_match_the_reference(setups, retarget: float)
                 ref.x_actual, ref.v, ref.v_target), f"motor {index} at tick {until}"
             if index == 1 and step == max(1, round(retarget * 8)):
                 target = (motor.x_target - 5000) & MASK24
-                motor.write(MotorReg.X_TARGET, target)
+                motor.write(Reg.X_TARGET, target)
                 ref.x_target = target
     assert arrivals == [ref.arrivals for ref in refs]
 
@@ -593,11 +592,11 @@ def test_spi_data_answers_the_data_bits_of_spi_and_acts_the_same(
     same chip afterwards, for any frame (the cover datagram and its echo, power-down, RAM)."""
     chips = [step_dir_chip() if step_dir else TMC429() for _ in range(2)]
     for chip in chips:
-        chip.write(GlobalReg.SMGP, 2)
+        chip.write(Reg.SMGP, 2)
         for motor in chip.motors:
             configure(motor, v_max=900, a_max=30, pulse_div=0, ramp_div=2)
-            motor.write(MotorReg.X_TARGET, 4000)
-            motor.write(MotorReg.INTERRUPT, 0xFF00)
+            motor.write(Reg.X_TARGET, 4000)
+            motor.write(Reg.INTERRUPT, 0xFF00)
     t = 0
     for frame, ticks in frames:
         t += ticks

@@ -11,8 +11,8 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from axes.chips.tmc42x.engine import MotorReg, RampMode
-from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, SDO_INT, TYPE_VERSION, GlobalReg, motor_address
+from axes.chips.tmc42x.registers import RampMode, Reg
+from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, SDO_INT, TYPE_VERSION, motor_address
 from axes.chips.tmc42x.tmc429_firmware import TMC429Axis
 from axes.chips.tmc42x.tmc4210_firmware import TMC4210Axis
 from axes.chips.tmc42x.units import (
@@ -67,27 +67,27 @@ def test_six_axes_sit_on_two_chips_three_motors_each_with_a_tmc262() -> None:
 
 def test_power_up_runs_the_chip_in_step_dir_and_configures_the_tmc262() -> None:
     axis = make_axes("tmc429", 3, AXIS_PARAMETERS_3110)[1]
-    assert axis.register_access(GlobalReg.IF_CONFIGURATION) & MASK24 == EN_SD | EN_REFR | SDO_INT
+    assert axis.register_access(Reg.IF_CONFIGURATION) & MASK24 == EN_SD | EN_REFR | SDO_INT
     driver = axis.chip.driver
     assert driver.mres == 0 and driver.microsteps == 256  # AP 140 = 8
     assert driver.cs == 255 >> 3  # AP 6, the stepRocker firmware's scale
     assert driver.toff == 5 and driver.vsense and not driver.sdoff  # bridges on, Step/Dir
-    assert axis.chip.read(MotorReg.V_MIN) >= 1  # AP 130 = 1, raised as the chip needs
-    assert axis.chip.read(MotorReg.DIVIDERS) >> 8 == 2 << 4 | 3  # AP 154 = 2, AP 153 = 3
+    assert axis.chip.read(Reg.V_MIN) >= 1  # AP 130 = 1, raised as the chip needs
+    assert axis.chip.read(Reg.DIVIDERS) >> 8 == 2 << 4 | 3  # AP 154 = 2, AP 153 = 3
 
 
 def test_register_access_reads_the_type_version_and_writes_one_motor_only() -> None:
     axes = six_axes()
-    assert axes[4].register_access(GlobalReg.TYPE_VERSION) & MASK24 == TYPE_VERSION
-    before = [[a.chip.read(reg) for reg in (MotorReg.V_MAX, MotorReg.X_TARGET)] for a in axes[:3]]
-    axes[1].register_access(MotorReg.V_MAX, 1234)  # IDX 3: axis 1's own motor (SMDA 1)
-    axes[1].register_access(MotorReg.X_TARGET, 777)
-    after = [[a.chip.read(reg) for reg in (MotorReg.V_MAX, MotorReg.X_TARGET)] for a in axes[:3]]
+    assert axes[4].register_access(Reg.TYPE_VERSION) & MASK24 == TYPE_VERSION
+    before = [[a.chip.read(reg) for reg in (Reg.V_MAX, Reg.X_TARGET)] for a in axes[:3]]
+    axes[1].register_access(Reg.V_MAX, 1234)  # IDX 3: axis 1's own motor (SMDA 1)
+    axes[1].register_access(Reg.X_TARGET, 777)
+    after = [[a.chip.read(reg) for reg in (Reg.V_MAX, Reg.X_TARGET)] for a in axes[:3]]
     assert after[1] == [1234, 777]
     assert after[0] == before[0] and after[2] == before[2]
-    assert axes[3].chip.read(MotorReg.V_MAX) == axes[0].chip.read(MotorReg.V_MAX)  # other chip
+    assert axes[3].chip.read(Reg.V_MAX) == axes[0].chip.read(Reg.V_MAX)  # other chip
     # 0x10..0x2F pass to the chip as they are: axis 0 reads motor 1's register
-    assert axes[0].register_access(motor_address(1, MotorReg.X_TARGET)) & MASK24 == 777
+    assert axes[0].register_access(motor_address(1, Reg.X_TARGET)) & MASK24 == 777
 
 
 # == motion ====================================================================================
@@ -118,7 +118,7 @@ def test_speeds_are_register_values_with_the_divisors_of_ap_153_and_154() -> Non
     assert axis.get_parameter(AP.RAMP_MODE) == RampMode.VELOCITY
     run([axis], 1.0)
     assert axis.get_parameter(AP.ACTUAL_SPEED) == 1500
-    assert axis.chip.read(MotorReg.DIVIDERS) >> 8 == 4 << 4 | 6
+    assert axis.chip.read(Reg.DIVIDERS) >> 8 == 4 << 4 | 6
     steps = axis.get_parameter(AP.ACTUAL_POSITION)
     run([axis], 3.0)
     travelled = axis.get_parameter(AP.ACTUAL_POSITION) - steps

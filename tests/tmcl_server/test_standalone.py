@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from axes.interface import AxisEvent, AxisEventKind
+from axes.interface import FOREVER, AxisEvent, AxisEventKind
 from interpreter.assembler import assemble
 from interpreter.isa import Instruction, decode_program
 from interpreter.machine import Interpreter
@@ -562,6 +562,9 @@ class ScriptedAxis:
         if action in (0, 1):
             self.searching = action == 0
         return int(self.searching)
+
+    def steady_until(self, number: int) -> int:
+        return FOREVER  # a parameter changes only at a scripted event (or a command)
 
 
 def scripted_bench() -> tuple[Bench, Callable[[int], ScriptedAxis]]:

@@ -345,13 +345,17 @@ class ModuleCore:
                 return (self.now_ns // NS_PER_MS + 1) * NS_PER_MS
             if row.motion is Motion.ACCESS:  # the next random number; a refused command of
                 return 0  # the same loop sets the last error (a refusal "changes nothing")
-        return FOREVER  # inputs, outputs, variables, coordinates: changed only from outside
+        # inputs, outputs, variables, coordinates: changed only from outside; RFS STATUS: the
+        # search moves on only at its axis's notable instants (events) or by a command
+        return FOREVER
 
-    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...]) -> int:
-        """For GAP of a moving value: when it first answers one of ``values`` (0: unknown)."""
+    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...],
+                      read_ns: int) -> int:
+        """For GAP of a moving value read at ``read_ns``: when it first compares otherwise
+        with one of ``values`` (0: unknown)."""
         if opcode != _GAP or not 0 <= motor < len(self.axes):
             return 0
-        return self.axes[motor].first_time_at(type_, values)
+        return self.axes[motor].first_time_at(type_, values, read_ns)
 
     @staticmethod
     def may_reschedule(opcode: int, bank: int) -> bool:

@@ -29,7 +29,8 @@ from collections.abc import Mapping
 from math import isqrt
 
 from axes.board import AxisBoard
-from axes.chips.tmc42x.engine import (
+from axes.chips.tmc42x.engine import MotorEngine
+from axes.chips.tmc42x.registers import (
     DISABLE_STOP_L,
     DISABLE_STOP_R,
     DISTANCE_LIMIT,
@@ -37,9 +38,8 @@ from axes.chips.tmc42x.engine import (
     MASK24,
     SOFT_STOP,
     Irq,
-    MotorEngine,
-    MotorReg,
     RampMode,
+    Reg,
     datagram,
     sdiff24,
     signed,
@@ -104,7 +104,7 @@ class TMC42xDriver(ChipDriver):
         #: Which motor of the chip: its registers are at ``motor << 4 | IDX``.
         self.motor = motor
         self._base = motor << 4
-        self._read_x_actual = datagram(self._base | MotorReg.X_ACTUAL, read=True)
+        self._read_x_actual = datagram(self._base | Reg.X_ACTUAL, read=True)
         #: AP 1: the 32-bit position, as of the last read of X_ACTUAL.
         self.position = 0
         self._x_last = 0  # last X_ACTUAL read (24 bit)
@@ -146,7 +146,7 @@ class TMC42xDriver(ChipDriver):
         """Set up the chip, enable the int_stop interrupt (the firmware learns of hard switch
         stops from it), configure the switches and the speed limits."""
         self.setup_chip()
-        self._write(MotorReg.INTERRUPT, STOP_MASK)
+        self._write(Reg.INTERRUPT, STOP_MASK)
         self._write_ref_conf(RampMode.VELOCITY)
         self._apply_limits(self.params[AP.MAX_SPEED])
 
@@ -174,7 +174,7 @@ class TMC42xDriver(ChipDriver):
         return position
 
     def _v_actual(self) -> int:
-        return signed(self._read(MotorReg.V_ACTUAL), 12)
+        return signed(self._read(Reg.V_ACTUAL), 12)
 
     def moving(self) -> bool:
         return self._v_actual() != 0
@@ -190,13 +190,13 @@ class TMC42xDriver(ChipDriver):
 
     def take_switch_stop(self) -> bool:
         """Whether a stop switch stopped the motor since the last call (clears the flag)."""
-        if not self._read(MotorReg.INTERRUPT) & STOP_FLAG:
+        if not self._read(Reg.INTERRUPT) & STOP_FLAG:
             return False
-        self._write(MotorReg.INTERRUPT, STOP_MASK | STOP_FLAG)  # clear it, keep the mask
+        self._write(Reg.INTERRUPT, STOP_MASK | STOP_FLAG)  # clear it, keep the mask
         return True
 
     def _mode(self) -> RampMode:
-        return RampMode(self._read(MotorReg.REF_CONF_RAMP_MODE) & 3)
+        return RampMode(self._read(Reg.REF_CONF_RAMP_MODE) & 3)
 
     def mode_name(self) -> str:
         return MODE_NAMES[self._mode()]
@@ -211,7 +211,7 @@ class TMC42xDriver(ChipDriver):
             return 1 if v > 0 else -1
         mode = self._mode()
         if mode == RampMode.VELOCITY:
-            ahead = signed(self._read(MotorReg.V_TARGET), 12)
+            ahead = signed(self._read(Reg.V_TARGET), 12)
         elif mode in (RampMode.RAMP, RampMode.SOFT):
             ahead = sdiff24(self._chip_target, self._x_last)
         else:
@@ -221,7 +221,7 @@ class TMC42xDriver(ChipDriver):
     def read_parameter(self, number: int) -> int:
         """A :attr:`live_parameters` value from the chip: AP 135 (|A_ACTUAL|), AP 138 (mode)."""
         if number == AP.ACTUAL_ACCELERATION:
-            return abs(signed(self._read(MotorReg.A_ACTUAL), 12))
+            return abs(signed(self._read(Reg.A_ACTUAL), 12))
         return int(self._mode())
 
     # == units =================================================================================
@@ -255,54 +255,63 @@ class TMC42xDriver(ChipDriver):
         parks the chip in hold mode and rewrites V_ACTUAL on the new scale (dropping the
         fraction bits).  In register units the register values are the speeds: they stay.
         """
-        clock_hz = self.chip.clock_hz
-        pps = self._pps_units
-        if pps:
-            pulse_div = choose_pulse_div(top_speed, clock_hz)
-            if pulse_div != self._pulse_div and self._v_actual() and (
-                    pulse_div > self._pulse_div
-                    or (self._mode() in (RampMode.RAMP, RampMode.SOFT)
-                        and not self._coarser_is_safe(pulse_div, acceleration))):
-                # A finer scale mid-move would round the running speed (its fraction bits
-                # are lost in the rescale) and can cost a step of overshoot: a lower limit
-                # runs on the present, coarser scale until the motor is at rest.  A move to
-                # a target takes a coarser one (a higher limit) on the fly where the running
-                # speed, rescaled, is under the new braking curve; above it (raised while
-                # braking) it would overshoot by a few steps: the move keeps its scale.
-                pulse_div = self._pulse_div
-            if abs(top_speed) > max_step_rate(0, clock_hz):
-                log.warning("axis %d: %d pps is beyond the %s at %d Hz; running at %d pps",
-                            self.index, top_speed, self.chip_name, clock_hz,
-                            round(max_step_rate(0, clock_hz)))
-            ramp_div, a_max = choose_ramp_div(acceleration, pulse_div, clock_hz)
+        if self._pps_units:
+            pulse_div = self._pps_pulse_div(top_speed, acceleration)
+            ramp_div, a_max = choose_ramp_div(acceleration, pulse_div, self.chip.clock_hz)
         else:
             pulse_div, ramp_div = self._register_dividers()
             a_max = min(acceleration, V_REGISTER_MAX)
         if pulse_div != self._pulse_div or ramp_div != self._ramp_div:
-            v_actual = signed(self._read(MotorReg.V_ACTUAL), 12)
-            mode = self._read(MotorReg.REF_CONF_RAMP_MODE) & 3
-            if pps and v_actual and pulse_div != self._pulse_div:
-                rescaled = round(v_actual * 2.0 ** (pulse_div - self._pulse_div))
-                rescaled = max(-V_REGISTER_MAX, min(V_REGISTER_MAX, rescaled))
-                self._write_ref_conf(RampMode.HOLD)
-                self._write(MotorReg.V_ACTUAL, rescaled & 0xFFF)
-                if mode == RampMode.VELOCITY:
-                    v_target = signed(self._read(MotorReg.V_TARGET), 12)
-                    scaled_target = round(v_target * 2.0 ** (pulse_div - self._pulse_div))
-                    self._write(MotorReg.V_TARGET, max(-2047, min(2047, scaled_target)) & 0xFFF)
-            self._write(MotorReg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
-            self._write_ref_conf(RampMode(mode))
-            self._pulse_div, self._ramp_div = pulse_div, ramp_div
-        self._write(MotorReg.A_MAX, a_max)
+            self._write_dividers(pulse_div, ramp_div)
+        self._write(Reg.A_MAX, a_max)
         pair = pmul_pdiv(a_max, ramp_div, pulse_div) if a_max else (128, 0)
         if pair is None:
             pair = (255, 0) if a_max > 1 else (128, 13)
-        self._write(MotorReg.PMUL_PDIV, pair[0] << 8 | pair[1])
+        self._write(Reg.PMUL_PDIV, pair[0] << 8 | pair[1])
         # V_MIN must allow the abrupt stop at the speed the chip arrives with (units.stop_speed).
         # (``top_speed`` covers the speed the motor has now: _top_speed)
         v_top = self._to_register(top_speed)
         v_min = max(self._user_v_min(), stop_speed(a_max, *pair, v_top, ramp_div, pulse_div))
-        self._write(MotorReg.V_MIN, min(v_min, V_REGISTER_MAX))
+        self._write(Reg.V_MIN, min(v_min, V_REGISTER_MAX))
+
+    def _pps_pulse_div(self, top_speed: int, acceleration: int) -> int:
+        """PULSE_DIV for ``top_speed`` pps (pps units), or the present one where a running
+        motor must keep it."""
+        clock_hz = self.chip.clock_hz
+        pulse_div = choose_pulse_div(top_speed, clock_hz)
+        if pulse_div != self._pulse_div and self._v_actual() and (
+                pulse_div > self._pulse_div
+                or (self._mode() in (RampMode.RAMP, RampMode.SOFT)
+                    and not self._coarser_is_safe(pulse_div, acceleration))):
+            # A finer scale mid-move would round the running speed (its fraction bits
+            # are lost in the rescale) and can cost a step of overshoot: a lower limit
+            # runs on the present, coarser scale until the motor is at rest.  A move to
+            # a target takes a coarser one (a higher limit) on the fly where the running
+            # speed, rescaled, is under the new braking curve; above it (raised while
+            # braking) it would overshoot by a few steps: the move keeps its scale.
+            pulse_div = self._pulse_div
+        if abs(top_speed) > max_step_rate(0, clock_hz):
+            log.warning("axis %d: %d pps is beyond the %s at %d Hz; running at %d pps",
+                        self.index, top_speed, self.chip_name, clock_hz,
+                        round(max_step_rate(0, clock_hz)))
+        return pulse_div
+
+    def _write_dividers(self, pulse_div: int, ramp_div: int) -> None:
+        """New PULSE_DIV and RAMP_DIV; in pps units a running motor's V_ACTUAL (and in
+        velocity mode V_TARGET) rescaled to the new PULSE_DIV, written in hold mode."""
+        v_actual = signed(self._read(Reg.V_ACTUAL), 12)
+        mode = self._read(Reg.REF_CONF_RAMP_MODE) & 3
+        if self._pps_units and v_actual and pulse_div != self._pulse_div:
+            scale = 2.0 ** (pulse_div - self._pulse_div)
+            rescaled = max(-V_REGISTER_MAX, min(V_REGISTER_MAX, round(v_actual * scale)))
+            self._write_ref_conf(RampMode.HOLD)
+            self._write(Reg.V_ACTUAL, rescaled & 0xFFF)
+            if mode == RampMode.VELOCITY:
+                scaled_target = round(signed(self._read(Reg.V_TARGET), 12) * scale)
+                self._write(Reg.V_TARGET, max(-2047, min(2047, scaled_target)) & 0xFFF)
+        self._write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
+        self._write_ref_conf(RampMode(mode))
+        self._pulse_div, self._ramp_div = pulse_div, ramp_div
 
     def _coarser_is_safe(self, pulse_div: int, acceleration: int) -> bool:
         """Whether a move in flight may go on at the coarser ``pulse_div`` (a higher AP 4 than
@@ -311,7 +320,7 @@ class TMC42xDriver(ChipDriver):
         Then the chip brakes in time as on any move; above it (a speed raised while braking)
         it would pass the target by a few steps, so the move keeps its scale: its speed is the
         curve's anyway, below the old limit (docs/motion.md, "On the fly")."""
-        v_actual = signed(self._read(MotorReg.V_ACTUAL), 12)
+        v_actual = signed(self._read(Reg.V_ACTUAL), 12)
         ahead = sdiff24(self._chip_target, self._x_last)
         if ahead == 0 or (ahead > 0) != (v_actual > 0):
             return False  # at the target or moving away from it: braking
@@ -340,7 +349,7 @@ class TMC42xDriver(ChipDriver):
 
     def _apply_limits(self, top_speed: int) -> None:
         self._set_dividers(self._top_speed(top_speed), self.params[AP.MAX_ACCELERATION])
-        self._write(MotorReg.V_MAX, self._to_register(top_speed))
+        self._write(Reg.V_MAX, self._to_register(top_speed))
 
     def limits_changed(self, positioning: bool, velocity_command: int) -> None:
         """A speed, acceleration, divider or unit parameter changed: re-plan what runs."""
@@ -362,7 +371,7 @@ class TMC42xDriver(ChipDriver):
             conf |= DISABLE_STOP_R
         if self._soft_stop():
             conf |= SOFT_STOP
-        self._write(MotorReg.REF_CONF_RAMP_MODE, conf)
+        self._write(Reg.REF_CONF_RAMP_MODE, conf)
 
     def configure_stops(self, searching: bool) -> None:
         """Stop switches as AP 12/13 and the soft-stop parameter say; a reference search
@@ -370,7 +379,7 @@ class TMC42xDriver(ChipDriver):
         self._searching = searching
         tolerance = self.params.get(AP.REFERENCE_SWITCH_TOLERANCE, 0)
         if tolerance != self._dx_ref_tolerance:
-            self._write(MotorReg.DX_REF_TOLERANCE, tolerance)
+            self._write(Reg.DX_REF_TOLERANCE, tolerance)
             self._dx_ref_tolerance = tolerance
         self._write_ref_conf(self._mode())
 
@@ -383,14 +392,14 @@ class TMC42xDriver(ChipDriver):
     def start_velocity(self, speed: int) -> None:
         self._set_dividers(self._top_speed(speed), self.params[AP.MAX_ACCELERATION])
         register = self._to_register(speed)
-        self._write(MotorReg.V_MAX, register)
-        self._write(MotorReg.V_TARGET, (register if speed >= 0 else -register) & 0xFFF)
+        self._write(Reg.V_MAX, register)
+        self._write(Reg.V_TARGET, (register if speed >= 0 else -register) & 0xFFF)
         self._write_ref_conf(RampMode.VELOCITY)
 
     def start_positioning(self, target: int, top_speed: int) -> None:
         self._feed_target(target)  # first: a move in flight judges a new scale by it
         self._set_dividers(self._top_speed(top_speed), self.params[AP.MAX_ACCELERATION])
-        self._write(MotorReg.V_MAX, self._to_register(top_speed))
+        self._write(Reg.V_MAX, self._to_register(top_speed))
         self._write_ref_conf(self._positioning_mode())
 
     def set_positioning_mode(self) -> None:
@@ -408,7 +417,7 @@ class TMC42xDriver(ChipDriver):
         if abs(remaining) > ROLLING_SPAN:
             remaining = ROLLING_SPAN if remaining > 0 else -ROLLING_SPAN
         self._chip_target = (self._x_last + remaining) & MASK24
-        self._write(MotorReg.X_TARGET, self._chip_target)
+        self._write(Reg.X_TARGET, self._chip_target)
 
     def _chip_goal(self) -> int:
         """Where the chip is headed now, as a 32-bit position."""
@@ -432,14 +441,14 @@ class TMC42xDriver(ChipDriver):
 
     def ramp_stop(self) -> None:
         """MST: velocity mode, target speed 0."""
-        self._write(MotorReg.V_TARGET, 0)
+        self._write(Reg.V_TARGET, 0)
         self._write_ref_conf(RampMode.VELOCITY)
 
     def hard_stop(self) -> None:
         """Stop within one tick: hold mode, V_ACTUAL := 0, then velocity mode at speed 0."""
         self._write_ref_conf(RampMode.HOLD)
-        self._write(MotorReg.V_ACTUAL, 0)
-        self._write(MotorReg.V_TARGET, 0)
+        self._write(Reg.V_ACTUAL, 0)
+        self._write(Reg.V_TARGET, 0)
         self._write_ref_conf(RampMode.VELOCITY)
 
     def set_position(self, value: int) -> bool:
@@ -450,12 +459,12 @@ class TMC42xDriver(ChipDriver):
         mode = self._mode()
         positioning = mode in (RampMode.RAMP, RampMode.SOFT)
         if positioning:
-            v_actual = signed(self._read(MotorReg.V_ACTUAL), 12)
-            self._write(MotorReg.V_TARGET, v_actual & 0xFFF)
+            v_actual = signed(self._read(Reg.V_ACTUAL), 12)
+            self._write(Reg.V_TARGET, v_actual & 0xFFF)
             self._write_ref_conf(RampMode.VELOCITY)
         x = value & MASK24
-        self._write(MotorReg.X_ACTUAL, x)
-        self._write(MotorReg.X_TARGET, x)
+        self._write(Reg.X_ACTUAL, x)
+        self._write(Reg.X_TARGET, x)
         self._x_last = self._chip_target = x
         self.position = value
         if not positioning:
@@ -463,5 +472,5 @@ class TMC42xDriver(ChipDriver):
         if self._v_actual() == 0:
             self._write_ref_conf(mode)
             return False
-        self._write(MotorReg.V_TARGET, 0)  # a move in flight ends with a ramped stop
+        self._write(Reg.V_TARGET, 0)  # a move in flight ends with a ramped stop
         return True

@@ -32,7 +32,7 @@ from enum import IntEnum, IntFlag
 from typing import Protocol, Self
 
 from axes import stallguard
-from axes.chips.tmc42x.engine import shallow_copy
+from axes.chips.tmc42x.registers import shallow_copy
 
 DATAGRAM_BITS = 20
 DATAGRAM_MASK = (1 << DATAGRAM_BITS) - 1

@@ -13,24 +13,18 @@ outside world changes so that the engine can stop there.
 
 from __future__ import annotations
 
-from enum import IntEnum
+from collections.abc import Callable
 
-from axes.chips.tmc42x.engine import (
+from axes.chips.tmc42x.engine import MotorEngine
+from axes.chips.tmc42x.registers import (
     DEFAULT_CLOCK_HZ,
-    DISABLE_STOP_L,
-    DISABLE_STOP_R,
     DISTANCE_LIMIT,
-    HALF24,
-    LATCH_PENDING,
+    GLOBAL_REGISTERS,
     MASK24,
-    REF_RNL,
-    SOFT_STOP,
     Irq,
-    MotorEngine,
-    MotorReg,
     RampMode,
+    Reg,
     datagram,
-    floor_sum,
     sdiff24,
     shallow_copy,
     signed,
@@ -38,11 +32,9 @@ from axes.chips.tmc42x.engine import (
 from axes.core import Board, Stop
 
 __all__ = [
-    "DEFAULT_CLOCK_HZ", "DISABLE_STOP_L", "DISABLE_STOP_R", "DISTANCE_LIMIT", "EN_SD", "HALF24",
-    "IF_CONFIG_MASK", "INV_REF", "LATCH_PENDING", "MASK24", "MOT1R", "PLAIN_REGISTERS",
-    "POS_COMP_SEL", "REF_RNL", "SDO_INT", "SMGP_MASK", "SMGP_POWER_ON", "SOFT_STOP", "TMC4210",
-    "TYPE_VERSION", "Board", "Irq", "RampMode", "Reg", "Stop", "datagram", "floor_sum", "sdiff24",
-    "signed",
+    "DEFAULT_CLOCK_HZ", "DISTANCE_LIMIT", "EN_SD", "IF_CONFIG_MASK", "INV_REF", "MASK24", "MOT1R",
+    "POS_COMP_SEL", "SDO_INT", "SMGP_MASK", "SMGP_POWER_ON", "TMC4210", "TYPE_VERSION", "Board",
+    "Irq", "RampMode", "Reg", "Stop", "datagram", "sdiff24", "signed",
 ]
 
 TYPE_VERSION = 0x429101
@@ -50,57 +42,10 @@ SMGP_POWER_ON = 0x000F00
 SMGP_MASK = 0x31FFFF
 IF_CONFIG_MASK = 0x1FF
 
-
-class Reg(IntEnum):
-    """Register addresses: the 7-bit ``RRS|SMDA|IDX`` field (datagram bits 31..25): the one
-    motor's axis registers (:class:`MotorReg`) and the family's global registers
-    (:class:`GlobalReg`), at the TMC429's addresses.  Spelt out so a type checker knows the
-    names; tests/axes/test_tmc4210.py keeps it equal to the two tables."""
-
-    X_TARGET = 0x0
-    X_ACTUAL = 0x1
-    V_MIN = 0x2
-    V_MAX = 0x3
-    V_TARGET = 0x4
-    V_ACTUAL = 0x5
-    A_MAX = 0x6
-    A_ACTUAL = 0x7
-    A_THRESHOLD = 0x8
-    PMUL_PDIV = 0x9
-    REF_CONF_RAMP_MODE = 0xA
-    INTERRUPT = 0xB
-    DIVIDERS = 0xC
-    DX_REF_TOLERANCE = 0xD
-    X_LATCHED = 0xE
-    USTEP_COUNT = 0xF
-    DATAGRAM_LOW = 0x30
-    DATAGRAM_HIGH = 0x31
-    COVER_POS_LEN = 0x32
-    COVER_DATAGRAM = 0x33
-    IF_CONFIGURATION = 0x34
-    POS_COMP = 0x35
-    POS_COMP_INT = 0x36
-    POWER_DOWN = 0x38
-    TYPE_VERSION = 0x39
-    REFERENCE_SWITCHES = 0x3E
-    SMGP = 0x3F
-
-
-#: Registers that are plain storage: attribute and the bits that exist (spec §3.2/§3.3).
-PLAIN_REGISTERS: dict[int, tuple[str, int]] = {
-    Reg.X_TARGET: ("x_target", MASK24),
-    Reg.X_ACTUAL: ("x_actual", MASK24),
-    Reg.V_MIN: ("v_min", 0x7FF),
-    Reg.V_MAX: ("v_max", 0x7FF),
-    Reg.A_MAX: ("a_max", 0x7FF),
-    Reg.A_THRESHOLD: ("a_threshold", 0x777FFF),
-    Reg.DX_REF_TOLERANCE: ("dx_ref_tolerance", 0xFFF),
-    Reg.USTEP_COUNT: ("ustep_count", 0xFF),
-    Reg.POS_COMP: ("pos_comp", MASK24),
-}
-
 #: X_ACTUAL's address as a plain int (spi_data compares it on every position read).
-_X_ACTUAL = int(MotorReg.X_ACTUAL)
+_X_ACTUAL = int(Reg.X_ACTUAL)
+#: The legacy driver-chain registers (stored; no chain on the TMC4210).
+_LEGACY = (Reg.DATAGRAM_LOW, Reg.DATAGRAM_HIGH, Reg.COVER_POS_LEN, Reg.COVER_DATAGRAM)
 
 # Bits of IF_CONFIGURATION and SMGP.
 INV_REF = 1 << 0
@@ -222,52 +167,79 @@ class TMC4210(MotorEngine):
         self.spi(datagram(reg, data))
 
     def _read(self, address: int) -> int:
-        if address < 0x10:
-            return self.read_motor(address)
-        if address < 0x30:
-            return 0  # the TMC429's hidden axes: not part of the TMC4210 contract
-        match address:
-            case Reg.DATAGRAM_LOW | Reg.DATAGRAM_HIGH | Reg.COVER_POS_LEN | Reg.COVER_DATAGRAM:
-                return self.legacy[address - Reg.DATAGRAM_LOW]
-            case Reg.IF_CONFIGURATION:
-                return self.if_config
-            case Reg.POS_COMP:
-                return self.pos_comp
-            case Reg.POS_COMP_INT:
-                return self.pos_comp_mask << 8 | self.pos_comp_flag
-            case Reg.TYPE_VERSION:
-                return TYPE_VERSION
-            case Reg.REFERENCE_SWITCHES:
-                r_active = self._active(self.ref_r)
-                return ((r_active and self.mot1r) | self.left_active << 1
-                        | self._active(self.gp_in) << 3 | (r_active and not self.mot1r) << 5)
-            case Reg.SMGP:
-                return self.smgp
-        return 0
+        if address < GLOBAL_REGISTERS:  # the TMC429's hidden axes read 0 (not in the contract)
+            return self.read_motor(address) if address < 0x10 else 0
+        read = _GLOBAL_READS.get(address)
+        return 0 if read is None else read(self)
+
+    def _reference_switches(self) -> int:
+        """REFERENCE_SWITCHES in the TMC429's layout (docs/motion.md)."""
+        r_active = self._active(self.ref_r)
+        return ((r_active and self.mot1r) | self.left_active << 1
+                | self._active(self.gp_in) << 3 | (r_active and not self.mot1r) << 5)
 
     def _write(self, address: int, data: int) -> None:
-        if address < 0x10:
-            self.write_motor(address, data)
+        if address < GLOBAL_REGISTERS:  # the TMC429's hidden axes ignore writes
+            if address < 0x10:
+                self.write_motor(address, data)
             return
-        if address < 0x30:
-            return
-        match address:
-            case Reg.DATAGRAM_LOW | Reg.DATAGRAM_HIGH | Reg.COVER_POS_LEN | Reg.COVER_DATAGRAM:
-                self.legacy[address - Reg.DATAGRAM_LOW] = data
-                if address != Reg.COVER_POS_LEN:
-                    self.cdgw = True  # visible in the next frame's status, then the chain is done
-            case Reg.IF_CONFIGURATION:
-                self.if_config = data & IF_CONFIG_MASK
-                self._wire()
-            case Reg.POS_COMP:
-                self.pos_comp = data & MASK24
-            case Reg.POS_COMP_INT:
-                self.pos_comp_mask = bool(data >> 8 & 1)
-                if data & 1 or not self.pos_comp_mask:
-                    self.pos_comp_flag = False
-                self.pos_comp_on = self.pos_comp_mask and not self.if_config & POS_COMP_SEL
-            case Reg.POWER_DOWN:
-                self.powered_down = True
-            case Reg.SMGP:
-                self.smgp = data & SMGP_MASK
-                self._wire()
+        write = _GLOBAL_WRITES.get(address)
+        if write is not None:
+            write(self, data)
+
+    def _write_legacy(self, address: int, data: int) -> None:
+        self.legacy[address - Reg.DATAGRAM_LOW] = data
+        if address != Reg.COVER_POS_LEN:
+            self.cdgw = True  # visible in the next frame's status, then the chain is done
+
+    def _write_if_configuration(self, data: int) -> None:
+        self.if_config = data & IF_CONFIG_MASK
+        self._wire()
+
+    def _write_pos_comp_int(self, data: int) -> None:
+        self.pos_comp_mask = bool(data >> 8 & 1)
+        if data & 1 or not self.pos_comp_mask:
+            self.pos_comp_flag = False
+        self.pos_comp_on = self.pos_comp_mask and not self.if_config & POS_COMP_SEL
+
+    def _write_smgp(self, data: int) -> None:
+        self.smgp = data & SMGP_MASK
+        self._wire()
+
+
+def _legacy_read(index: int) -> Callable[[TMC4210], int]:
+    return lambda chip: chip.legacy[index]
+
+
+def _legacy_write(address: int) -> Callable[[TMC4210, int], None]:
+    return lambda chip, data: chip._write_legacy(address, data)
+
+
+def _write_pos_comp(chip: TMC4210, data: int) -> None:
+    chip.pos_comp = data & MASK24
+
+
+def _power_down(chip: TMC4210, data: int) -> None:
+    chip.powered_down = True
+
+
+#: The global registers' reads (an address not here reads 0).
+_GLOBAL_READS: dict[int, Callable[[TMC4210], int]] = {
+    **{address: _legacy_read(index) for index, address in enumerate(_LEGACY)},
+    Reg.IF_CONFIGURATION: lambda chip: chip.if_config,
+    Reg.POS_COMP: lambda chip: chip.pos_comp,
+    Reg.POS_COMP_INT: lambda chip: chip.pos_comp_mask << 8 | chip.pos_comp_flag,
+    Reg.TYPE_VERSION: lambda chip: TYPE_VERSION,
+    Reg.REFERENCE_SWITCHES: TMC4210._reference_switches,
+    Reg.SMGP: lambda chip: chip.smgp,
+}
+
+#: The global registers' writes (an address not here ignores them: TYPE_VERSION, ...).
+_GLOBAL_WRITES: dict[int, Callable[[TMC4210, int], None]] = {
+    **{address: _legacy_write(address) for address in _LEGACY},
+    Reg.IF_CONFIGURATION: TMC4210._write_if_configuration,
+    Reg.POS_COMP: _write_pos_comp,
+    Reg.POS_COMP_INT: TMC4210._write_pos_comp_int,
+    Reg.POWER_DOWN: _power_down,
+    Reg.SMGP: TMC4210._write_smgp,
+}

@@ -39,16 +39,15 @@ Design
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from enum import IntEnum
 from math import floor, pi, sin
 
-from axes.chips.tmc42x.engine import (
+from axes.chips.tmc42x.engine import MotorEngine
+from axes.chips.tmc42x.registers import (
     DEFAULT_CLOCK_HZ,
     MASK24,
-    GlobalReg,
-    MotorEngine,
-    MotorReg,
+    Reg,
     datagram,
     shallow_copy,
 )
@@ -71,7 +70,7 @@ MASK48 = (1 << 48) - 1
 
 
 
-def motor_address(motor: int, reg: MotorReg | int) -> int:
+def motor_address(motor: int, reg: Reg | int) -> int:
     """The 7-bit address of axis register ``reg`` of motor 0..2 (``SMDA << 4 | IDX``)."""
     if not 0 <= motor < NUMBER_OF_MOTORS:
         raise ValueError(f"motor {motor} outside 0..{NUMBER_OF_MOTORS - 1}")
@@ -169,11 +168,11 @@ class TMC429Motor(MotorEngine):
         """The 24 data bits of the chip's answer to a datagram (the driver's reads)."""
         return self.chip.spi_data(frame)
 
-    def read(self, reg: MotorReg | int) -> int:
+    def read(self, reg: Reg | int) -> int:
         """Convenience: the 24 data bits of one of this motor's axis registers."""
         return self.chip.read(motor_address(self.index, reg))
 
-    def write(self, reg: MotorReg | int, data: int) -> None:
+    def write(self, reg: Reg | int, data: int) -> None:
         self.chip.write(motor_address(self.index, reg), data)
 
     def run(self, until: int, budget: int | None = None) -> Stop | None:
@@ -501,71 +500,65 @@ class TMC429:
         self.spi(datagram(reg, data))
 
     def _read(self, address: int, cover_waiting: bool) -> int:
-        match address:
-            case GlobalReg.DATAGRAM_LOW:
-                return self.capture & MASK24
-            case GlobalReg.DATAGRAM_HIGH:
-                return self.capture >> 24 & MASK24
-            case GlobalReg.COVER_POS_LEN:
-                return (cover_waiting << 23 | ((self.cover_pos + 1) & COVER_POS_MASK) << COVER_POS_SHIFT
-                        | self.cover_len)
-            case GlobalReg.COVER_DATAGRAM:
-                return self.cover_datagram
-            case GlobalReg.IF_CONFIGURATION:
-                return self.if_config
-            case GlobalReg.POS_COMP:
-                return self.pos_comp
-            case GlobalReg.POS_COMP_INT:
-                return self.pos_comp_mask << 8 | any(m.pos_comp_flag for m in self.motors)
-            case GlobalReg.TYPE_VERSION:
-                return TYPE_VERSION
-            case GlobalReg.REFERENCE_SWITCHES:
-                return self.reference_switches()
-            case GlobalReg.SMGP:
-                return self.smgp
-        return 0
+        if address == Reg.COVER_POS_LEN:
+            return (cover_waiting << 23
+                    | ((self.cover_pos + 1) & COVER_POS_MASK) << COVER_POS_SHIFT | self.cover_len)
+        read = _GLOBAL_READS.get(address)
+        return 0 if read is None else read(self)
 
     def _write(self, address: int, data: int) -> None:
-        match address:
-            case GlobalReg.DATAGRAM_LOW | GlobalReg.DATAGRAM_HIGH:
-                self.capture = 0
-                self.capture_armed = True
-                if self._chain_busy():
-                    self._transmit()
-                    self._capture_echo = True
-            case GlobalReg.COVER_POS_LEN:
-                self.cover_pos = data >> COVER_POS_SHIFT & COVER_POS_MASK
-                self.cover_len = data & COVER_LEN_MASK
-            case GlobalReg.COVER_DATAGRAM:
-                self.cover_datagram = data
-                self.cover_pending = True
-                if not self.en_sd:  # "sent immediately" (the chain is idle at frame granularity)
-                    self._transmit()
-                    self._cover_echo = True
-            case GlobalReg.IF_CONFIGURATION:
-                self.if_config = data & IF_CONFIG_MASK
-                self._wire()
-                if not self.en_sd and self.cover_pending:
-                    self._transmit()
-                    self._cover_echo = True
-            case GlobalReg.POS_COMP:
-                self.pos_comp = data & MASK24
-                for motor in self.motors:
-                    motor.pos_comp = self.pos_comp
-            case GlobalReg.POS_COMP_INT:
-                self.pos_comp_mask = bool(data >> 8 & 1)
-                if data & 1 or not self.pos_comp_mask:
-                    for motor in self.motors:
-                        motor.pos_comp_flag = False
-                selected = self.if_config >> POS_COMP_SEL_SHIFT & 3
-                for motor in self.motors:
-                    motor.pos_comp_on = self.pos_comp_mask and selected == motor.index
-            case GlobalReg.POWER_DOWN:
-                for motor in self.motors:
-                    motor.powered_down = True
-            case GlobalReg.SMGP:
-                self.smgp = data & SMGP_MASK
-                self._wire()
+        write = _GLOBAL_WRITES.get(address)
+        if write is not None:
+            write(self, data)
+
+    def _arm_capture(self, data: int) -> None:
+        """DATAGRAM_LOW/HIGH written: the capture is re-armed (and completes at once while
+        datagrams flow)."""
+        self.capture = 0
+        self.capture_armed = True
+        if self._chain_busy():
+            self._transmit()
+            self._capture_echo = True
+
+    def _write_cover_pos_len(self, data: int) -> None:
+        self.cover_pos = data >> COVER_POS_SHIFT & COVER_POS_MASK
+        self.cover_len = data & COVER_LEN_MASK
+
+    def _write_cover_datagram(self, data: int) -> None:
+        self.cover_datagram = data
+        self.cover_pending = True
+        if not self.en_sd:  # "sent immediately" (the chain is idle at frame granularity)
+            self._transmit()
+            self._cover_echo = True
+
+    def _write_if_configuration(self, data: int) -> None:
+        self.if_config = data & IF_CONFIG_MASK
+        self._wire()
+        if not self.en_sd and self.cover_pending:
+            self._transmit()
+            self._cover_echo = True
+
+    def _write_pos_comp(self, data: int) -> None:
+        self.pos_comp = data & MASK24
+        for motor in self.motors:
+            motor.pos_comp = self.pos_comp
+
+    def _write_pos_comp_int(self, data: int) -> None:
+        self.pos_comp_mask = bool(data >> 8 & 1)
+        if data & 1 or not self.pos_comp_mask:
+            for motor in self.motors:
+                motor.pos_comp_flag = False
+        selected = self.if_config >> POS_COMP_SEL_SHIFT & 3
+        for motor in self.motors:
+            motor.pos_comp_on = self.pos_comp_mask and selected == motor.index
+
+    def _power_down(self, data: int) -> None:
+        for motor in self.motors:
+            motor.powered_down = True
+
+    def _write_smgp(self, data: int) -> None:
+        self.smgp = data & SMGP_MASK
+        self._wire()
 
     # == the driver chain (§5) =================================================================
 
@@ -633,3 +626,31 @@ class TMC429:
                 word = word << 1 | bit
             driver.write(word)
         return received
+
+
+#: The global registers' reads but COVER_POS_LEN (an address not here reads 0).
+_GLOBAL_READS: dict[int, Callable[[TMC429], int]] = {
+    Reg.DATAGRAM_LOW: lambda chip: chip.capture & MASK24,
+    Reg.DATAGRAM_HIGH: lambda chip: chip.capture >> 24 & MASK24,
+    Reg.COVER_DATAGRAM: lambda chip: chip.cover_datagram,
+    Reg.IF_CONFIGURATION: lambda chip: chip.if_config,
+    Reg.POS_COMP: lambda chip: chip.pos_comp,
+    Reg.POS_COMP_INT: lambda chip: (chip.pos_comp_mask << 8
+                                          | any(m.pos_comp_flag for m in chip.motors)),
+    Reg.TYPE_VERSION: lambda chip: TYPE_VERSION,
+    Reg.REFERENCE_SWITCHES: TMC429.reference_switches,
+    Reg.SMGP: lambda chip: chip.smgp,
+}
+
+#: The global registers' writes (an address not here ignores them: TYPE_VERSION, ...).
+_GLOBAL_WRITES: dict[int, Callable[[TMC429, int], None]] = {
+    Reg.DATAGRAM_LOW: TMC429._arm_capture,
+    Reg.DATAGRAM_HIGH: TMC429._arm_capture,
+    Reg.COVER_POS_LEN: TMC429._write_cover_pos_len,
+    Reg.COVER_DATAGRAM: TMC429._write_cover_datagram,
+    Reg.IF_CONFIGURATION: TMC429._write_if_configuration,
+    Reg.POS_COMP: TMC429._write_pos_comp,
+    Reg.POS_COMP_INT: TMC429._write_pos_comp_int,
+    Reg.POWER_DOWN: TMC429._power_down,
+    Reg.SMGP: TMC429._write_smgp,
+}

@@ -23,10 +23,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from axes.board import AxisBoard
-from axes.chips.tmc42x.engine import DEFAULT_CLOCK_HZ, HALF24
 from axes.chips.tmc42x.firmware import TMC42xDriver
+from axes.chips.tmc42x.registers import DEFAULT_CLOCK_HZ, HALF24
 from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
-from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, GlobalReg, TMC429Motor
+from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, Reg, TMC429Motor
 from axes.core import ChipModel, MotorDriverLink
 from axes.firmware import AxisFirmware
 from axes.interface import Axis
@@ -203,15 +203,15 @@ class TMC429Driver(TMC42xDriver):
 
     def setup_chip(self) -> None:
         """Step/Dir, right switches on REFR, nINT on its own pin; the TMC262 configured."""
-        self._write_global(GlobalReg.IF_CONFIGURATION, IF_CONFIGURATION_FIRMWARE)
-        self._write_global(GlobalReg.SMGP, SMGP_FIRMWARE)
+        self._write_global(Reg.IF_CONFIGURATION, IF_CONFIGURATION_FIRMWARE)
+        self._write_global(Reg.SMGP, SMGP_FIRMWARE)
         if self.motor_driver is not None:
             self.motor_driver.configure()
 
     def levels(self) -> tuple[bool, bool, bool]:
         """(left, right) from REFERENCE_SWITCHES (motor m: r at bit 2m, l at 2m + 1); the
         home switch is not a TMC429 input: the microcontroller reads it from its own pin."""
-        switches = self._read_global(GlobalReg.REFERENCE_SWITCHES) >> 2 * self.motor
+        switches = self._read_global(Reg.REFERENCE_SWITCHES) >> 2 * self.motor
         home = self.board.pins(self.chip.motor_position)[2]
         return bool(switches & 2), bool(switches & 1), home
 

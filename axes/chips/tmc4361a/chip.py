@@ -16,21 +16,25 @@ Every modelling choice is written down in ``docs/tmc4361a.md``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
-from typing import Protocol, runtime_checkable
 
-from axes.chips.tmc4361a.ramp import (
+from axes.chips.tmc4361a.encoder import EncoderInputs
+from axes.chips.tmc4361a.home import HomeTracking
+from axes.chips.tmc4361a.params import (
+    A_FALL,
     A_IDLE,
+    A_SPEED,
     A_START,
     A_WAIT,
     BOW_QUANTUM,
-    MOTION_SLOTS,
     Context,
     Params,
-    Ramp,
     RampRegisters,
     Stage,
 )
+from axes.chips.tmc4361a.ramp import Ramp
+from axes.chips.tmc4361a.recall import RememberedRuns
 from axes.chips.tmc4361a.registers import (
     FLAG_EVENTS,
     MASK32,
@@ -53,10 +57,6 @@ from axes.chips.tmc4361a.registers import (
 from axes.core import Board, ChipModel, Stop
 
 DEFAULT_CLOCK_HZ = 16_000_000
-#: Remembered runs: at most this many states in all (then everything is forgotten and
-#: remembered afresh), and at most TRACE_POINTS per run.
-RECALLED_STATES = 4096
-TRACE_POINTS = 64
 #: How far ahead (clock ticks) the engine looks for the next clock the law must do by itself,
 #: whatever ``until`` a caller gives: the answer, and so the motion, cannot depend on how a
 #: caller cuts time into runs.  2^42 ticks: 76 h at 16 MHz.
@@ -64,8 +64,6 @@ HORIZON_TICKS = 1 << 42
 #: Hidden STATUS bit (above the 32 real ones) that tracks the MAX_PHASE_TRAP condition.
 _MAX_PHASE = 1 << 40
 _VEL_STATE = Status.VEL_STATE_POS | Status.VEL_STATE_NEG
-#: The motion state a remembered run restores (the position moves by its recorded distance).
-_MOTION_SLOTS = tuple(name for name in MOTION_SLOTS if name != "p")
 _TARGET_REACHED_F = Status.TARGET_REACHED_F
 _POS_COMP_REACHED_F = Status.POS_COMP_REACHED_F
 _VEL_REACHED_F = Status.VEL_REACHED_F
@@ -74,16 +72,22 @@ _VEL_STATE_NEG = Status.VEL_STATE_NEG
 _RAMP_STATE_ACC = Status.RAMP_STATE_ACC
 _RAMP_STATE_DEC = Status.RAMP_STATE_DEC
 _RAMP_STATE = Status.RAMP_STATE_ACC | Status.RAMP_STATE_DEC
-#: home_event values (REFERENCE_CONF 19..16), digest §9.3
-HOME_SIDE_TYPES = {3: False, 12: True}  # value: the level on the negative side
-HOME_HIGH_ACTIVE = {2: "left", 4: "right", 6: "centre"}
-HOME_LOW_ACTIVE = {13: "left", 11: "right", 9: "centre"}
-ENC_SEL_DECIMAL = 1 << 0
-INVERT_ENC_DIR = 1 << 29
-MANUAL_ENC_CONST = 1 << 31
+#: Events whose flags can change inside a segment (Ramp.motion_state_limit).
+_MOTION_STATE_EVENTS = (Event.VEL_STATE_ZERO | Event.VEL_STATE_POS | Event.VEL_STATE_NEG
+                        | Event.RAMP_STATE_CONST | Event.RAMP_STATE_ACC | Event.RAMP_STATE_DEC)
+#: REFERENCE_CONF bits whose positions the engine stops at (_limit_positions).
+_LIMIT_CHECKS = RefConf.VIRTUAL_LEFT_LIMIT_EN | RefConf.VIRTUAL_RIGHT_LIMIT_EN
+#: The event a change of VEL_STATE_F / RAMP_STATE_F latches, by the new state.
+_VEL_STATE_EVENTS = {0: Event.VEL_STATE_ZERO, Status.VEL_STATE_POS: Event.VEL_STATE_POS,
+                     Status.VEL_STATE_NEG: Event.VEL_STATE_NEG}
+_RAMP_STATE_EVENTS = {0: Event.RAMP_STATE_CONST, Status.RAMP_STATE_ACC: Event.RAMP_STATE_ACC,
+                      Status.RAMP_STATE_DEC: Event.RAMP_STATE_DEC}
 #: The registers read most (plain ints for the hot path of SPI reads).
 _STATUS = int(Reg.STATUS)
 _XACTUAL = int(Reg.XACTUAL)
+#: RAMPMODE(1:0) of an S-shaped ramp (Params.profile).
+S_SHAPED_PROFILE = 2
+
 #: CURRENTA (8..0) = 0, CURRENTB (24..16) = 247: the sine table's start values.
 CURRENT_AB_POWER_ON = 0x00F7_0000
 
@@ -109,22 +113,15 @@ def _spi_status(events: int, selection: int) -> int:
     return status
 
 
-@runtime_checkable
-class EncoderBoard(Board, Protocol):
-    """A board that also drives the encoder inputs (A/B transitions)."""
-
-    def encoder_counts(self, motor_position: int) -> int:
-        """Signed count of AB transitions the encoder has made with the motor at this position."""
-        ...
+def _turned_at_once(twin: TMC4361A) -> bool:
+    """TMC4361A.speed_turns' test where no promise is made."""
+    return True
 
 
-class TMC4361A(ChipModel):
+class TMC4361A(RememberedRuns, HomeTracking, EncoderInputs, ChipModel):
     """The chip.  Host access is :meth:`spi`; the world drives pins through the board."""
 
     frame_bits = 40
-    #: Replay runs from a state seen before (:meth:`run`); False: work every run out (the
-    #: tests compare the two).
-    recall = True
 
     def __init__(self, clock_hz: int = DEFAULT_CLOCK_HZ, board: Board | None = None,
                  bow_quantum: int = BOW_QUANTUM, recall: bool | None = None) -> None:
@@ -135,11 +132,7 @@ class TMC4361A(ChipModel):
         self.bow_quantum = bow_quantum
         if recall is not None:
             self.recall = recall
-        #: Remembered runs by ramp parameters, shared with clones (:meth:`_recall_key`).
-        self._recalled: dict[Params, dict[tuple, list]] = {}
-        self._recall_for: tuple[Params | None, dict[tuple, list]] = (None, {})
-        #: States remembered in all (one item, shared with clones, as the memo is)
-        self._recall_count = [0]
+        self._forget_runs()
         self.t = 0  # chip clock ticks fully processed
         self._ramp = Ramp(Params.from_registers(RampRegisters(), bow_quantum))
         self.pin_left = self.pin_right = self.pin_home = False  # electrical levels
@@ -169,12 +162,7 @@ class TMC4361A(ChipModel):
         self._frozen = False  # NFREEZE fell: no motion until a reset (datasheet §12)
         self._mark: int | None = None
         self._mark_dir = 0
-        self._enc_const = (0, 65536, 0)  # (numerator, denominator, ENC_CONST register)
-        self._enc_base = 0  # ENC_POS * denominator at the rebase point
-        self._enc_counts_base = 0
-        self._mscnt_base = 0
-        self._mscnt_m = m
-        self._enc_rebase(0)
+        self._encoder_reset(m)
         self._flags = self._status()
 
     # == the contract: time, motion, pins ======================================================
@@ -205,6 +193,54 @@ class TMC4361A(ChipModel):
         twin._ramp = self._ramp.copy()
         return twin
 
+    def speed_turns(self) -> Callable[[TMC4361A], bool] | None:
+        """How far a rotation's VACTUAL moves one way from here, if nothing intervenes: a
+        test of a later copy of this chip, true once the speed may have turned by its tick
+        (false before, true from then on); None: it never turns.  Positioning ramps rise and
+        fall: turned at once.  A rotation heads for the speed asked for, except:
+
+        * a start from rest jumps to VSTART, which may lie beyond that speed (it comes
+          back): turned at once, until the ramp has started (after TZEROWAIT's standstill);
+        * an S-shaped slope first takes back the acceleration of the other slope (REC: a
+          rotation asked for more speed while braking brakes on for a while, one asked for
+          less while accelerating overshoots): turned where that acceleration reaches 0;
+        * an S-shaped reversal with BOW2 = BOW4 passes through 0 without stopping and may
+          then take back its acceleration again (the new direction's speed overshoots):
+          turned at the zero crossing (or a standstill).
+
+        Otherwise each slope lands on its goal (``Ramp._s_tick`` clamps there)."""
+        ramp = self._ramp
+        if ramp.P.positioning:
+            return _turned_at_once
+        if ramp.wait:  # TZEROWAIT: standing still until the start
+            started = self.t + ramp.wait
+            return lambda twin: twin.t > started
+        if ramp.decide(self._context())[0] == A_START:
+            return _turned_at_once
+        if ramp.P.profile != S_SHAPED_PROFILE:
+            return None
+        direction, turning = ramp.s, self._takes_back_acceleration()
+
+        def turned(twin: TMC4361A) -> bool:
+            later = twin._ramp
+            return (later.s != direction or later.w == 0
+                    or (turning and not twin._takes_back_acceleration()))
+
+        return turned
+
+    def _takes_back_acceleration(self) -> bool:
+        """Whether the next tick of an S-shaped rotation moves the speed against where its
+        slope heads (the REC stage: the acceleration points the other way)."""
+        ramp = self._ramp
+        action = ramp.decide(self._context())
+        if action[0] == A_SPEED:
+            slope = (ramp.w < action[1]) - (ramp.w > action[1])
+        elif action[0] == A_FALL:
+            slope = -1
+        else:  # at rest, waiting, a soft stop: no acceleration to take back
+            return False
+        return ramp.a * slope < 0
+
     def at_rest(self) -> bool:
         """Stopped, and nothing will start the motor without a datagram or a pin change."""
         r = self._ramp
@@ -222,10 +258,10 @@ class TMC4361A(ChipModel):
         self._setup = None
         new_l, new_r = self._stop_active_raw()
         conf = self.regs.get(Reg.REFERENCE_CONF, 0)
-        if ((old_l and not new_l and conf & RefConf.LATCH_X_ON_INACTIVE_L)
-                or (not old_l and new_l and conf & RefConf.LATCH_X_ON_ACTIVE_L)
-                or (old_r and not new_r and conf & RefConf.LATCH_X_ON_INACTIVE_R)
-                or (not old_r and new_r and conf & RefConf.LATCH_X_ON_ACTIVE_R)):
+        if any(before != after and conf & (on_active if after else on_inactive)
+               for before, after, on_inactive, on_active in (
+                   (old_l, new_l, RefConf.LATCH_X_ON_INACTIVE_L, RefConf.LATCH_X_ON_ACTIVE_L),
+                   (old_r, new_r, RefConf.LATCH_X_ON_INACTIVE_R, RefConf.LATCH_X_ON_ACTIVE_R))):
             self.x_latch = self.xactual
             self._setup = None
             self._raise(Event.XLATCH_DONE)
@@ -272,102 +308,21 @@ class TMC4361A(ChipModel):
         key = self._recall_key() if self.recall else None
         if key is None:
             return self._run(until, budget)
-        runs = self._recall_runs()
-        trace = runs.get(key)
-        ramp = self._ramp
-        t0, p0 = self.t, ramp.p
-        used = 0
-        if trace is None:
-            if not self._remember(1):
-                return self._run(until, budget)
-            trace = runs[key] = []
-        elif trace:
-            last = None
-            for point in trace:
-                if point[0] > until - t0 or (budget is not None and point[1] > budget):
-                    break
-                last = point
-                if point[7] is not None:
-                    break
-            if last is not None:
-                self._replay(last, t0, p0)
-                if last[7] is not None:
-                    return last[7]
-                used = last[1]
-            if last is not trace[-1]:
-                trace = None  # left inside the trace (until or budget): nothing to add
-        return self._run(until, budget, used, trace, t0, p0)
+        return self._run_remembered(key, until, budget)
 
-    # == remembered runs =======================================================================
-    #
-    # Back-and-forth moves and periodic rotations start the same runs again and again.  What a
-    # run does is a function of the chip state relative to the motor (ramp state, the fine
-    # fraction of the step, the positions the law and the flags depend on relative to
-    # XACTUAL, flags and events) and of the ramp parameters; in a chip without position marks
-    # from the board, virtual stops, home checks or an encoder tolerance nothing else enters
-    # it (NFREEZE counts: a frozen chip locks both directions), and the engine's answers do
-    # not depend on ``until`` (HORIZON_TICKS).  So the state
-    # after each clock the engine did by itself is kept (a trace, by start state), and a run
-    # from a state seen before replays the trace up to ``until`` (or its budget, or a stop)
-    # and goes on from there: the same clocks, states, flags and events, worked out once.
-
-    def _recall_key(self) -> tuple | None:
-        """The whole input of a run from here, relative to the motor; None: not recallable."""
-        board = self.board
-        m = self.motor_position
-        if board is not None and (board.next_mark(m, 1) is not None
-                                  or board.next_mark(m, -1) is not None):
-            return None
-        xtarget, compare, fixed, virtual_left, virtual_right, home, tolerance = (
-            self._setup or self._status_setup())
-        if not (virtual_left is None and virtual_right is None and home is None
-                and tolerance is None):
-            return None
-        ramp = self._ramp
-        g = self.regs.get
-        x = self.xactual
-        # at rest the stage counter is left over from the last stage: a start sets it to 0
-        # (without a ramp nothing starts: the counter runs on)
-        q = (None if ramp.stage == Stage.IDLE and not ramp.stopping and ramp.P.profile
-             else ramp.q)
-        return (signed32(xtarget - x), signed32(compare - x), ramp.p - m * ramp.P.S, fixed,
-                g(Reg.REFERENCE_CONF, 0), g(Reg.INTR_CONF, 0), self._frozen, self._flags,
-                self.events,
-                ramp.w, ramp.s, ramp.a, ramp.slope, ramp.stage, q, ramp.goal,
-                ramp.braking, ramp.wait, ramp.no_vstart, ramp.stopping)
-
-    def _recall_runs(self) -> dict[tuple, list]:
-        P = self._ramp.P
-        params, runs = self._recall_for
-        if params is not P:
-            runs = self._recalled.setdefault(P, {})
-            self._recall_for = (P, runs)
-        return runs
-
-    def _remember(self, states: int) -> bool:
-        """Count ``states`` more remembered states; False (and everything forgotten) when the
-        memory is full: the run at hand is then worked out without being remembered."""
-        count = self._recall_count
-        count[0] += states
-        if count[0] <= RECALLED_STATES:
-            return True
-        self._recalled.clear()
-        self._recall_for = (None, {})
-        count[0] = 0
-        return False
-
-    def _replay(self, point: tuple, t0: int, p0: int) -> None:
-        """Take the state of a trace point (recorded from a run that started at t0, p0)."""
-        ticks, _, moved, motion, flags, events, wake, _ = point
-        ramp = self._ramp
-        self.t = t0 + ticks
-        ramp.p = p0 + moved
-        for name, value in zip(_MOTION_SLOTS, motion, strict=True):
-            setattr(ramp, name, value)
-        self._flags = flags
-        self.events = events
-        self._wake = wake
-        self._mark = None
+    def step(self, until: int) -> Stop | None:
+        """The law, one clock at a time, to clock tick ``until`` or the first notable
+        instant: what :meth:`run` must equal (the same state at every tick it returns at, the
+        same ``Stop``; ``tests/axes/test_tmc4361a_law.py``).  A clock per call: the yardstick
+        of the tests, never the simulator's way."""
+        self._wake = 0
+        while self.t < until:
+            ctx = self._context()
+            self._watch(ctx, self._ramp.decide(ctx))
+            stop = self._tick(ctx)
+            if stop is not None:
+                return stop
+        return None
 
     def _run(self, until: int, budget: int | None, used: int = 0, trace: list | None = None,
              t0: int = 0, p0: int = 0) -> Stop | None:
@@ -381,13 +336,10 @@ class TMC4361A(ChipModel):
             ctx = self._context()
             limit = until - self.t
             plan = ramp.segment_for(ctx)
-            action = plan[0]
-            if ramp.w or action[0] not in (A_IDLE, A_WAIT):
-                positions = self._positions(ctx, action[1] if action[0] == A_START else ramp.s)
-            else:
-                positions = ()
-                self._mark = None
-            e = ramp.horizon(ctx, HORIZON_TICKS, positions, plan)
+            e = ramp.horizon(ctx, HORIZON_TICKS, self._watch(ctx, plan[0]), plan)
+            if self.regs.get(Reg.INTR_CONF, 0) & _MOTION_STATE_EVENTS and e > 1:
+                # events that change inside a segment, wanted at once (EVENT at their clock)
+                e = min(e, ramp.motion_state_limit(plan[1], e - 1))
             if e > limit:
                 ramp.advance(ctx, limit, plan)
                 self.t = until
@@ -399,15 +351,20 @@ class TMC4361A(ChipModel):
                 self._update_flags()
             stop = self._tick(ctx)
             if trace is not None:
-                if len(trace) < TRACE_POINTS and self._remember(1):
-                    trace.append((self.t - t0, used, ramp.p - p0, tuple(
-                        [getattr(ramp, name) for name in _MOTION_SLOTS]), self._flags,
-                        self.events, self._wake, stop))
-                else:
-                    trace = None
+                trace = self._record(trace, t0, p0, used, stop)
             if stop is not None:
                 return stop
         return None
+
+    def _watch(self, ctx: Context, action: tuple) -> tuple[int, ...]:
+        """The positions where something observable changes (_positions) ahead of a motor
+        that moves or is about to (``action``: the law's next), and the board mark to stop
+        at among them; none at rest."""
+        ramp = self._ramp
+        if ramp.w or action[0] not in (A_IDLE, A_WAIT):
+            return self._positions(ctx, action[1] if action[0] == A_START else ramp.s)
+        self._mark = None
+        return ()
 
     def _tick(self, ctx: Context) -> Stop | None:
         """One clock by the letter of the law, then everything that reacts to it."""
@@ -415,26 +372,26 @@ class TMC4361A(ChipModel):
         moving = ramp.w > 0
         arrived, stopped = ramp.tick(ctx)
         self.t += 1
-        at_mark = False
-        if self._mark is not None and (self.motor_position - self._mark) * self._mark_dir >= 0:
-            self._mark = None
-            at_mark = True
-            if self.board is not None:
-                self.set_pins(*self.board.pins(self.motor_position))
-        else:
+        at_mark = self._reached_mark()
+        if not at_mark:
             self._update_flags()
             self._check_stops()
-        if moving and ramp.w == 0 and ramp.stage == Stage.IDLE and not arrived:
-            stopped = True
         if arrived:
             return Stop.ARRIVED
-        if stopped:
+        if stopped or (moving and ramp.w == 0 and ramp.stage == Stage.IDLE):
             return Stop.STOPPED
         if at_mark:
             return Stop.MARK
-        if self._wake:
-            return Stop.EVENT
-        return None
+        return Stop.EVENT if self._wake else None
+
+    def _reached_mark(self) -> bool:
+        """The motor reached the board mark ahead (_watch): the board drives the pins."""
+        if self._mark is None or (self.motor_position - self._mark) * self._mark_dir < 0:
+            return False
+        self._mark = None
+        if self.board is not None:
+            self.set_pins(*self.board.pins(self.motor_position))
+        return True
 
     # == what the ramp needs ===================================================================
 
@@ -475,16 +432,8 @@ class TMC4361A(ChipModel):
             out.append(ctx.target)
         if not events & Event.POS_COMP_REACHED:
             out.append(self._unwrap(self._compare_value()))
-        if conf & RefConf.VIRTUAL_LEFT_LIMIT_EN:
-            left = self._unwrap(g(Reg.VIRT_STOP_LEFT, 0))
-            out += (left, left + 1)
-        if conf & RefConf.VIRTUAL_RIGHT_LIMIT_EN:
-            right = self._unwrap(g(Reg.VIRT_STOP_RIGHT, 0))
-            out += (right, right - 1)
-        if self._home_expectation() is not None:
-            home = self._unwrap(g(Reg.X_HOME, 0))
-            margin = g(Reg.HOME_SAFETY_MARGIN, 0)
-            out += (home - margin - 1, home - margin, home + margin, home + margin + 1)
+        if conf & _LIMIT_CHECKS or self._home_expectation() is not None:
+            out += self._limit_positions(conf)
         self._mark = None
         if self.board is not None:
             mark = self.board.next_mark(self.motor_position, direction)
@@ -496,6 +445,22 @@ class TMC4361A(ChipModel):
         if fail is not None:
             out.append(fail)
         return tuple(out)
+
+    def _limit_positions(self, conf: int) -> list[int]:
+        """The edges of the virtual stops and of the home window (where the flags change)."""
+        g = self.regs.get
+        out: list[int] = []
+        if conf & RefConf.VIRTUAL_LEFT_LIMIT_EN:
+            left = self._unwrap(g(Reg.VIRT_STOP_LEFT, 0))
+            out += (left, left + 1)
+        if conf & RefConf.VIRTUAL_RIGHT_LIMIT_EN:
+            right = self._unwrap(g(Reg.VIRT_STOP_RIGHT, 0))
+            out += (right, right - 1)
+        if self._home_expectation() is not None:
+            home = self._unwrap(g(Reg.X_HOME, 0))
+            margin = g(Reg.HOME_SAFETY_MARGIN, 0)
+            out += (home - margin - 1, home - margin, home + margin, home + margin + 1)
+        return out
 
     # == stop switches, virtual stops, home ====================================================
 
@@ -533,50 +498,6 @@ class TMC4361A(ChipModel):
             ramp.stopping = True
             ramp.braking = False
 
-    def _home_kind(self) -> int:
-        return (self.regs.get(Reg.REFERENCE_CONF, 0) & RefConf.HOME_EVENT) >> 16
-
-    def _home_expectation(self) -> tuple[bool, bool] | None:
-        """Expected HOME_REF level (below, above) the X_HOME window; None: not checked."""
-        kind = self._home_kind()
-        if kind in HOME_SIDE_TYPES:
-            below = HOME_SIDE_TYPES[kind]
-            return below, not below
-        if kind in HOME_HIGH_ACTIVE:
-            return False, False
-        if kind in HOME_LOW_ACTIVE:
-            return True, True
-        return None
-
-    def _home_edge(self, old: bool, new: bool) -> None:
-        """A HOME_REF edge: the home event of the selected type, with the present direction."""
-        kind = self._home_kind()
-        direction = self._ramp.s
-        position: int | None = None
-        if kind in HOME_SIDE_TYPES:
-            position = self.xactual
-        elif kind in HOME_HIGH_ACTIVE or kind in HOME_LOW_ACTIVE:
-            side = HOME_HIGH_ACTIVE.get(kind) or HOME_LOW_ACTIVE[kind]
-            active_level = kind in HOME_HIGH_ACTIVE
-            entering = new == active_level
-            if side == "centre":
-                if entering:
-                    self._home_entry = (self.xactual, direction)
-                elif self._home_entry is not None:
-                    entry, entry_direction = self._home_entry
-                    self._home_entry = None
-                    if entry_direction == direction:  # passed through, not turned back
-                        last_active = self.xactual - direction
-                        position = (signed32(entry) + signed32(last_active)) // 2
-            elif (side == "left") == (entering == (direction > 0)):
-                position = self.xactual
-        conf = self.regs.get(Reg.REFERENCE_CONF, 0)
-        if position is not None and conf & RefConf.START_HOME_TRACKING and not self._home_latched:
-            self.regs[Reg.X_HOME] = position & MASK32
-            self._setup = None
-            self._home_latched = True
-            self._raise(Event.XLATCH_DONE)
-
     # == flags and events ======================================================================
 
     @property
@@ -593,7 +514,8 @@ class TMC4361A(ChipModel):
 
     def _status_setup(self) -> tuple:
         """What the STATUS flags depend on besides the motion: registers and pin levels, worked
-        out once and kept until a register, a pin or a latch changes (``_setup = None``)."""
+        out once and kept until a register, a pin or a latch changes (``_setup = None``):
+        (XTARGET, the compare value, the stop switch flags, the position checks or None)."""
         setup = self._setup
         if setup is not None:
             return setup
@@ -605,6 +527,15 @@ class TMC4361A(ChipModel):
             fixed |= Status.STOPL_ACTIVE_F
         if right and conf & RefConf.STOP_RIGHT_EN:
             fixed |= Status.STOPR_ACTIVE_F
+        setup = self._setup = (g(Reg.XTARGET, 0), self._compare_value(), fixed,
+                               self._position_checks())
+        return setup
+
+    def _position_checks(self) -> tuple | None:
+        """(virtual left stop, virtual right stop, home window, encoder tolerance), each None
+        where it is off; None if all are: what the flags check at each position."""
+        g = self.regs.get
+        conf = g(Reg.REFERENCE_CONF, 0)
         virtual_left = (signed32(g(Reg.VIRT_STOP_LEFT, 0))
                         if conf & RefConf.VIRTUAL_LEFT_LIMIT_EN else None)
         virtual_right = (signed32(g(Reg.VIRT_STOP_RIGHT, 0))
@@ -613,15 +544,13 @@ class TMC4361A(ChipModel):
         home = None if expected is None else (
             expected, g(Reg.X_HOME, 0), g(Reg.HOME_SAFETY_MARGIN, 0))
         tolerance = g(Reg.ENC_POS_DEV_TOL, 0)
-        setup = self._setup = (g(Reg.XTARGET, 0), self._compare_value(), fixed, virtual_left,
-                               virtual_right, home,
-                               tolerance if tolerance < 0x8000_0000 else None)
-        return setup
+        checks = (virtual_left, virtual_right, home,
+                  tolerance if tolerance < 0x8000_0000 else None)
+        return None if checks == (None, None, None, None) else checks
 
     def _status(self) -> int:
         """The live STATUS flags (plus the hidden MAX_PHASE bit)."""
-        xtarget, compare, flags, virtual_left, virtual_right, home, tolerance = (
-            self._setup or self._status_setup())
+        xtarget, compare, flags, checks = self._setup or self._status_setup()
         ramp = self._ramp
         P = ramp.P
         x = (ramp.p // P.S + self._x_offset) & MASK32
@@ -639,10 +568,14 @@ class TMC4361A(ChipModel):
         elif not P.V:
             flags |= _VEL_REACHED_F
         a = ramp.a
-        if a > 0:
-            flags |= _RAMP_STATE_ACC
-        elif a < 0:
-            flags |= _RAMP_STATE_DEC
+        if a:
+            flags |= _RAMP_STATE_ACC if a > 0 else _RAMP_STATE_DEC
+        return flags if checks is None else flags | self._checked_flags(x, checks)
+
+    def _checked_flags(self, x: int, checks: tuple) -> int:
+        """The flags of the position checks (_position_checks) with XACTUAL at ``x``."""
+        virtual_left, virtual_right, home, tolerance = checks
+        flags = 0
         if virtual_left is not None and signed32(x) <= virtual_left:
             flags |= Status.VSTOPL_ACTIVE_F
         if virtual_right is not None and signed32(x) >= virtual_right:
@@ -669,13 +602,11 @@ class TMC4361A(ChipModel):
         for flag, event in FLAG_EVENTS:
             if rising & flag:
                 events |= event
-        if (new ^ old) & _VEL_STATE:
-            events |= (Event.VEL_STATE_POS if new & Status.VEL_STATE_POS else
-                       Event.VEL_STATE_NEG if new & Status.VEL_STATE_NEG else Event.VEL_STATE_ZERO)
-        if (new ^ old) & _RAMP_STATE:
-            events |= (Event.RAMP_STATE_ACC if new & Status.RAMP_STATE_ACC else
-                       Event.RAMP_STATE_DEC if new & Status.RAMP_STATE_DEC
-                       else Event.RAMP_STATE_CONST)
+        changed = new ^ old
+        if changed & _VEL_STATE:
+            events |= _VEL_STATE_EVENTS[new & _VEL_STATE]
+        if changed & _RAMP_STATE:
+            events |= _RAMP_STATE_EVENTS[new & _RAMP_STATE]
         if rising & _MAX_PHASE:
             events |= Event.MAX_PHASE_TRAP
         if events:
@@ -698,175 +629,39 @@ class TMC4361A(ChipModel):
             return 0
         return _spi_status(events, self.regs.get(Reg.SPI_STATUS_SELECTION, 0))
 
-    # == encoder ===============================================================================
-
-    def _encoder_counts(self, motor_position: int) -> int:
-        g = self.regs.get
-        if isinstance(self.board, EncoderBoard):
-            counts = self.board.encoder_counts(motor_position)
-        else:
-            resolution = g(Reg.ENC_IN_RES, 0)
-            if resolution & MANUAL_ENC_CONST or not resolution:
-                return 0
-            counts = motor_position * resolution // self._usteps_per_rev()
-        return -counts if g(Reg.ENC_IN_CONF, 0) & INVERT_ENC_DIR else counts
-
-    def _usteps_per_rev(self) -> int:
-        step_conf = self.regs.get(Reg.STEP_CONF, 0)
-        fs_per_rev = (step_conf >> 4) & 0xFFF
-        return max(fs_per_rev * (256 >> min(step_conf & 0xF, 8)), 1)
-
-    def _enc_const_now(self) -> tuple[int, int, int]:
-        """(numerator, denominator, register) of ENC_CONST from ENC_IN_RES and STEP_CONF."""
-        g = self.regs.get
-        written = g(Reg.ENC_IN_RES, 0)
-        decimal = bool(g(Reg.ENC_IN_CONF, 0) & ENC_SEL_DECIMAL)
-        if written & MANUAL_ENC_CONST:
-            raw = written & 0x7FFF_FFFF
-            if decimal:
-                return (raw >> 16) * 10000 + min(raw & 0xFFFF, 9999), 10000, raw
-            return raw, 65536, raw
-        resolution = written & 0x7FFF_FFFF
-        if not resolution:
-            return 0, 65536, 0
-        whole, rest = divmod(self._usteps_per_rev(), resolution)
-        if whole > 0x7FFF:
-            whole = 0x7FFF
-        if rest * 65536 % resolution == 0 or (rest * 10000 % resolution and not decimal):
-            fraction = rest * 65536 // resolution
-            return whole * 65536 + fraction, 65536, whole << 16 | fraction
-        fraction = rest * 10000 // resolution
-        return whole * 10000 + fraction, 10000, whole << 16 | fraction
-
-    def _enc_fine(self, motor_position: int) -> int:
-        """ENC_POS times the constant's denominator."""
-        numerator, _, _ = self._enc_const
-        return self._enc_base + (self._encoder_counts(motor_position)
-                                 - self._enc_counts_base) * numerator
-
-    def enc_pos(self, motor_position: int | None = None) -> int:
-        m = self.motor_position if motor_position is None else motor_position
-        return signed32(self._enc_fine(m) // self._enc_const[1])
-
-    def _enc_rebase(self, value: int | None = None) -> None:
-        """Freeze ENC_POS here (or set it to ``value``) before the constant or counting changes."""
-        m = self.motor_position
-        if value is None:
-            value = self.enc_pos(m) if hasattr(self, "_enc_const") else 0
-        self._enc_const = self._enc_const_now()
-        self._enc_base = value * self._enc_const[1]
-        self._enc_counts_base = self._encoder_counts(m)
-
-    def _enc_dev(self, motor_position: int) -> int:
-        x = signed32(self.xactual + motor_position - self.motor_position)
-        return signed32(self.enc_pos(motor_position) - x)
-
-    def _encoder_fail_position(self) -> int | None:
-        """First motor position ahead where |ENC_POS_DEV| exceeds ENC_POS_DEV_TOL.
-
-        Assumes the deviation grows steadily with the distance travelled (a slipping or lagging
-        encoder); the search is exponential and then bisects, O(log distance) board queries.
-        """
-        tolerance = self.regs.get(Reg.ENC_POS_DEV_TOL, 0)
-        if tolerance >= 0x8000_0000 or self.events & Event.ENC_FAIL or not self._ramp.w:
-            return None
-        m = self.motor_position
-        s = self._ramp.s
-        if abs(self._enc_dev(m)) > tolerance:
-            return None
-        low, step = 0, 1
-        high = None
-        while step < 1 << 34:
-            if abs(self._enc_dev(m + s * (low + step))) > tolerance:
-                high = low + step
-                break
-            low += step
-            step *= 2
-        if high is None:
-            return None
-        while high - low > 1:
-            mid = (low + high) // 2
-            if abs(self._enc_dev(m + s * mid)) > tolerance:
-                high = mid
-            else:
-                low = mid
-        return m + s * high
-
-    def _v_enc(self) -> int:
-        """Encoder velocity [pps]: the encoder's rate against the motor at the present speed."""
-        ramp = self._ramp
-        if not ramp.w:
-            return 0
-        m = self.motor_position
-        span = 1024 * ramp.s
-        ratio_num = self.enc_pos(m + span) - self.enc_pos(m)
-        v = self._vactual_exact()
-        return int(v * ratio_num / span)
-
     # == register reads and writes =============================================================
 
-    def _vactual_exact(self) -> float:
-        r = self._ramp
-        return r.s * r.w * r.P.f / r.P.S
-
     def _read(self, address: int) -> int:
-        g = self.regs.get
-        if address not in READ_COMPUTED:
-            return g(address, 0)  # the read view is what was written
+        # STATUS and XACTUAL first, in line: the firmware reads them at every look
         if address == _STATUS:
             return self._flags & MASK32
         if address == _XACTUAL:
             return self.xactual
+        read = _COMPUTED_READS.get(address)
+        return self.regs.get(address, 0) if read is None else read(self)  # else what was written
+
+    def _read_events(self) -> int:
+        """EVENTS: read and cleared, but for EVENT_CLEAR_CONF's bits and FROZEN ("remains
+        active until the reset")."""
+        value = self.events
+        kept = self.regs.get(Reg.EVENT_CLEAR_CONF, 0) | (Event.FROZEN if self._frozen else 0)
+        self.events &= kept
+        self._events_cleared(value & ~kept)
+        return value
+
+    def _read_vactual(self) -> int:
         ramp = self._ramp
-        match address:
-            case Reg.EVENTS:
-                value = self.events
-                kept = g(Reg.EVENT_CLEAR_CONF, 0) | (Event.FROZEN if self._frozen else 0)
-                self.events &= kept  # FROZEN "remains active until the reset"
-                self._events_cleared(value & ~kept)
-                return value
-            case Reg.STATUS:
-                return self._flags & MASK32
-            case Reg.XACTUAL:
-                return self.xactual
-            case Reg.VACTUAL:
-                magnitude = ramp.w * ramp.P.f // ramp.P.S
-                return (ramp.s * magnitude) & MASK32
-            case Reg.AACTUAL:
-                magnitude = abs(ramp.a) * ramp.P.f * ramp.P.f // ramp.P.S
-                sign = 1 if ramp.a >= 0 else -1
-                return (ramp.s * sign * magnitude) & MASK32
-            case Reg.X_LATCH:
-                if g(Reg.GENERAL_CONF, 0) & GeneralConf.CIRCULAR_CNT_AS_XLATCH:
-                    return 0  # REV_CNT: circular motion is not emulated
-                return self.x_latch
-            case Reg.ENC_POS:
-                return self.enc_pos() & MASK32
-            case Reg.ENC_LATCH:
-                return 0  # N channel not emulated
-            case Reg.ENC_POS_DEV:
-                return self._enc_dev(self.motor_position) & MASK32
-            case Reg.ENC_CONST:
-                return self._enc_const[2]
-            case Reg.V_ENC | Reg.V_ENC_MEAN:
-                return self._v_enc() & MASK32
-            case Reg.MSCNT:
-                return self._mscnt()
-            case Reg.CURRENTA_B | Reg.TZEROWAIT:
-                return CURRENT_AB_POWER_ON
-            case Reg.CIRCULAR_DEC:
-                return 0  # SCALE_PARAM
-            case Reg.VERSION_NO:
-                return VERSION
-            case Reg.RESET_CLK_GATING:
-                return g(address, 0) & 0x7
-            case Reg.COVER_DRV_LOW | Reg.COVER_DRV_HIGH:
-                return 0  # no driver answers behind the SPI output
-        if address in (Reg.ENC_POS_DEV_TOL, 0x55, 0x56, 0x57, 0x58, 0x5A, 0x5B, 0x5C, 0x5D,
-                       0x5E, 0x5F, 0x60, 0x61, 0x62, 0x63, 0x64, 0x68, 0x69, 0x6A, 0x6B,
-                       Reg.MSLUTSEL, Reg.ENC_COMP) or 0x70 <= address <= 0x77:
-            return 0  # write-only views (or closed-loop / serial-encoder results)
-        return g(address, 0)
+        return (ramp.s * (ramp.w * ramp.P.f // ramp.P.S)) & MASK32
+
+    def _read_aactual(self) -> int:
+        ramp = self._ramp
+        magnitude = abs(ramp.a) * ramp.P.f * ramp.P.f // ramp.P.S
+        return (ramp.s * (1 if ramp.a >= 0 else -1) * magnitude) & MASK32
+
+    def _read_x_latch(self) -> int:
+        if self.regs.get(Reg.GENERAL_CONF, 0) & GeneralConf.CIRCULAR_CNT_AS_XLATCH:
+            return 0  # REV_CNT: circular motion is not emulated
+        return self.x_latch
 
     def _events_cleared(self, cleared: int) -> None:
         if cleared & Event.XLATCH_DONE and self._home_latched:
@@ -879,51 +674,16 @@ class TMC4361A(ChipModel):
         if address in READ_ONLY:
             return
         data &= WRITE_MASKS.get(address, MASK32)
-        ramp = self._ramp
         old = self.regs.get(address, 0)
         self._setup = None
-        match address:
-            case Reg.XACTUAL:
-                self._x_offset = data - self.motor_position
-                self._update_flags()
-                self._check_stops()
-                return
-            case Reg.EVENTS:
-                if self._frozen:
-                    data &= ~Event.FROZEN
-                cleared = self.events & data
-                self.events &= ~data
-                self._events_cleared(cleared)
-                return
-            case Reg.RESET_CLK_GATING:
-                if data >> 8 == RESET_KEY:
-                    self.power_on()
-                    return
-                data &= 0x7
-            case Reg.FREEZE:
-                if self._freeze_written:
-                    return
-                self._freeze_written = True
-            case Reg.ENC_POS:
-                self.regs[address] = data
-                self._enc_rebase(signed32(data))
-                self._update_flags()
-                return
-            case Reg.ENC_IN_RES | Reg.ENC_IN_CONF | Reg.STEP_CONF:
-                self.regs[address] = data
-                self._enc_rebase()
-                if address == Reg.STEP_CONF:
-                    self._mscnt_rebase(old)
-                self._update_flags()
-                return
-            case Reg.COVER_HIGH:
-                self.regs[address] = data
-                self._raise(Event.COVER_DONE)  # the datagram goes out at once
-                return
-            case Reg.REFERENCE_CONF:
-                if not data & RefConf.START_HOME_TRACKING or not old & RefConf.START_HOME_TRACKING:
-                    self._home_latched = False  # armed again by a 0 -> 1 write
+        special = _SPECIAL_WRITES.get(address)
+        if special is not None:
+            stored = special(self, data, old)
+            if stored is None:
+                return  # the write did all it does
+            data = stored
         self.regs[address] = data
+        ramp = self._ramp
         if address in RAMP_REGISTERS:
             if data != old:  # the same value leaves the parameters (and their caches) as they are
                 ramp.set_params(self._params())
@@ -936,20 +696,62 @@ class TMC4361A(ChipModel):
         self._update_flags()
         self._check_stops()
 
-    def _mscnt(self) -> int:
-        step_conf = self.regs.get(Reg.STEP_CONF, 0)
-        increment = 1 << min(step_conf & 0xF, 8)
-        if self.regs.get(Reg.GENERAL_CONF, 0) & GeneralConf.REVERSE_MOTOR_DIR:
-            increment = -increment
-        return (self._mscnt_base + (self.motor_position - self._mscnt_m) * increment) & 0x3FF
+    # Writes with side effects of their own: each returns the value to store (then the ramp
+    # and the flags take it as any write), or None when it has done all the write does.
 
-    def _mscnt_rebase(self, old_step_conf: int) -> None:
-        new = self.regs.get(Reg.STEP_CONF, 0)
-        self.regs[Reg.STEP_CONF] = old_step_conf
-        value = self._mscnt()
-        self.regs[Reg.STEP_CONF] = new
-        self._mscnt_base = value
-        self._mscnt_m = self.motor_position
+    def _write_xactual(self, data: int, old: int) -> int | None:
+        self._x_offset = data - self.motor_position
+        self._update_flags()
+        self._check_stops()
+        return None
+
+    def _write_events(self, data: int, old: int) -> int | None:
+        """Writing 1 clears an event (FROZEN stays until the reset)."""
+        if self._frozen:
+            data &= ~Event.FROZEN
+        cleared = self.events & data
+        self.events &= ~data
+        self._events_cleared(cleared)
+        return None
+
+    def _write_reset(self, data: int, old: int) -> int | None:
+        """RESET_CLK_GATING: the reset key resets the chip; else the clock gating bits."""
+        if data >> 8 == RESET_KEY:
+            self.power_on()
+            return None
+        return data & 0x7
+
+    def _write_freeze(self, data: int, old: int) -> int | None:
+        """FREEZE (DFREEZE, IFS_FREEZE) can be written once after a reset."""
+        if self._freeze_written:
+            return None
+        self._freeze_written = True
+        return data
+
+    def _write_enc_pos(self, data: int, old: int) -> int | None:
+        self.regs[Reg.ENC_POS] = data
+        self._enc_rebase(signed32(data))
+        self._update_flags()
+        return None
+
+    def _write_encoder_setup(self, address: int, data: int, old: int) -> None:
+        """ENC_IN_RES, ENC_IN_CONF, STEP_CONF: ENC_POS (and MSCNT) kept where they are, the
+        constant and the counting from here on new."""
+        self.regs[address] = data
+        self._enc_rebase()
+        if address == Reg.STEP_CONF:
+            self._mscnt_rebase(old)
+        self._update_flags()
+
+    def _write_cover_high(self, data: int, old: int) -> int | None:
+        self.regs[Reg.COVER_HIGH] = data
+        self._raise(Event.COVER_DONE)  # the datagram goes out at once
+        return None
+
+    def _write_reference_conf(self, data: int, old: int) -> int | None:
+        if not data & RefConf.START_HOME_TRACKING or not old & RefConf.START_HOME_TRACKING:
+            self._home_latched = False  # armed again by a 0 -> 1 write
+        return data
 
     # == SPI ===================================================================================
 
@@ -976,3 +778,47 @@ class TMC4361A(ChipModel):
 
     def write(self, reg: int, data: int) -> None:
         self.spi(datagram(reg, data, write=True))
+
+
+def _encoder_setup(address: int) -> Callable[[TMC4361A, int, int], int | None]:
+    def write(chip: TMC4361A, data: int, old: int) -> None:
+        chip._write_encoder_setup(address, data, old)
+    return write
+
+
+#: Reads that are worked out (the others read what was written); every other address of
+#: READ_COMPUTED reads 0: write-only views, and closed-loop and serial-encoder results.
+_COMPUTED_READS: dict[int, Callable[[TMC4361A], int]] = {
+    **{address: lambda chip: 0 for address in READ_COMPUTED},
+    Reg.EVENTS: TMC4361A._read_events,
+    Reg.STATUS: lambda chip: chip._flags & MASK32,
+    Reg.XACTUAL: lambda chip: chip.xactual,
+    Reg.VACTUAL: TMC4361A._read_vactual,
+    Reg.AACTUAL: TMC4361A._read_aactual,
+    Reg.X_LATCH: TMC4361A._read_x_latch,
+    Reg.ENC_POS: lambda chip: chip.enc_pos() & MASK32,  # ENC_LATCH reads 0: no N channel
+    Reg.ENC_POS_DEV: lambda chip: chip._enc_dev(chip.motor_position) & MASK32,
+    Reg.ENC_CONST: lambda chip: chip._enc_const[2],
+    Reg.V_ENC: lambda chip: chip._v_enc() & MASK32,
+    Reg.V_ENC_MEAN: lambda chip: chip._v_enc() & MASK32,
+    Reg.MSCNT: TMC4361A._mscnt,
+    Reg.CURRENTA_B: lambda chip: CURRENT_AB_POWER_ON,
+    Reg.TZEROWAIT: lambda chip: CURRENT_AB_POWER_ON,  # its read view is CURRENTA_B
+    Reg.VERSION_NO: lambda chip: VERSION,
+    Reg.RESET_CLK_GATING: lambda chip: chip.regs.get(Reg.RESET_CLK_GATING, 0) & 0x7,
+    # CIRCULAR_DEC reads SCALE_PARAM 0; COVER_DRV_LOW/HIGH 0: no driver answers behind SPI
+}
+
+#: Writes with side effects of their own (the others are stored, then act on the ramp).
+_SPECIAL_WRITES: dict[int, Callable[[TMC4361A, int, int], int | None]] = {
+    Reg.XACTUAL: TMC4361A._write_xactual,
+    Reg.EVENTS: TMC4361A._write_events,
+    Reg.RESET_CLK_GATING: TMC4361A._write_reset,
+    Reg.FREEZE: TMC4361A._write_freeze,
+    Reg.ENC_POS: TMC4361A._write_enc_pos,
+    Reg.ENC_IN_RES: _encoder_setup(Reg.ENC_IN_RES),
+    Reg.ENC_IN_CONF: _encoder_setup(Reg.ENC_IN_CONF),
+    Reg.STEP_CONF: _encoder_setup(Reg.STEP_CONF),
+    Reg.COVER_HIGH: TMC4361A._write_cover_high,
+    Reg.REFERENCE_CONF: TMC4361A._write_reference_conf,
+}

@@ -11,12 +11,13 @@ mapping choice is explained in docs/motion.md ("The TMC4361A core") and docs/tmc
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import cast
 
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
 from axes.chips.tmc4361a.registers import MASK32, WRITE_MASKS, signed32
-from axes.core import ChipDriver
+from axes.core import ChipDriver, ChipModel
 from axes.firmware import AxisFirmware
 from axes.interface import NotAvailable
 from axes.world import AxisWorld
@@ -195,6 +196,14 @@ class TMC4361ADriver(ChipDriver):
     def actual_speed(self) -> int:
         """AP 3: VACTUAL (integer pps), or in unit mode 0 the manual's internal units."""
         return self._speed_from_pps(signed32(self._read(Reg.VACTUAL)))
+
+    def speed_turns(self, start: ChipModel) -> Callable[[ChipModel], bool] | None:
+        """S-shaped ramps bend: the chip says how far a rotation's speed moves one way."""
+        assert isinstance(start, TMC4361A)
+        test = start.speed_turns()
+        if test is None:
+            return None
+        return lambda later: test(cast(TMC4361A, later))
 
     def levels(self) -> tuple[bool, bool, bool]:
         """Logical (left, right, home) levels, read from the input stage.

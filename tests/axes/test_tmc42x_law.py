@@ -1,0 +1,189 @@
+"""The TMC42x engine's fast shortcut against its own law, on the whole motor state.
+
+``MotorEngine.run`` (closed forms, batches of ramp ticks, a work budget) must equal
+``MotorLaw.step`` (one clk32 tick at a time, :mod:`axes.chips.tmc42x.law`): wherever ``run``
+returns, the law stepped to the same tick returns the same ``Stop`` there (and none before),
+and every attribute of the motor is the same (position, velocity and its fraction, the
+accumulator, V_TARGET, A_ACTUAL, interrupt flags, the latch, the position compare, the
+microstep counter, the pins a board drives).  ``tests/axes/test_tmc4210.py`` holds the
+engine to the independent reference transcription on positions and velocities; this file
+holds it to the product's law on everything, from states anywhere in the register space.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
+
+from axes.chips.tmc42x.registers import HALF24, MASK24, Irq, RampMode, Reg
+from axes.chips.tmc42x.tmc4210 import TMC4210
+from axes.core import ChipModel, Stop
+from tests.axes.test_tmc4210 import _Strip
+
+#: Attributes that are the engine's bookkeeping, not the chip's state.
+_BOOKKEEPING = {"_work"}
+
+
+def _state(chip: ChipModel) -> dict:
+    return {name: value for name, value in vars(chip).items() if name not in _BOOKKEEPING}
+
+
+_speeds = st.one_of(st.just(0), st.integers(-(2047 << 8) - 255, (2047 << 8) + 255),
+                    st.sampled_from([1, -1, 255, 256, -256, 2047 << 8, -(2047 << 8)]))
+_positions = st.one_of(st.integers(-3000, 3000), st.integers(HALF24 - 60, HALF24 + 60),
+                       st.integers(-HALF24, HALF24 - 1))
+motor_states = st.fixed_dictionaries({
+    "v_min": st.one_of(st.sampled_from([0, 1, 2, 2047]), st.integers(0, 2047)),
+    "v_max": st.one_of(st.sampled_from([0, 1, 2, 2047]), st.integers(0, 2047)),
+    "a_max": st.one_of(st.sampled_from([0, 1, 2, 3, 2047]), st.integers(0, 2047)),
+    "pmul": st.integers(128, 255), "pdiv": st.integers(0, 13),
+    "pulse_div": st.integers(0, 5), "ramp_div": st.integers(0, 5),
+    "mode": st.sampled_from(list(RampMode)),
+    "x_actual": _positions, "x_target": _positions, "v": _speeds,
+    "v_target": st.integers(-2048, 2047), "acc": st.integers(0, 2047),
+    "dx_ref_tolerance": st.sampled_from([0, 1, 3, 300, 4095]),
+    "ref_conf": st.integers(0, 15).map(lambda bits: bits << 8),  # disables, soft, ref_RnL
+    "int_mask": st.integers(0, 255), "latch_pending": st.booleans(), "usrs": st.integers(0, 7),
+    "pos_comp": _positions, "pos_comp_on": st.booleans(), "inv_ref": st.booleans(),
+    "right_wired": st.booleans(), "steps_out": st.booleans(), "t": st.integers(0, 300),
+})
+#: A left and a right switch (levels by position, or None) and marks, near the start.
+boards = st.one_of(st.none(), st.builds(
+    _Strip, st.one_of(st.none(), st.integers(-3000, 0)), st.one_of(st.none(), st.integers(1, 3000)),
+    st.lists(st.integers(-3000, 3000), max_size=6)))
+writes = st.one_of(
+    st.tuples(st.sampled_from([Reg.X_TARGET, Reg.X_ACTUAL, Reg.POS_COMP]),
+              st.integers(-4000, 4000).map(lambda x: x & MASK24)),
+    st.tuples(st.sampled_from([Reg.V_MAX, Reg.V_MIN, Reg.A_MAX]), st.integers(0, 2047)),
+    st.tuples(st.sampled_from([Reg.V_TARGET, Reg.V_ACTUAL]), st.integers(0, 0xFFF)),
+    st.tuples(st.just(Reg.REF_CONF_RAMP_MODE), st.integers(0, 0xFFF)),
+    st.tuples(st.just(Reg.DIVIDERS), st.builds(lambda p, r: p << 12 | r << 8,
+                                               st.integers(0, 5), st.integers(0, 5))),
+    st.tuples(st.just(Reg.INTERRUPT), st.integers(0, 0xFFFF)),
+    st.tuples(st.sampled_from([Reg.X_LATCHED, Reg.POWER_DOWN]), st.just(0)),
+)
+#: (clk32 ticks to run, work budget or None, a register write after it or None)
+steps = st.lists(st.tuples(st.one_of(st.integers(1, 40), st.integers(1, 6000)),
+                           st.one_of(st.none(), st.integers(1, 6)),
+                           st.one_of(st.none(), writes)), min_size=1, max_size=5)
+
+
+def _chip(state: dict, board: _Strip | None) -> TMC4210:
+    chip = TMC4210(board=board)
+    for name, value in state.items():
+        setattr(chip, name, value)
+    chip.x_actual &= MASK24
+    chip.x_target &= MASK24
+    chip.pos_comp &= MASK24
+    chip.ramp_next = (chip.t >> chip.ramp_div) + 1 << chip.ramp_div
+    chip._refresh_pins()
+    return chip
+
+
+def run_beside_the_law(chip: ChipModel, law: ChipModel, until: int, budget: int | None,
+                       state: Callable[[ChipModel], dict]) -> None:
+    """Run ``chip`` to ``until`` (on a work ``budget``) and, at each return of ``run`` (a stop,
+    the budget spent, or ``until``), step ``law`` (its copy) to the same tick by the law:
+    the same ``Stop`` there and none before, the same ``state``.  (Both chips' tests.)"""
+    while chip.t < until:
+        stop = chip.run(until, budget)
+        assert chip.t <= until
+        assert law.step(chip.t) is stop, f"at tick {chip.t}"
+        assert law.t == chip.t
+        assert state(law) == state(chip), f"at tick {chip.t}"
+
+
+def _hold_equal(state: dict, board: _Strip | None, script: list) -> None:
+    chip = _chip(state, board)
+    law = chip.clone()
+    for ticks, budget, write in script:
+        run_beside_the_law(chip, law, chip.t + ticks, budget, _state)
+        if write is not None:
+            chip.write(*write)
+            law.write(*write)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(state={"v_min": 2, "v_max": 300, "a_max": 3, "pmul": 236, "pdiv": 4, "pulse_div": 5,
+                "ramp_div": 0, "mode": RampMode.RAMP, "x_actual": 5, "x_target": HALF24 + 4,
+                "v": -401664, "v_target": 0, "acc": 0, "dx_ref_tolerance": 0, "ref_conf": 0,
+                "int_mask": 0xFF, "latch_pending": False, "usrs": 0, "pos_comp": 0,
+                "pos_comp_on": False, "inv_ref": False, "right_wired": False, "steps_out": True,
+                "t": 0}, board=None, script=[(6000, None, None)])  # a target 2**23 - 1 behind
+@example(state={"v_min": 61, "v_max": 2047, "a_max": 2, "pmul": 166, "pdiv": 2, "pulse_div": 3,
+                "ramp_div": 0, "mode": RampMode.VELOCITY, "x_actual": 2000, "x_target": 0,
+                "v": 510464, "v_target": 1020, "acc": 0, "dx_ref_tolerance": 3, "ref_conf": 0x400,
+                "int_mask": 0xFF, "latch_pending": True, "usrs": 2, "pos_comp": 0,
+                "pos_comp_on": True, "inv_ref": False, "right_wired": True, "steps_out": True,
+                "t": 0}, board=_Strip(None, 2200, [2100]),
+         script=[(6000, 3, None), (6000, None, None)])  # a soft stop at a switch, on a budget
+@example(state={"v_min": 5, "v_max": 900, "a_max": 300, "pmul": 200, "pdiv": 3, "pulse_div": 0,
+                "ramp_div": 2, "mode": RampMode.RAMP, "x_actual": 0, "x_target": 3000,
+                "v": 0, "v_target": 0, "acc": 0, "dx_ref_tolerance": 0, "ref_conf": 0,
+                "int_mask": 0, "latch_pending": False, "usrs": 0, "pos_comp": 0,
+                "pos_comp_on": False, "inv_ref": False, "right_wired": False, "steps_out": True,
+                "t": 0}, board=None, script=[(5, 1, None), (1, 1, None), (3, 1, None),
+                                             (40, 2, None), (6000, 1, None)])
+@example(state={"v_min": 0, "v_max": 2047, "a_max": 2047, "pmul": 128, "pdiv": 0, "pulse_div": 0,
+                "ramp_div": 0, "mode": RampMode.RAMP, "x_actual": 0, "x_target": 2, "v": 0,
+                "v_target": 0, "acc": 0, "dx_ref_tolerance": 0, "ref_conf": 0, "int_mask": 0,
+                "latch_pending": False, "usrs": 0, "pos_comp": 0, "pos_comp_on": False,
+                "inv_ref": False, "right_wired": False, "steps_out": False, "t": 0},
+         board=None, script=[(29, 1, None)])  # a batch that holds the speed: A_ACTUAL 0
+@given(state=motor_states, board=boards, script=steps)
+def test_run_is_the_law_ticked_clock_by_clock(state: dict, board: _Strip | None,
+                                              script: list) -> None:
+    """Any register state (12-bit speeds and their fractions, V_MIN above V_MAX, A_MAX 0, hold
+    mode, targets across the 24-bit wrap), switches ahead or behind, hard or soft, inside or
+    outside the tolerance window, board marks, interrupts and the latch armed, any dividers,
+    odd tick counts and small work budgets, register writes between runs: ``run`` lands where
+    the law's ticks do, on every attribute, and stops where they stop."""
+    _hold_equal(state, board, script)
+
+
+def test_a_run_cut_short_by_its_budget_leaves_the_laws_state() -> None:
+    """A single ramp tick taken the plain way leaves ``t`` one tick short of it; a run whose
+    budget ends there finishes that tick, so the state it returns is the law's at ``t``.  It
+    used to hold the tick's new velocity one tick early (here at clk32 tick 1150 of a
+    one-step move): a look-ahead cut by its budget, adopted, showed it to a read."""
+    chip = _chip({"v_max": 2047, "v_min": 5, "a_max": 1, "pmul": 200, "pdiv": 3,
+                  "x_target": 1, "steps_out": True}, None)
+    law = chip.clone()
+    stop = None
+    while stop is None:
+        stop = chip.run(10**6, budget=1)
+        assert law.step(chip.t) is stop
+        assert (chip.t, chip.v, chip.x_actual) == (law.t, law.v, law.x_actual)
+        assert _state(chip) == _state(law)
+    assert stop is Stop.ARRIVED and chip.x_actual == 1
+
+
+def test_a_actual_after_ticks_that_hold_the_speed_is_zero() -> None:
+    """Ticks that hold the speed on a flat stretch of the curve (here V_TARGET 22 for a move of
+    one step) write A_ACTUAL 0, as the law's last tick does; a batch of them used to leave
+    the A_ACTUAL of the tick before (1538 here, on the code before the law was split out)."""
+    chip = _chip({"v_max": 2047, "a_max": 2047, "pmul": 128, "pdiv": 6, "x_target": 1}, None)
+    law = chip.clone()
+    assert chip.run(5) is None and law.step(5) is None
+    assert chip.v == law.v == 22 << 8
+    assert chip.read(Reg.A_ACTUAL) == law.read(Reg.A_ACTUAL) == 0
+
+
+def test_the_laws_ticks_stop_where_a_move_ends() -> None:
+    """The law itself: a positioning move ends at its target with POS_END (ARRIVED), a hard
+    switch ahead stops the motor at the step it turns active (MARK, then rest)."""
+    chip = _chip({"v_max": 900, "v_min": 40, "a_max": 300, "pmul": 200, "pdiv": 3,
+                  "x_target": 700, "int_mask": 0xFF, "steps_out": True}, None)
+    while (stop := chip.step(10**6)) is None:
+        pass
+    assert stop is Stop.ARRIVED and chip.x_actual == 700 and chip.v == 0
+    assert chip.int_flags & 1 << Irq.POS_END
+    walled = _chip({"v_max": 900, "v_min": 40, "a_max": 300, "pmul": 200, "pdiv": 3,
+                    "x_target": 700, "right_wired": True, "steps_out": True},
+                   _Strip(None, 400, []))
+    assert walled.step(10**6) is Stop.MARK
+    assert walled.motor_position == 399 and walled.v != 0  # the edge before the switch
+    assert walled.step(10**6) is Stop.MARK
+    assert walled.motor_position == 400 and walled.v == 0  # active: a hard stop at once
