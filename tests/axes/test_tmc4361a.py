@@ -365,6 +365,12 @@ def _first_turn(chip: TMC4361A, limit: int) -> int:
        changes=st.lists(change, max_size=2), first=st.integers(1, 1500),
        vmax=st.integers(-V_TEST * 256, V_TEST * 256),
        at=st.one_of(st.just(0), st.integers(0, 200), st.integers(0, 3000)))
+# an S-shaped rotation that has not started: its standstill now is not the turn looked for
+@example(regs=Registers(rampmode=2, vmax=7680, amax=120, dmax=120, bow1=76, bow2=76, bow3=76,
+                        bow4=76, clk_freq=500), quantum=2, changes=[], first=1, vmax=1, at=0)
+# a linear rotation reversed towards a speed below VSTART: it restarts at VSTART, then slows
+@example(regs=Registers(rampmode=1, vmax=4_294_959_616, vstart=17, amax=120, dmax=120,
+                        clk_freq=500, tzerowait=37), quantum=1, changes=[], first=1, vmax=1, at=0)
 def test_a_rotations_speed_moves_one_way_until_the_chip_says_it_may_turn(
         regs: Registers, quantum: int, changes: list, first: int, vmax: int, at: int) -> None:
     """Loop skipping bisects a rotation's speed only where it is monotonic (axes/forecast.py

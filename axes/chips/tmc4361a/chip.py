@@ -200,7 +200,8 @@ class TMC4361A(RememberedRuns, HomeTracking, EncoderInputs, ChipModel):
         fall: turned at once.  A rotation heads for the speed asked for, except:
 
         * a start from rest jumps to VSTART, which may lie beyond that speed (it comes
-          back): turned at once, until the ramp has started (after TZEROWAIT's standstill);
+          back): turned at once, until the ramp has started (after TZEROWAIT's standstill),
+          and, with a VSTART, turned at the standstill of a reversal (it starts again there);
         * an S-shaped slope first takes back the acceleration of the other slope (REC: a
           rotation asked for more speed while braking brakes on for a while, one asked for
           less while accelerating overshoots): turned where that acceleration reaches 0;
@@ -217,9 +218,15 @@ class TMC4361A(RememberedRuns, HomeTracking, EncoderInputs, ChipModel):
             return lambda twin: twin.t > started
         if ramp.decide(self._context())[0] == A_START:
             return _turned_at_once
-        if ramp.P.profile != S_SHAPED_PROFILE:
+        s_shaped = ramp.P.profile == S_SHAPED_PROFILE
+        if not s_shaped and not ramp.P.VSTART:
             return None
-        direction, turning = ramp.s, self._takes_back_acceleration()
+        if ramp.w == 0:  # at rest: the standstill the test looks for is a later one
+            return _turned_at_once
+        direction = ramp.s
+        if not s_shaped:  # a reversal restarts at VSTART, which may lie beyond the goal
+            return lambda twin: twin._ramp.s != direction or twin._ramp.w == 0
+        turning = self._takes_back_acceleration()
 
         def turned(twin: TMC4361A) -> bool:
             later = twin._ramp
