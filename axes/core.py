@@ -14,6 +14,7 @@ the module's input stage and the mechanics of the world (``axes/board.py``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from enum import IntEnum
 from typing import TYPE_CHECKING, Protocol, Self
 
@@ -120,13 +121,12 @@ class MotorDriverLink(ABC):
     """The firmware's routines for a modelled motor driver IC (the TMC262 on the TMC429
     modules), reached by the chip driver: the current, microsteps, stallGuard2 and coolStep
     parameters act on the driver chip's registers and are read back from it.  Without one,
-    :class:`axes.firmware.AxisFirmware` computes them itself (axes/stallguard.py)."""
+    :class:`axes.firmware.AxisFirmware` computes them itself (axes/stallguard.py).  The
+    firmware reads the driver's readings in its periodic pass (axes/tasks.py, TMCL-LITE-1110
+    SysControl.c line 104) and answers AP 206/180/208 from what that pass read."""
 
     #: Axis parameters whose writes go to the driver chip (:meth:`configure`).
     parameters: frozenset[int]
-    #: True while the firmware lets coolStep regulate (then it is told the speed at every
-    #: position read, :meth:`regulate`).
-    regulating: bool
 
     @abstractmethod
     def configure(self, number: int | None = None) -> None:
@@ -134,27 +134,40 @@ class MotorDriverLink(ABC):
 
     @abstractmethod
     def set_current(self, value: int) -> None:
-        """Run or standby current now, 0..255 (AP 6 / AP 7)."""
+        """The motor current now, 0..255 (AP 6, AP 7 or AP 183)."""
 
     @abstractmethod
-    def regulate(self, speed: int) -> None:
-        """The firmware's coolStep switch: on at or above AP 182 (and below AP 22), else off."""
+    def switch_coolstep(self, on: bool) -> None:
+        """The firmware's coolStep switch: SEMIN = AP 172 (on) or 0 (off)."""
+
+    @abstractmethod
+    def sample(self, chip: ChipModel | None = None) -> None:
+        """Read the driver's stallGuard2 value, coolStep current and flags, as the firmware's
+        pass does; :meth:`load`, :meth:`current_scale` and :meth:`flags` answer from it.
+        ``chip``: read the driver of that copy of the axis's chip instead (a pass taken on a
+        copy made before the chip went past its instant, axes/tasks.py T2)."""
+
+    @abstractmethod
+    def observe(self) -> None:
+        """Let the driver catch up with the steps the motor made (at a load edge: its
+        measurements so far read the load before it), reading nothing for the firmware."""
 
     @abstractmethod
     def load(self) -> int:
-        """AP 206: the stallGuard2 value the driver measured."""
+        """AP 206: the stallGuard2 value the last :meth:`sample` read."""
 
     @abstractmethod
     def stalled(self) -> bool:
-        """The driver's stallGuard2 flag: its last measurement read 0."""
+        """The driver's stall output now (its stallGuard2 flag: the last measurement read 0)."""
 
     @abstractmethod
-    def current_scale(self) -> int | None:
-        """AP 180: the current scale coolStep set (0..31), None while coolStep is off."""
+    def current_scale(self) -> int:
+        """AP 180: the coolStep current scale (0..31) the last :meth:`sample` read (the
+        current's own scale while coolStep is off)."""
 
     @abstractmethod
     def flags(self) -> int:
-        """AP 208: the driver's status flags."""
+        """AP 208: the driver's status flags the last :meth:`sample` read."""
 
 
 class ChipDriver(ABC):
@@ -183,6 +196,20 @@ class ChipDriver(ABC):
     #: How far the firmware runs a look-ahead copy of the chip (:data:`LOOKAHEAD_NS` keeps
     #: 24-bit position registers unambiguous; a chip with a 32-bit position may look further).
     lookahead_ns: int = LOOKAHEAD_NS
+    #: The width of AP 1 as the firmware reads it (two's complement): past
+    #: ``2**(position_bits - 1) - 1`` it goes on at ``-2**(position_bits - 1)``, and the other
+    #: way round.  A comparison with the position flips there without meeting its boundary,
+    #: so loop skipping's forecast stops at the wrap too (axes/forecast.py, F3).  32: the
+    #: whole TMCL value; a firmware that reads a narrower register as AP 1 says so.
+    position_bits: int = 32
+
+    #: Parameters whose writes :meth:`check_write` sees first (a value the chip cannot run).
+    checked_parameters: frozenset[int] = frozenset()
+
+    def check_write(self, number: int, value: int) -> None:
+        """Refuse a write of one of :attr:`checked_parameters` the chip cannot follow
+        (ValueError: status 4; ``axes.interface.NotAvailable``: status 6)."""
+        return
 
     def horizon_ns(self) -> int:
         """How far the next look-ahead may run: :attr:`lookahead_ns`, or as far as the chip's
@@ -233,6 +260,16 @@ class ChipDriver(ABC):
             return self.actual_speed()
         finally:
             self.chip = own
+
+    def speed_turns(self, start: ChipModel) -> Callable[[ChipModel], bool] | None:
+        """How far AP 3 moves one way from ``start`` (a look-ahead copy of its own chip, in
+        velocity mode, nothing intervening): a test of a later copy of ``start``, true once
+        the speed may have turned (moved one way, then the other) by that copy's tick, false
+        before (so false, then true: loop skipping bisects a rotation's speed only where it
+        is false, axes/forecast.py F4).  None, the default, is a linear ramp's answer: it
+        only heads for the speed asked for, it never turns.  A chip whose ramps bend
+        (S-shaped) says where they may."""
+        return None
 
     @abstractmethod
     def levels(self) -> tuple[bool, bool, bool]:

@@ -50,3 +50,13 @@ def make_axes(core: str, count: int, parameters: Mapping[int, ParamSpec],
     """A module's ``count`` axes on core ``core``: in groups sharing a chip where the core's
     chip drives several motors, else one chip per axis (:meth:`Axis.build_axes`)."""
     return axis_class(core).build_axes(count, parameters, clock_hz)
+
+
+def refusal(core: str, parameters: Mapping[int, ParamSpec]) -> str | None:
+    """Why axes with this parameter table cannot run on core ``core`` (None: they can): the
+    reason the core's axis class gives when it is built with it."""
+    try:
+        make_axis(core, 0, parameters)
+    except ValueError as exc:
+        return str(exc)
+    return None

@@ -6,8 +6,10 @@ sees), over a *driver* (:class:`axes.core.ChipDriver`): the chip-specific half o
 firmware, which speaks the chip's SPI datagrams (``axes/chips/tmc42x/tmc4210_firmware.py``).
 What it relies on lives in files of its own: the look-ahead and loop skipping's forecasts
 (axes/forecast.py), the reference search (axes/reference_search.py), the encoder
-(axes/encoder.py), stallGuard2 and coolStep (axes/stallguard.py), and the world and faults
-around it on its :class:`axes.board.AxisBoard` (axes/rig.py).  Time: the axis keeps the
+(axes/encoder.py), stallGuard2 and coolStep (axes/stallguard.py), the periodic pass of the
+firmware's main loop (axes/tasks.py: the current, coolStep's switch, the driver's readings,
+the stall check, on the firmware's own clock), and the world and faults around it on its
+:class:`axes.board.AxisBoard` (axes/rig.py).  Time: the axis keeps the
 simulated time it was last advanced to; :meth:`advance_to` adopts the look-ahead's copy of
 the chip at each event, so each stretch of motion is computed once.  Every modelling choice
 is explained in docs/motion.md.
@@ -25,13 +27,11 @@ from axes.forecast import AxisForecast, Lookahead
 from axes.interface import AxisEvent, AxisEventKind, AxisStatus
 from axes.reference_search import ReferenceSearcher
 from axes.rig import RiggedAxis
-from axes.stallguard import CoolStep
+from axes.tasks import FirmwareTasks
 from axes.world import AxisWorld
-from tmcl_spec.numbers import NS_PER_MS, to_int32
+from tmcl_spec.modules import FirmwareClock
+from tmcl_spec.numbers import to_signed
 from tmcl_spec.parameters import AP, Motion, ParamSpec
-
-#: How often the firmware samples stallGuard while it could stall but does not yet.
-STALL_POLL_NS = NS_PER_MS
 
 ERROR_STALL = 1
 ERROR_DEVIATION = 2
@@ -119,6 +119,8 @@ class AxisFirmware(RiggedAxis):
         self.motor_driver: MotorDriverLink | None = self.driver.motor_driver
         #: Chip-specific parameters the driver reads from its chip (e.g. AP 135, AP 138).
         self._chip_live: frozenset[int] = frozenset(self.driver.live_parameters & known)
+        #: Parameters whose writes the driver checks first (values its chip cannot run).
+        self._checked: frozenset[int] = frozenset(self.driver.checked_parameters)
         motions = {self._keys.get(n, n): spec.motion for n, spec in parameters.items()
                    if spec.motion is not None}
         self._check_motions(motions)
@@ -140,12 +142,9 @@ class AxisFirmware(RiggedAxis):
         #: The reference search (axes/reference_search.py).
         self.homing = ReferenceSearcher(self, self._params)
         self._errors = 0
-        self._standstill_since: int | None = 0
-        self._standby = False
-        self._stall_watch = False
         self._motion_origin = 0  # motor position where the motion last started
-        #: The current scale coolStep regulates (axes/stallguard.py).
-        self._coolstep = CoolStep()
+        #: The firmware's periodic pass: current, coolStep, the driver's readings, stall.
+        self.tasks = FirmwareTasks(self, self._params)
         self._travel_direction = 1  # of the last motion (the filtered stallGuard2 reading)
         self.driver.power_up()
         self._levels = self.driver.levels()  # logical left, right, home
@@ -196,16 +195,8 @@ class AxisFirmware(RiggedAxis):
     def error_flags(self) -> int:
         return self._errors
 
-    def _timer_due(self) -> int | None:
-        """The firmware's own next deadline (standby current, stallGuard sampling)."""
-        due = None
-        if self._standstill_since is not None and not self._standby:
-            due = self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS
-        if self._stall_watch:
-            poll = self._now_ns + STALL_POLL_NS
-            if due is None or poll < due:
-                due = poll
-        return due
+    def start_firmware_clock(self, clock: FirmwareClock, origin_ns: int, axes: int) -> None:
+        self.tasks.start(clock, origin_ns, self.index, axes)
 
     def next_event_ns(self) -> int | None:
         now = self._now_ns
@@ -213,7 +204,7 @@ class AxisFirmware(RiggedAxis):
             return now
         ahead = self._lookahead()
         due = None if ahead is None else ahead.time_ns if ahead.time_ns > now else now
-        timer = self._timer_due()
+        timer = self.tasks.due()  # T1 (axes/tasks.py): only what a host sees
         if timer is not None:
             if timer < now:
                 timer = now
@@ -222,11 +213,17 @@ class AxisFirmware(RiggedAxis):
         return due
 
     def advance_to(self, t_ns: int) -> list[AxisEvent]:
+        tasks = self.tasks
         while True:
             ahead = self._lookahead()
-            timer = self._timer_due()
+            timer = tasks.due()
             if ahead is not None and (chip_at := ahead.time_ns) <= t_ns and (
                     timer is None or chip_at <= timer):
+                lazy = tasks.lazy_pass(chip_at)
+                if lazy is not None:  # T2: the pass runs before the chip goes past it
+                    self._now_ns = max(self._now_ns, lazy)
+                    self._run_pass(lazy)
+                    continue
                 try:
                     self.driver.chip = self.driver.chip.adopt(ahead.chip)
                 except StaleLookahead:
@@ -238,7 +235,7 @@ class AxisFirmware(RiggedAxis):
             elif timer is not None and timer <= t_ns:
                 self._now_ns = max(self._now_ns, timer)
                 self.sync()
-                self._on_timer()
+                tasks.run_due(self._now_ns)
             else:
                 break
         if t_ns > self._now_ns:
@@ -249,59 +246,60 @@ class AxisFirmware(RiggedAxis):
         return events
 
     def sync(self) -> None:
-        """Bring the chip up to ``_now_ns`` and read the position (before any command)."""
+        """Bring the chip up to ``_now_ns`` and read the position (before any command); the
+        firmware's passes on the way run at their instants (T2 in axes/tasks.py)."""
+        tasks = self.tasks
+        if tasks.next_pass_ns < self._now_ns:  # a pass lies behind (one comparison: GAP 1)
+            while (at := tasks.lazy_pass(self._now_ns)) is not None:
+                self._run_pass(at)
+        self._run_chip(self._now_ns)
+        self.driver.read_position()
+
+    def _run_chip(self, t_ns: int) -> None:
         chip = self.driver.chip
-        until = chip.ticks_at(self._now_ns)
+        until = chip.ticks_at(t_ns)
         while chip.t < until:
             stop = chip.run(until)
             if stop is None:
                 break
             self._react(stop)  # only reached if the lookahead was skipped
             chip = self.driver.chip
-        self._read_position()
 
-    def _read_position(self) -> None:
+    def _run_pass(self, t_ns: int) -> None:
+        """The firmware's pass at ``t_ns`` (axes/tasks.py), the chip brought there."""
+        self._run_chip(t_ns)
         self.driver.read_position()
-        if (self._params[AP.SMARTENERGY_HYSTERESIS_START] or self._coolstep.scale is not None
-                or (self.motor_driver is not None and self.motor_driver.regulating)):
-            self._update_coolstep()  # coolstep_follows_reads, inlined: every read runs it
-
-    def coolstep_follows_reads(self) -> bool:
-        """coolStep regulates (or is set up to): its current follows every read's load."""
-        return bool(self._params[AP.SMARTENERGY_HYSTERESIS_START]
-                    or self._coolstep.scale is not None
-                    or (self.motor_driver is not None and self.motor_driver.regulating))
+        self.tasks.run_pass(t_ns)
 
     def emit(self, kind: AxisEventKind, active: bool | None = None) -> None:
         self._pending.append(AxisEvent(self._now_ns, self.index, kind, active))
+
+    def emit_at(self, time_ns: int, kind: AxisEventKind, active: bool | None = None) -> None:
+        self._pending.append(AxisEvent(time_ns, self.index, kind, active))
 
     # == reacting to the chip ==================================================================
 
     def _react(self, stop: Stop | None) -> None:
         """Whatever the firmware does at a notable instant (it reacts within the same tick)."""
-        self._read_position()
+        self.driver.read_position()
+        self.tasks.feed()  # a load edge: coolStep's measurements so far read the load before it
         self._check_levels()
         moving = self.driver.moving()
         switch_stopped = self.driver.take_switch_stop()
         if self._positioning and self._awaiting_arrival:
             self.driver.continue_move(self._target)
         if (stop in (Stop.ARRIVED, Stop.STOPPED) or switch_stopped) and not moving:
-            self._standstill_since = self._now_ns
+            self._came_to_rest()
             if not self._positioning and not self.homing.active:
                 self._target = self._position  # MVP REL after a rotation starts from here
             self._conclude_move()  # arrived and standing: "target reached"
         self.homing.step()
-        self._check_stall()
+        self.tasks.check_stall()
         self._check_deviation()
         self.update_marks()
 
-    def _on_timer(self) -> None:
-        if (self._standstill_since is not None and not self._standby and self._now_ns
-                >= self._standstill_since + self._params[AP.POWER_DOWN_DELAY] * 10 * NS_PER_MS):
-            self._standby = True
-            self._current_changed()
-            self.emit(AxisEventKind.CURRENT_CHANGED, False)
-        self._check_stall()
+    def _came_to_rest(self) -> None:
+        self.tasks.came_to_rest(self._now_ns)
 
     def _check_levels(self) -> None:
         levels = self.driver.levels()
@@ -313,12 +311,8 @@ class AxisFirmware(RiggedAxis):
         self._levels = levels
 
     def _motion_started(self) -> None:
-        self._standstill_since = None
         self._motion_origin = self.chip.motor_position
-        if self._standby:
-            self._standby = False
-            self._current_changed()
-            self.emit(AxisEventKind.CURRENT_CHANGED, True)
+        self.tasks.motion_started(self._now_ns)  # the current follows at the next pass
         self._errors = 0
 
     # == motion ================================================================================
@@ -353,7 +347,7 @@ class AxisFirmware(RiggedAxis):
         self._motion_started()
         if self._position == self._target and not self.driver.moving():
             self._awaiting_arrival = False
-            self._standstill_since = self._now_ns
+            self._came_to_rest()
             if not self.homing.active:
                 self.emit(AxisEventKind.TARGET_REACHED)
 
@@ -362,7 +356,7 @@ class AxisFirmware(RiggedAxis):
         firmware's own records: a raw register write is noticed at the next real command)."""
         return (self._velocity_command == velocity and self._params[AP.TARGET_SPEED] == velocity
                 and not self._positioning and not self.homing.active and self._errors == 0
-                and self._standstill_since is None)
+                and self.tasks.rest_since is None)
 
     def rotate(self, velocity: int) -> bool:
         if self._rotating_at(velocity):
@@ -380,14 +374,18 @@ class AxisFirmware(RiggedAxis):
             return False  # already stopping (or stopped) in velocity mode: nothing to change
         self._command()
         self.homing.abort()
+        self._ramp_stop()
+        self._after_command()
+        return True
+
+    def _ramp_stop(self) -> None:
+        """MST's stop (and RFS STOP's): velocity mode, target speed 0, errors cleared."""
         self._velocity_command = self._params[AP.TARGET_SPEED] = 0
         self._conclude_move()
         self.driver.ramp_stop()
         self._positioning = False
         self._awaiting_arrival = False
         self._errors = 0
-        self._after_command()
-        return True
 
     def emergency_stop(self) -> None:
         self._command()
@@ -403,23 +401,28 @@ class AxisFirmware(RiggedAxis):
         self._positioning = False
         self._awaiting_arrival = False
         self._velocity_command = 0
-        if self._standstill_since is None:
-            self._standstill_since = self._now_ns
+        if self.tasks.rest_since is None:
+            self._came_to_rest()
         self.update_marks()
 
     def move_to(self, target: int) -> None:
         self._command()
         self.homing.abort()
-        self.start_positioning(to_int32(target), self._params[AP.MAX_SPEED])
+        self.start_positioning(to_signed(target, self.driver.position_bits),
+                               self._params[AP.MAX_SPEED])
         self._after_command()
 
     def _command(self) -> None:
         """Every host command first brings the chip to the present."""
         self.sync()
+        tasks = self.tasks
+        tasks.feed()  # coolStep's measurements so far, before a setting may change
+        tasks.touch()  # the next pass may decide otherwise
         self._invalidate()
 
     def _after_command(self) -> None:
-        self._check_stall()
+        self.tasks.touch()  # a setting the current's pass depends on (AP 214) may be new
+        self.tasks.check_stall()
         self.update_marks()
         self._invalidate()
 
@@ -432,9 +435,10 @@ class AxisFirmware(RiggedAxis):
             return homing.state
         self._command()
         if action == 1:
-            if homing.active:
+            if homing.active:  # stop() would find nothing to do once the search is gone
                 homing.abort()
-                self.stop()
+                self._ramp_stop()
+                self._after_command()
             return 0
         search = homing.plan(self._params[AP.RFS_MODE])
         homing.abort()
@@ -463,66 +467,37 @@ class AxisFirmware(RiggedAxis):
 
     # == stallGuard, encoder, current ==========================================================
 
-    def _mechanical(self) -> int:
+    def mechanical(self) -> int:
         return self.board.mechanical(self.chip.motor_position)
 
     def _load(self) -> int:
-        """AP 206: the stallGuard2 reading, after threshold (AP 174) and filter (AP 173)."""
+        """AP 206: the stallGuard2 reading, after threshold (AP 174) and filter (AP 173): what
+        the last pass read from a modelled driver (axes/tasks.py), else the reading now."""
         if self.motor_driver is not None:
+            self.tasks.settle()
             return self.motor_driver.load()
-        return stallguard.load_reading(self._params, self.board.world.load_at, self._mechanical(),
+        return self.generic_load()
+
+    def generic_load(self) -> int:
+        return stallguard.load_reading(self._params, self.board.world.load_at, self.mechanical(),
                                        self.driver.heading() or self._travel_direction)
 
     def actual_speed(self) -> int:
         return self.driver.actual_speed()
 
-    def _check_stall(self) -> None:
-        """AP 181: stop a motor at or above that speed whose stallGuard2 reading is 0.
+    def stall_stop(self) -> None:
+        """AP 181: a stall stops the motor at once (axes/tasks.py decides when)."""
+        self.homing.abort()
+        self.hard_stop()
+        self._errors |= ERROR_STALL
+        self.emit(AxisEventKind.STALL)
 
-        Where the load changes is an event of the world; in between, while a stall could
-        still come (a zero reading below AP 181, or a filtered reading still falling towards
-        the zero under the motor), the firmware samples every :data:`STALL_POLL_NS`.  A
-        modelled motor driver measures at full steps only: it too is sampled while the load
-        under the motor reads 0.
-        """
-        threshold = self._params[AP.STOP_ON_STALL]
-        watching = False
-        if threshold and self._standstill_since is None:
-            motor_driver = self.motor_driver
-            stalled = (self._driver_stalled(motor_driver) if motor_driver is not None
-                       else self._load() == 0)
-            if stalled and abs(self.actual_speed()) >= threshold:
-                self.homing.abort()
-                self.hard_stop()
-                self._errors |= ERROR_STALL
-                self.emit(AxisEventKind.STALL)
-            elif stalled or stallguard.reading(self.board.world.load_at(self._mechanical()),
-                                               self._params[AP.STALLGUARD_THRESHOLD]) == 0:
-                watching = True
-        self._stall_watch = watching
-
-    def _driver_stalled(self, motor_driver: MotorDriverLink) -> bool:
-        """The modelled driver's stallGuard2 flag, once it is from this motion: the driver
-        measures at full steps (four with the filter), so until the motor has made that
-        many since it started the flag is the last motion's and the firmware ignores it."""
-        full_step = 1 << self._params[AP.MICROSTEPS]
-        if self._params[AP.STALLGUARD_FILTER]:
-            full_step *= stallguard.FILTER_FULL_STEPS
-        if abs(self.chip.motor_position - self._motion_origin) < full_step:
-            return False
-        return motor_driver.stalled()
-
-    def _update_coolstep(self) -> None:
-        """Bring coolStep's current scale up to the present (called at every position read)."""
-        speed = abs(self.actual_speed()) if self._standstill_since is None else 0
-        if self.motor_driver is not None:
-            self.motor_driver.regulate(speed)
-            return
-        self._coolstep.update(self._params, self._mechanical(), speed, self._load())
+    def full_steps_moved(self) -> int:
+        return abs(self.chip.motor_position - self._motion_origin)
 
     def _check_deviation(self) -> None:
         limit = self._params[AP.MAX_DEVIATION]
-        if limit and self._standstill_since is None and self.encoder.deviation(
+        if limit and self.tasks.rest_since is None and self.encoder.deviation(
                 self._position, self.chip.motor_position) > limit:
             self.homing.abort()
             self.hard_stop()
@@ -546,28 +521,15 @@ class AxisFirmware(RiggedAxis):
 
     @property
     def current(self) -> int:
-        """The motor current now (0..255): AP 6 while moving, lowered by coolStep at light
-        load, and AP 7 after the power-down delay."""
-        if self._standby:
-            return self._params[AP.STANDBY_CURRENT]
-        return stallguard.run_current(self._params[AP.MAX_CURRENT], self._coolstep_scale())
+        """The motor current now (0..255): AP 6 while moving (AP 183 below AP 182, lowered by
+        coolStep at light load), AP 7 in standby; switched by the firmware's pass."""
+        return self.tasks.current()
 
-    def _coolstep_scale(self) -> int | None:
-        """The current scale coolStep regulates to (0..31), None while it does not."""
+    def current_changed(self) -> None:
+        """Run, slow-run or standby current switched, or AP 6/7/183 changed: a modelled
+        driver follows."""
         if self.motor_driver is not None:
-            return self.motor_driver.current_scale()
-        return self._coolstep.scale
-
-    def _current_scale(self) -> int:
-        """AP 180 (0..31): coolStep's scale while it regulates, else that of the current now."""
-        scale = self._coolstep_scale()
-        return self.current >> stallguard.CURRENT_SCALE_SHIFT if scale is None else scale
-
-    def _current_changed(self) -> None:
-        """Run or standby current switched, or AP 6/7 changed: a modelled driver follows."""
-        if self.motor_driver is not None:
-            setting = self._params[AP.STANDBY_CURRENT if self._standby else AP.MAX_CURRENT]
-            self.motor_driver.set_current(setting)
+            self.motor_driver.set_current(self.tasks.current_setting())
 
     # == parameters ============================================================================
 
@@ -610,10 +572,11 @@ class AxisFirmware(RiggedAxis):
         if number == AP.ENCODER_POSITION:
             return self.encoder.position(self.chip.motor_position)
         if number == AP.SMARTENERGY_ACTUAL_CURRENT:
-            return self._current_scale()
+            return self.tasks.actual_scale()
         if number == AP.MEASURED_SPEED:  # the driver's step-rate measurement: a magnitude
             return abs(self.actual_speed())
         if number == AP.DRIVER_ERROR_FLAGS and self.motor_driver is not None:
+            self.tasks.settle()
             return self.motor_driver.flags()
         if number == AP.ABSOLUTE_ENCODER:
             return self.encoder.absolute(self.chip.motor_position)
@@ -626,10 +589,10 @@ class AxisFirmware(RiggedAxis):
             number = self._keys.get(number, number)
         return self.forecast.steady_until(number)
 
-    def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
+    def first_time_at(self, number: int, values: tuple[int, ...], read_ns: int) -> int:
         if self._keys:
             number = self._keys.get(number, number)
-        return self.forecast.first_time_at(number, values)
+        return self.forecast.first_time_at(number, values, read_ns)
 
     def in_velocity_mode(self) -> bool:
         """Velocity mode (ROR, ROL, MST) with no reference search: the speed only ever moves
@@ -639,6 +602,8 @@ class AxisFirmware(RiggedAxis):
     def set_parameter(self, number: int, value: int) -> bool:
         if self._keys:
             number = self._keys.get(number, number)
+        if number in self._checked:
+            self.driver.check_write(number, value)  # ValueError: the module's status 4 (or 6)
         if number == AP.TARGET_SPEED and self._rotating_at(value):
             return False
         if number not in _ACTION_PARAMETERS and self._params.get(number) == value:
@@ -646,9 +611,10 @@ class AxisFirmware(RiggedAxis):
         self._command()
         if number == AP.TARGET_POSITION:
             self.homing.abort()
-            self.start_positioning(to_int32(value), self._params[AP.MAX_SPEED])
+            self.start_positioning(to_signed(value, self.driver.position_bits),
+                                   self._params[AP.MAX_SPEED])
         elif number == AP.ACTUAL_POSITION:
-            self._set_position(to_int32(value))
+            self._set_position(to_signed(value, self.driver.position_bits))
         elif number == AP.TARGET_SPEED:
             self.homing.abort()
             self._velocity_command = value
@@ -698,9 +664,18 @@ class AxisFirmware(RiggedAxis):
         self._rebase_encoder()
 
     def _current_written(self) -> None:
-        self._current_changed()
-        if self._standby:
+        self.current_changed()
+        if self.tasks.standby:
             self.emit(AxisEventKind.CURRENT_CHANGED, False)
+
+    def _semin_written(self) -> None:
+        """SAP 172 writes the driver's SEMIN at once, SAP 182 = 0 zeroes it (TMCL-LITE-1110
+        Commands.c lines 661-663, 698-702); the next pass switches by the speed."""
+        self.tasks.switch_coolstep(self._params[AP.SMARTENERGY_HYSTERESIS_START] > 0)
+
+    def _coolstep_speed_written(self) -> None:
+        if self._params[AP.SMARTENERGY_THRESHOLD_SPEED] == 0:
+            self.tasks.switch_coolstep(False)
 
     def _input_stage_from_parameters(self) -> None:
         """The module's input stage: switches swapped and inverted as the parameters say."""
@@ -733,6 +708,7 @@ class AxisFirmware(RiggedAxis):
 
     def _rig_begin(self) -> None:
         self._command()
+        self.tasks.settle()  # a pass left for a read saw the world as it was
 
     def _rig_end(self) -> None:
         self._after_command()  # a new load or stuck mechanics may stall the motor now
@@ -773,10 +749,10 @@ class AxisFirmware(RiggedAxis):
             mode=self.driver.mode_name(),
             position_reached=self._position == self._target,
             home_switch=home, left_switch=left, right_switch=right, load=self._load(),
-            error_flags=self._errors, current=self.current, standby=self._standby,
+            error_flags=self._errors, current=self.current, standby=self.tasks.standby,
             encoder_position=self.encoder.position(self.chip.motor_position),
             reference_search=self.homing.state,
-            mechanical_position=self._mechanical(),
+            mechanical_position=self.mechanical(),
         )
 
 
@@ -789,5 +765,8 @@ _SIDE_EFFECTS: dict[int, Callable[[AxisFirmware], None]] = {
     **dict.fromkeys((AP.SWAP_SWITCHES, AP.LEFT_POLARITY, AP.RIGHT_POLARITY),
                     AxisFirmware._input_stage_written),
     AP.MICROSTEPS: AxisFirmware._microsteps_written,
-    **dict.fromkeys((AP.MAX_CURRENT, AP.STANDBY_CURRENT), AxisFirmware._current_written),
+    **dict.fromkeys((AP.MAX_CURRENT, AP.STANDBY_CURRENT, AP.SMARTENERGY_SLOW_RUN_CURRENT),
+                    AxisFirmware._current_written),
+    AP.SMARTENERGY_HYSTERESIS_START: AxisFirmware._semin_written,
+    AP.SMARTENERGY_THRESHOLD_SPEED: AxisFirmware._coolstep_speed_written,
 }

@@ -22,16 +22,36 @@ F2. The table says how each parameter moves (:class:`tmcl_spec.parameters.Motion
     nothing.  A row that says nothing is refused when its module type is built, never taken
     as steady.
 F3. A position moves one microstep at a time, so AP 1 meets every value between two of its
-    readings; a copy of the chip with a mark at each boundary's motor position stops at the
-    first step that reaches one (AP 1 and the motor position move together).
-F4. A rotation's ramp only heads for the speed asked for, monotonically, until the next
-    notable instant: the same speed at both ends of that stretch is the same speed all along
-    it, and the first tick at which the speed compares otherwise with a boundary is found by
-    bisecting a copy of the chip over the clock ticks.
+    readings, except where it wraps: past the top of its range (the driver's
+    ``position_bits``) it goes on at the bottom, and the other way round.  A comparison with
+    it therefore flips only where it meets the boundary or where it wraps (COMP compares the
+    wrapped values: ``GAP 1; COMP 0`` turns from greater to less at the wrap); a copy of the
+    chip with a mark at each boundary's motor position and at both ends of the wrap stops at
+    the first step that reaches one (AP 1 and the motor position move together).
+F4. A rotation's speed is monotonic only as far as its driver says
+    (:meth:`axes.core.ChipDriver.speed_turns`): a linear ramp heads for the speed asked for;
+    an S-shaped one first takes back the acceleration of the other slope, so a rotation
+    asked for more speed while braking dips first, and one asked for less while
+    accelerating overshoots.  Over a stretch where it is monotonic, the same speed at both
+    ends is the same speed all along, and the first tick at which the speed compares
+    otherwise with a boundary is found by bisecting a copy of the chip over the clock
+    ticks; past the point where it may turn there is no promise (the driver's test is
+    false, then true, so the same bisection finds whichever comes first).
 F5. A crossing found is kept while the look-ahead it was found for is the current one (its
-    identity): a new look-ahead is made after every change (F1).
-F6. Reads that change model state are not forecast: while coolStep follows the reads, AP 8's
-    shortcut is not taken (its reads would change the current a later read sees).
+    identity): a new look-ahead is made after every change (F1).  A crossing found from an
+    earlier instant of the same look-ahead is still the first one after any later instant
+    it does not precede (and one it precedes promises nothing).
+F6. What the firmware's periodic pass keeps for reads (AP 180, a modelled driver's AP
+    206/208) changes only at that pass (axes/tasks.py, T3): it holds until the next pass that
+    may change it.  No read changes anything a later read sees, so a read left out (skipped,
+    or answered from the look-ahead as AP 8 is) is never missed.
+F7. A crossing is searched from the read's own instant.  Loop skipping asks
+    :meth:`AxisForecast.steady_until` right after each read of its pass, and only after the
+    whole pass :meth:`AxisForecast.first_time_at`, when a later command of the same pass (a
+    ``GAP 8`` after the ``GAP 1``) may have brought the axis further: a crossing in between
+    would be missed and the axis overshoot.  So a moving read keeps a copy of the chip at
+    its instant (:class:`Reading`), under the look-ahead it was made in, and the search
+    starts from that copy; without one (or under another look-ahead) there is no promise.
 """
 
 from __future__ import annotations
@@ -42,12 +62,15 @@ from typing import Protocol
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, Stop
 from axes.interface import FOREVER
-from tmcl_spec.numbers import to_int32
+from axes.tasks import FirmwareTasks
 from tmcl_spec.parameters import AP, Motion
 
 #: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
 #: it the look-ahead stops short and the axis looks again from there when that time comes.
 LOOKAHEAD_BUDGET = 2_000
+#: Moving reads kept per axis (F7): a pass reads one axis a few times; an older read's
+#: crossing is not forecast (no promise), which only costs speed.
+READINGS_KEPT = 8
 
 
 @dataclass(slots=True)
@@ -59,11 +82,23 @@ class Lookahead:
     time_ns: int
 
 
+@dataclass(slots=True)
+class Reading:
+    """A moving read, kept so that its crossing is searched from its instant (F7)."""
+
+    number: int
+    time_ns: int
+    ahead: Lookahead
+    chip: ChipModel  # a copy of the chip at the read
+    position: int  # AP 1 at the read
+
+
 class ForecastedAxis(Protocol):
     """What the forecast needs of its axis (``axes.firmware.AxisFirmware``)."""
 
     driver: ChipDriver
     board: AxisBoard
+    tasks: FirmwareTasks
 
     def present_ns(self) -> int:
         """The simulated time the axis was last brought to."""
@@ -88,12 +123,9 @@ class ForecastedAxis(Protocol):
         """AP 207 as a read would answer it now (and clear it)."""
         ...
 
-    def coolstep_follows_reads(self) -> bool:
-        ...
-
 
 class AxisForecast:
-    """The look-ahead of one axis, and the forecasts loop skipping asks for (F1-F6)."""
+    """The look-ahead of one axis, and the forecasts loop skipping asks for (F1-F7)."""
 
     def __init__(self, axis: ForecastedAxis, motions: dict[int, Motion]) -> None:
         self._axis = axis
@@ -103,8 +135,11 @@ class AxisForecast:
         #: change (``known``).
         self.cached: Lookahead | None = None
         self.known = False
-        #: The last crossing found: (the look-ahead it holds for, values, time) (F5).
-        self._crossing: tuple[Lookahead, tuple[int, ...], int] | None = None
+        #: The last crossing found: (the look-ahead it holds for, values, the instant it was
+        #: searched from, time) (F5).
+        self._crossing: tuple[Lookahead, tuple[int, ...], int, int] | None = None
+        #: The last moving reads loop skipping asked about, oldest first (F7).
+        self._readings: list[Reading] = []
 
     def invalidate(self) -> None:
         """Something changed the chip or what it runs into (F1): look again when asked."""
@@ -128,10 +163,14 @@ class AxisForecast:
     # == loop skipping's questions (interpreter/skipping.py I3, I5) ==============================
 
     def steady_until(self, number: int) -> int:
-        """How long GAP ``number`` (the firmware's numbering) keeps its answer (F2)."""
+        """How long GAP ``number`` (the firmware's numbering), just read, keeps its answer (F2);
+        a moving position or speed is kept for :meth:`first_time_at` (F7)."""
         motion = self._motions.get(number)
         if motion is Motion.SETTING or motion is Motion.PROGRAM:  # (an Enum hashes slowly)
             return FOREVER  # only a command changes it
+        tasks = self._axis.tasks
+        if tasks.kept(number):
+            return tasks.steady_until()  # F6
         if motion is Motion.ACCESS:
             # reading clears the error flags: steady only while there are none (F2)
             return FOREVER if number == AP.ERROR_FLAGS and not self._axis.error_flags() else 0
@@ -143,20 +182,53 @@ class AxisForecast:
         if number == AP.POSITION_REACHED:
             return self._first_time_at_position((self._axis.target_position(),), ahead)
         if number == AP.ACTUAL_SPEED and self._axis.in_velocity_mode():
-            # F4: the same speed at both ends of the stretch means the same speed all along it
             axis = self._axis
             axis.sync()
+            # F4: the same speed at both ends of a monotonic stretch is the same all along it
             if axis.driver.speed_on(ahead.chip.clone()) == axis.actual_speed():
-                return ahead.time_ns
+                turns = axis.driver.speed_turns(axis.driver.chip)
+                if turns is None or not turns(ahead.chip):
+                    return ahead.time_ns
+            self._keep_reading(number, ahead)
+        elif number == AP.ACTUAL_POSITION:
+            self._keep_reading(number, ahead)
         return 0  # a moving quantity
 
-    def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
-        """The first time GAP ``number`` compares otherwise with one of ``values`` (F3, F4)."""
+    def _keep_reading(self, number: int, ahead: Lookahead) -> None:
+        """Keep a copy of the chip at this read, if it is at the read's instant (F7)."""
+        axis = self._axis
+        chip = axis.driver.chip
+        now = axis.present_ns()
+        if chip.t != chip.ticks_at(now):
+            return  # not brought to the read: its crossing gets no promise
+        readings = self._readings
+        if len(readings) >= READINGS_KEPT:
+            del readings[0]
+        readings.append(Reading(number, now, ahead, chip.clone(), axis.driver.position))
+
+    def _reading(self, number: int, time_ns: int, ahead: Lookahead) -> Reading | None:
+        """The kept read of GAP ``number`` at ``time_ns`` under ``ahead`` (F7), if any."""
+        for reading in reversed(self._readings):
+            if reading.number == number and reading.time_ns == time_ns:
+                return reading if reading.ahead is ahead else None
+        return None
+
+    def first_time_at(self, number: int, values: tuple[int, ...], read_ns: int) -> int:
+        """The first time GAP ``number``, read at ``read_ns`` (a moving read loop skipping
+        asked :meth:`steady_until` about), compares otherwise with one of ``values`` than it
+        did then (F3, F4, F7); 0: no promise."""
         ahead = self.lookahead()
+        if ahead is None:
+            return 0  # at rest now, moving at the read: something happened in between
+        reading = self._reading(number, read_ns, ahead)
+        if reading is None:
+            return 0
         if number == AP.ACTUAL_POSITION:
-            return FOREVER if ahead is None else self._first_time_at_position(values, ahead)
+            half = 1 << (self._axis.driver.position_bits - 1)
+            return self._first_time_at_position((*values, -half, half - 1), ahead,
+                                                reading)  # F3
         if number == AP.ACTUAL_SPEED and self._axis.in_velocity_mode():
-            return FOREVER if ahead is None else self._first_time_speed_crosses(values, ahead)
+            return self._first_time_speed_crosses(values, ahead, reading.chip)
         return 0
 
     def short_of_target(self) -> bool:
@@ -165,63 +237,79 @@ class AxisForecast:
         chip, as :meth:`steady_until` does).  A host or program polling AP 8 through a long
         move then costs a comparison a poll, not a run of the chip's ramp to every poll."""
         axis = self._axis
-        if axis.coolstep_follows_reads():
-            return False  # F6
         ahead = self.lookahead()
         if ahead is None:
             return False  # at rest: the plain read is cheap
         return axis.present_ns() < self._first_time_at_position((axis.target_position(),),
                                                                 ahead)
 
-    def _first_time_speed_crosses(self, values: tuple[int, ...], ahead: Lookahead) -> int:
-        """The first time AP 3 compares otherwise with one of ``values`` than now (reaches it,
-        or passes it), or the next notable instant: the speed being monotonic there (F4), a
-        copy of the chip is bisected over the clock ticks."""
-        axis = self._axis
-        driver = axis.driver
-        axis.sync()
-        speed = axis.actual_speed()
+    def _first_time_speed_crosses(self, values: tuple[int, ...], ahead: Lookahead,
+                                  start: ChipModel) -> int:
+        """The first time AP 3 compares otherwise with one of ``values`` than on ``start`` (a
+        copy of the chip at the read: reaches one, or passes it), or where the speed may
+        turn (F4), or the next notable instant: over a stretch where it is monotonic, a copy
+        of the chip is bisected over the clock ticks (one bisection finds whichever comes
+        first: both tests are false, then true)."""
+        driver = self._axis.driver
+        speed = driver.speed_on(start.clone())
         if speed in values:
             return 0
         above = [speed > value for value in values]
+        turns = driver.speed_turns(start)
+        if turns is not None and turns(start):
+            return 0  # no promise at all (a positioning ramp, a start from rest)
 
         def compares_otherwise(chip: ChipModel) -> bool:
-            now = driver.speed_on(chip)
+            if turns is not None and turns(chip):
+                return True  # no promise past a turn
+            now = driver.speed_on(chip.clone())
             return any(now == value or (now > value) != side
                        for value, side in zip(values, above, strict=True))
 
-        if not compares_otherwise(ahead.chip.clone()):
+        if not compares_otherwise(ahead.chip):
             return ahead.time_ns
-        low, high = driver.chip.clone(), ahead.chip.t
+        low, high = start.clone(), ahead.chip.t
         while high - low.t > 1:
             middle = (low.t + high) // 2
             probe = low.clone()
             probe.run(middle, LOOKAHEAD_BUDGET)
             if probe.t < middle:  # stopped short (its work budget): no promise beyond here
                 return probe.ns_at(probe.t)
-            if compares_otherwise(probe.clone()):
+            if compares_otherwise(probe):
                 high = middle
             else:
                 low = probe
         return low.ns_at(high)
 
-    def _first_time_at_position(self, values: tuple[int, ...], ahead: Lookahead) -> int:
+    def _first_time_at_position(self, values: tuple[int, ...], ahead: Lookahead,
+                                reading: Reading | None = None) -> int:
         """The first time AP 1 equals one of ``values``, or the chip's next notable instant
-        if it does not before: a copy of the chip runs with a mark at each value's motor
-        position (F3).  Kept while the look-ahead it was found for holds (F5)."""
-        cached = self._crossing
-        if cached is not None and cached[0] is ahead and cached[1] == values:
-            return cached[2]
+        if it does not before: a copy of the chip, at ``reading`` or else brought to the
+        present, runs with a mark at each value's motor position (F3).  Kept while the
+        look-ahead it was found for holds, for the instants it does not precede (F5)."""
         axis = self._axis
-        axis.sync()
-        chip = axis.driver.chip
-        if not chip.steps_reach_motor():
+        since = axis.present_ns() if reading is None else reading.time_ns
+        cached = self._crossing
+        if (cached is not None and cached[0] is ahead and cached[1] == values
+                and cached[2] <= since):
+            return cached[3]
+        if reading is None:
+            axis.sync()
+            start, here = axis.driver.chip, axis.driver.position
+        else:
+            start, here = reading.chip, reading.position
+        if not start.steps_reach_motor():
             return 0  # AP 1 counts steps that do not move the motor: no marks to set
-        here = axis.driver.position
-        marks = [chip.motor_position + to_int32(value - here) for value in values]
-        if chip.motor_position in marks:
+        bits = axis.driver.position_bits
+        half, span = 1 << (bits - 1), 1 << bits
+        motor = start.motor_position
+        # the nearest motor position at which AP 1 reads each value (a look-ahead moves less
+        # than half the range); a value outside AP 1's range is never read
+        marks = [motor + (value - here + half) % span - half for value in values
+                 if -half <= value < half]
+        if motor in marks:
             return 0
-        twin = chip.clone()
+        twin = start.clone()
         board = axis.board
         saved = board.firmware_marks
         board.firmware_marks = saved + marks
@@ -231,5 +319,5 @@ class AxisForecast:
         finally:
             board.firmware_marks = saved
         result = twin.ns_at(twin.t) if twin.t < until else ahead.time_ns
-        self._crossing = (ahead, values, result)
+        self._crossing = (ahead, values, since, result)
         return result

@@ -19,6 +19,7 @@ from enum import Enum
 from typing import TYPE_CHECKING
 
 from axes.world import DEFAULT_ENCODER_COUNTS_PER_REV
+from tmcl_spec.modules import FirmwareClock
 from tmcl_spec.parameters import ParamSpec
 
 if TYPE_CHECKING:
@@ -70,6 +71,11 @@ class AxisStatus:
     reference_search: int = 0
     #: Where the mechanics really are (differs from ``position`` when the motor slips).
     mechanical_position: int = 0
+
+
+class NotAvailable(ValueError):
+    """The firmware refuses a parameter write in its present state (the module answers
+    status 6, "command not available due to current state")."""
 
 
 #: A time no simulation reaches: "steady until something intervenes".
@@ -142,12 +148,19 @@ class AxisControl(ABC):
         (docs/scheduling.md); a core that cannot tell answers 0 and is stepped."""
         return 0
 
-    def first_time_at(self, number: int, values: tuple[int, ...]) -> int:
-        """The first time GAP ``number`` answers one of ``values`` (a value that moves by single
-        steps, such as the actual position), or a time before which it surely does not; 0 when
-        the core cannot tell.  A loop comparing a moving position with a threshold jumps to
-        the pass where the comparison flips with it."""
+    def first_time_at(self, number: int, values: tuple[int, ...], read_ns: int) -> int:
+        """For GAP ``number`` read at ``read_ns`` (a moving value that :meth:`steady_until`
+        was asked about right after the read, such as the actual position): the first time
+        it compares otherwise with one of ``values`` than it did then, or a time before
+        which it surely does not; 0 when the core cannot tell.  A loop comparing a moving
+        position with a threshold jumps to the pass where the comparison flips with it."""
         return 0
+
+    def start_firmware_clock(self, clock: FirmwareClock, origin_ns: int, axes: int) -> None:
+        """The module's firmware starts at ``origin_ns`` (power-up): its periodic pass over
+        its ``axes`` axes runs as ``clock`` says (axes/tasks.py).  An axis that is no TMCL
+        firmware's (the evaluation board's) has none: nothing happens."""
+        return
 
     def reset_board(self) -> None:
         """Command 143 type 0 of the evaluation system: the board is detected again and its

@@ -21,9 +21,10 @@ raises or lowers the motor current to keep that reading between two thresholds. 
   towards a decrement (one per 32, 8, 2 or 1 readings, AP 169); every reading below the lower
   threshold ``AP172 * 32`` raises the scale by 1, 2, 4 or 8 (AP 171).
 
-Everything here is arithmetic on counts of full steps: the firmware brings it up to date at
-each of its own samples (host commands, events), assuming the load held since the last one,
-which is exact between the world's load-zone edges (those are events).
+Everything here is arithmetic on counts of full steps: the firmware feeds it at its own
+instants (its periodic pass, axes/tasks.py, and the world's load-zone edges, which are
+events), every measurement since the last feed reading the load there, which is exact
+between the edges (unfiltered; the filtered mean settles over four full steps after one).
 """
 
 from __future__ import annotations
@@ -110,33 +111,42 @@ def regulate(scale: int, above: int, measurements: int, sg_reading: int, semin: 
     return scale, 0
 
 
+def switched_on(params: Mapping[int, int], speed: int) -> bool:
+    """The firmware's coolStep switch at the speed ``speed`` (a magnitude): on (SEMIN = AP 172)
+    unless the motor runs slower than AP 182, or (where the table has it) at or above AP 22;
+    off with AP 172 = 0 (TMCL-LITE-1110 SysControl.c lines 83-101: ``abs(Velocity) <
+    ThresholdSpeed`` switches it off, so with AP 182 = 0 it is on even at rest)."""
+    high = params[AP.COOLSTEP_THRESHOLD_SPEED]
+    return (params[AP.SMARTENERGY_HYSTERESIS_START] > 0
+            and not speed < params[AP.SMARTENERGY_THRESHOLD_SPEED] and (not high or speed < high))
+
+
 class CoolStep:
     """The current scale coolStep keeps (AP 180), fed with the full steps the motor travels.
 
-    ``scale`` is None while coolStep does not regulate (the driver then uses AP 6 as it is).
+    The motor driver regulates at every stallGuard2 measurement while coolStep is on; the
+    firmware only switches it on and off (axes/tasks.py).  ``scale`` is None while it is off
+    (the driver then uses AP 6 as it is).  Feeding is additive: the full steps since the last
+    feed all read the reading given, so feeding at any instants between two changes of the
+    reading (the world's load edges, the firmware's passes) gives the same scale.
     """
 
     def __init__(self) -> None:
         self.scale: int | None = None
-        self._since = 0  # mechanical position of the last update
+        self._since = 0  # mechanical position of the last feed
         self._pending = 0  # full steps travelled that no measurement has used yet
         self._above = 0  # readings above the upper threshold not yet turned into a decrement
 
-    @staticmethod
-    def active(params: Mapping[int, int], speed: int) -> bool:
-        """Whether coolStep regulates at this speed (pps, magnitude) with these parameters."""
-        high = params[AP.COOLSTEP_THRESHOLD_SPEED]
-        return (params[AP.SMARTENERGY_HYSTERESIS_START] > 0 and speed > 0
-                and speed >= params[AP.SMARTENERGY_THRESHOLD_SPEED] and (not high or speed < high))
-
-    def update(self, params: Mapping[int, int], position: int, speed: int, sg_reading: int) -> None:
-        """Bring the scale up to the motor at ``position`` (world units) going at ``speed``."""
+    def feed(self, params: Mapping[int, int], position: int, sg_reading: int, on: bool,
+             full: int = 31) -> None:
+        """The driver's regulation up to the motor at ``position`` (world units), every
+        measurement on the way reading ``sg_reading``, with coolStep switched ``on`` or off,
+        between ``full`` (the scale of the current in use, CS) and half or a quarter of it."""
         travelled, part = divmod(abs(position - self._since), FULL_STEP)
         self._since = position - part if position >= self._since else position + part
-        if not self.active(params, speed):
+        if not on:
             self.scale, self._pending, self._above = None, 0, 0
             return
-        full = params[AP.MAX_CURRENT] >> CURRENT_SCALE_SHIFT
         lowest = minimum_scale(full, bool(params[AP.SMARTENERGY_CURRENT_MINIMUM]))
         scale = full if self.scale is None else max(lowest, min(full, self.scale))
         every = FILTER_FULL_STEPS if params[AP.STALLGUARD_FILTER] else 1

@@ -28,6 +28,7 @@ from interpreter.isa import (
     OP_AGP,
     OP_CALC,
     OP_COMP,
+    OP_GAP,
     OP_GCO,
     OP_JA,
     OP_JC,
@@ -44,7 +45,7 @@ from interpreter.isa import (
     YIELD,
     Instruction,
 )
-from interpreter.skipping import LOADS_ACCUMULATOR, Call, LoopSkipper
+from interpreter.skipping import FOREVER, LOADS_ACCUMULATOR, Call, LoopSkipper
 from tmcl_spec.commands import (
     MOTOR_ALL,
     STATUS_OK,
@@ -71,6 +72,8 @@ _RFS_STATUS = RfsType.STATUS.value
 _ERROR_BITS: dict[int, int] = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
                ErrorFlag.ESD: 16}
 _ALL_ERRORS = sum(_ERROR_BITS.values())
+#: The WAIT conditions that read the module (the others: TICKS, or skipped).
+_WAIT_CONDITIONS = frozenset(int(c) for c in WaitCondition) - {int(WaitCondition.TICKS)}
 #: JC condition -> error flag bit it tests.
 _JC_ERROR_BIT: dict[int, int] = {Condition.ETO: 1, Condition.EAL: 2, Condition.EDV: 4, Condition.EPO: 8,
                  Condition.ESD: 16}
@@ -138,6 +141,12 @@ class ModulePort(Protocol):
         """RFS STATUS: True while a reference search runs on ``motor``."""
         ...
 
+    def steady_until(self, time_ns: int, opcode: int, type_: int, motor: int) -> int:
+        """How long a read just made at ``time_ns`` (GAP ``type_`` of ``motor`` through
+        :meth:`axis_parameter`, or RFS STATUS) keeps its answer, nothing intervening: as
+        :meth:`probe`'s ``steady_until`` (a WAIT's condition, skipping.py I3)."""
+        ...
+
     def program_event(self, time_ns: int, kind: str, **data: int) -> None:
         """Something observers may want to know: ``program_started``, ``program_stopped``
         (with ``pc``) or ``interrupt_taken`` (with ``vector`` and ``address``)."""
@@ -156,8 +165,9 @@ class ModulePort(Protocol):
 
     def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
                       values: tuple[int, ...]) -> int:
-        """For a read that is not steady (a moving position): the first time it answers one
-        of ``values``, or a time before which it surely does not (0: cannot tell)."""
+        """For a read :meth:`probe` made at ``time_ns`` that was not steady (a moving
+        position): the first time it compares otherwise with one of ``values`` than it did
+        then, or a time before which it surely does not (0: cannot tell)."""
         ...
 
 
@@ -168,6 +178,9 @@ class Wait:
     condition: int
     motor: int
     deadline_ns: int | None
+    #: The condition, false when last evaluated, stays false before this instant (its
+    #: reads' ``ModulePort.steady_until``): it is evaluated again then.
+    recheck_ns: int = FOREVER
 
 
 class Context(NamedTuple):
@@ -403,11 +416,15 @@ class Interpreter:
         if self.status is not ApplicationStatus.RUN:
             return None
         candidates: list[int] = []
-        if self.wait is None or self._dispatchable():
+        wait = self.wait
+        if wait is None or self._dispatchable():
             slice_ns = self.slice_ns
             candidates.append((max(self.time_ns, now_ns) // slice_ns + 1) * slice_ns)
-        elif self.wait.deadline_ns is not None:
-            candidates.append(self.wait.deadline_ns)
+        else:
+            if wait.deadline_ns is not None:
+                candidates.append(wait.deadline_ns)
+            if wait.recheck_ns < FOREVER:  # its condition may hold then (_resume_wait)
+                candidates.append(wait.recheck_ns)
         if self.globally_enabled and self.wake_for_timers:
             timer = self._next_timer_ns()
             if timer is not None:
@@ -461,9 +478,11 @@ class Interpreter:
                 if timer is not None and timer < limit:
                     limit = timer
             if self.wait is not None and not self._resume_wait(limit):
-                if limit >= end_ns:
+                # still waiting when the next timer fires, or when the condition may change
+                wake = min(limit, self.wait.recheck_ns)
+                if wake >= end_ns:
                     return False
-                self.time_ns = limit  # still waiting when the next timer fires
+                self.time_ns = wake
                 continue
             outcome = self._execute_checked(limit) if self.breakpoints else self._execute(limit)
             if outcome == LOOP:
@@ -477,15 +496,22 @@ class Interpreter:
     def _resume_wait(self, end_ns: int) -> bool:
         """Check the WAIT in progress at ``self.time_ns``; True once it is over.
 
-        Nothing observable changes between module events and ``end_ns`` never lies beyond
-        the next one, so a condition false now stays false until the deadline.
+        The condition is evaluated when the WAIT starts, at the start of every batch (so
+        after every module event and host request, I1 in interpreter/skipping.py) and when
+        its reads may first answer otherwise (``Wait.recheck_ns``, their steady_until, I3):
+        a condition false now stays false before then, nothing intervening, so the WAIT
+        ends at the same instant however time is cut into batches.  A timeout ends it only
+        before that instant (at it, the condition is evaluated first, as a batch starting
+        there would).
         """
         wait = self.wait
         assert wait is not None
-        if wait.condition != WaitCondition.TICKS and self._wait_satisfied(wait, self.time_ns):
+        ticks = wait.condition == WaitCondition.TICKS
+        if not ticks and self._wait_satisfied(wait, self.time_ns):
             pass
-        elif wait.deadline_ns is not None and wait.deadline_ns < end_ns:
-            if wait.condition != WaitCondition.TICKS:
+        elif (wait.deadline_ns is not None and wait.deadline_ns < end_ns
+              and (ticks or wait.deadline_ns < wait.recheck_ns)):
+            if not ticks:
                 self.errors |= _ERROR_BITS[ErrorFlag.ETO]
             self.time_ns = max(self.time_ns, wait.deadline_ns)
         else:
@@ -495,17 +521,34 @@ class Interpreter:
         return True
 
     def _wait_satisfied(self, wait: Wait, t: int) -> bool:
-        port, motor = self.port, wait.motor
-        if wait.condition == WaitCondition.POS:
-            return port.axis_parameter(t, motor, AP.POSITION_REACHED) == 1
-        if wait.condition == WaitCondition.REFSW:
-            return port.axis_parameter(t, motor, AP.HOME_SWITCH) == 1
-        if wait.condition == WaitCondition.LIMSW:
-            return (port.axis_parameter(t, motor, AP.LEFT_SWITCH) == 1
-                    or port.axis_parameter(t, motor, AP.RIGHT_SWITCH) == 1)
-        if wait.condition == WaitCondition.RFS:
-            return not port.reference_search_active(t, motor)
-        return True
+        """Evaluate the WAIT's condition at ``t``.  When it is false, ``wait.recheck_ns``
+        says until when it stays so (a read the module cannot forecast is evaluated again an
+        instruction later, as a poll would); while a pass is analysed, the WAIT is recorded
+        as one call whose answer holds as long as its reads do (skipping.py I3)."""
+        port, motor, condition = self.port, wait.motor, wait.condition
+        if condition == WaitCondition.RFS:
+            reads: tuple[tuple[int, int], ...] = ((OP_RFS, _RFS_STATUS),)
+            satisfied = not port.reference_search_active(t, motor)
+        elif condition == WaitCondition.LIMSW:
+            satisfied = port.axis_parameter(t, motor, AP.LEFT_SWITCH) == 1
+            reads = ((OP_GAP, AP.LEFT_SWITCH),)
+            if not satisfied:
+                satisfied = port.axis_parameter(t, motor, AP.RIGHT_SWITCH) == 1
+                reads += ((OP_GAP, AP.RIGHT_SWITCH),)
+        else:
+            number = AP.POSITION_REACHED if condition == WaitCondition.POS else AP.HOME_SWITCH
+            satisfied = port.axis_parameter(t, motor, number) == 1
+            reads = ((OP_GAP, number),)
+        calls = self.recording
+        if satisfied and calls is None:
+            return True
+        steady = min(port.steady_until(t, opcode, read, motor) for opcode, read in reads)
+        if calls is not None:
+            calls.append(Call(t, STATUS_OK, int(satisfied), False, steady,
+                              (OP_WAIT, condition, motor, 0)))
+        if not satisfied:
+            wait.recheck_ns = steady if steady > t else t + self.instruction_ns
+        return satisfied
 
     def flag(self, condition: int) -> bool:
         """Whether JC ``condition`` would jump now (the dispatch loop inlines this)."""
@@ -735,8 +778,13 @@ class Interpreter:
             self.pending &= ~(1 << number)
 
     def _start_wait(self, condition: int, motor: int, ticks: int, t: int) -> int:
-        if condition not in tuple(WaitCondition) or (
-                condition != WaitCondition.TICKS and not 0 <= motor < self.number_of_axes):
+        evaluated = condition in _WAIT_CONDITIONS and 0 <= motor < self.number_of_axes
+        if not evaluated and self.recording is not None:
+            # the pass analysis takes one call per WAIT: this one reads nothing (a WAIT
+            # TICKS lasts the same in every pass, I8)
+            self.recording.append(Call(t, STATUS_OK, 0, False, FOREVER,
+                                       (OP_WAIT, condition, motor, 0)))
+        if not evaluated and condition != WaitCondition.TICKS:
             self.pc += 1  # a WAIT the firmware cannot evaluate is skipped
             return CONTINUE
         deadline = t + ticks * WAIT_TICK_NS if ticks > 0 else None

@@ -21,7 +21,11 @@ I2. A repeat is a repeat.  The interpreter is deterministic in its registers
     ``changed``) and left the registers as it found them, run again from them while every
     command answers the same, does exactly the same again.
 I3. Steady answers.  A call's ``steady_until``: executed again at any time before it, with
-    nothing intervening (I1), the command answers the same and changes nothing.
+    nothing intervening (I1), the command answers the same and changes nothing.  A WAIT
+    whose condition holds falls through, so its reads are answers the pass depends on like
+    any command's: each WAIT a pass executes is one call (its condition, steady as long as
+    all its reads are, ``ModulePort.steady_until``); one whose condition does not hold
+    waits, and the pass is not analysed.
 I4. The ceiling.  Pass k >= 1 after the analysed pass (which began at ``start``) sends the
     command at offset o at ``start + k * period + o``; its answer is certain (I3) while that
     is < ``steady_until``, i.e. for k <= ceil((steady_until - start - o) / period) - 1.  The
@@ -29,9 +33,13 @@ I4. The ceiling.  Pass k >= 1 after the analysed pass (which began at ``start``)
 I5. Flips are found on time.  A pass that reads moving values (a position, a rotation's
     speed) and uses them only through COMP and JC (:func:`boundaries`) takes a path that is a
     function of how each value compares with each boundary (<, =, >).  The axis answers when
-    it first compares otherwise with one of them (``first_time_at``, axes/forecast.py F3-F4);
-    every pass whose read comes strictly before that instant compares as the analysed one
-    did and takes its path, so stopping there is never late.
+    it first compares otherwise with one of them (``first_time_at``, axes/forecast.py F3-F4):
+    where the value meets a boundary, or, for AP 1, where it wraps (2**31 - 1 -> -2**31: the
+    comparison flips there without meeting its boundary, F3), counted from the read's own
+    instant (a later command of the pass to the same axis has brought the axis further,
+    F7), over a stretch where a speed is monotonic (F4).  Every pass whose read comes
+    strictly before that instant compares as the analysed one did and takes its path, so
+    stopping there is never late.
 I6. What the next pass reads first it finds as this one did.  A register the pass reads
     before writing must be left as it was found and must not hold a moving read's value
     (equal now by chance, it would differ in the passes left out).
@@ -40,7 +48,8 @@ I7. One real pass is kept.  The passes left out before a flip do not compute the
     the last whole pass before ``limit`` is therefore stepped, and whenever the batch ends
     (and a host, an interrupt or the next analysis can look) the registers are stepping's.
 I8. A WAIT TICKS inside a pass lasts the same in every pass (its deadline is a fixed offset
-    from the WAIT's instant), so it is part of the pass's period.
+    from the WAIT's instant), so it is part of the pass's period (its call reads nothing and
+    holds forever, I3).
 I9. A loop that touches nothing but registers (no command, no WAIT) is, by I2 with no
     answers to hold, skipped again without an analysis whenever its registers are the same.
 """
@@ -370,7 +379,14 @@ class _PassShape:
         return True
 
     def jump(self, ty: int, motor: int, va: int) -> bool:
-        return True  # JA, and a WAIT TICKS that ended (I8): no register, no answer
+        return True  # JA: no register, no answer
+
+    def wait(self, ty: int, motor: int, va: int) -> bool:
+        """A WAIT that fell through (its condition held) or a WAIT TICKS that ended (I8): its
+        one call, whose answer holds as long as the reads of its condition do (I3); no
+        register.  (A WAIT whose reads move has the analysis give up: moving_reads.)"""
+        next(self.pending)
+        return True
 
     def accumulator_write(self, ty: int, motor: int, va: int) -> bool:
         """AAP, AGP: a command sending the accumulator (not analysed if it is moving)."""
@@ -398,7 +414,7 @@ class _PassShape:
 
 
 _FOLLOW = {OP_CALC: _PassShape.calc, OP_COMP: _PassShape.comp, OP_JC: _PassShape.jc,
-           OP_JA: _PassShape.jump, OP_WAIT: _PassShape.jump, OP_AAP: _PassShape.accumulator_write,
+           OP_JA: _PassShape.jump, OP_WAIT: _PassShape.wait, OP_AAP: _PassShape.accumulator_write,
            OP_AGP: _PassShape.accumulator_write, OP_ACO: _PassShape.aco}
 
 

@@ -329,6 +329,7 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
     endpoints = _endpoints(args)
     can_bus_name = _can_bus_name(args)
     faults = _faults(args)
+    _check_axis_core(args)
     record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
     return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
                         clock=args.clock, speed=args.speed, ready_file=args.ready_file,
@@ -416,6 +417,16 @@ def _faults(args: argparse.Namespace) -> list[Any]:
         raise UsageError(f"argument --fault/--faults: {len(faults)} faults, at most {MAX_FAULTS} "
                          "at once")
     return faults
+
+
+def _check_axis_core(args: argparse.Namespace) -> None:
+    """A module type and a core that cannot work together: one line now, not at start."""
+    if args.axis_core:
+        from tmcl_server.module.core import chip_core_problem
+
+        problem = chip_core_problem(module_type(args.module_type), args.axis_core)
+        if problem is not None:
+            raise UsageError(f"argument --axis-core: {problem}")
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given

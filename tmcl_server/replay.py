@@ -81,10 +81,10 @@ UNTIMED_STEP_NS = NS_PER_MS
 Judged = Literal["steady", "axis", "time", "access"]
 
 #: How a read is judged, by how its parameter moves (the tables' ParamSpec.motion column):
-#: exactly (a setting), over its window (moves with the axis, changes at its events, moves
-#: with time or the program), or read once (reading it changes it).
+#: exactly (a setting), over its window (moves with the axis, changes at its events or at the
+#: firmware's pass, moves with time or the program), or read once (reading it changes it).
 _JUDGED: dict[Motion, Judged] = {
-    Motion.SETTING: "steady", Motion.EVENTS: "axis", Motion.AXIS: "axis",
+    Motion.SETTING: "steady", Motion.EVENTS: "axis", Motion.AXIS: "axis", Motion.TASKS: "axis",
     Motion.TIME: "time", Motion.PROGRAM: "time", Motion.ACCESS: "access"}
 
 

@@ -39,10 +39,12 @@ REFERENCE_SEARCH_MODES = frozenset(
     + [129, 130, 131, 132]
 )
 
-def tmc262_rows(v_max: int) -> tuple[ParamSpec, ...]:
+def tmc262_rows(v_max: int, stallguard: tuple[int, int] = (0, 0)) -> tuple[ParamSpec, ...]:
     """The TMC262 driver's rows (chopper, smartEnergy, stallGuard2), alike in the manual of
     every module built on that driver (the TMC429 modules, the TMCM-1111); ``v_max``: the
-    bound of the speeds among them (181, 182) in the module's units."""
+    bound of the speeds among them (181, 182) in the module's units; ``stallguard``: the
+    power-up filter (AP 173) and threshold (AP 174)."""
+    sg_filter, threshold = stallguard
     s = SETTING
     return (
         axis_row(162, "Chopper blank time", "RW", s, 0, 3, 2),
@@ -56,14 +58,14 @@ def tmc262_rows(v_max: int) -> tuple[ParamSpec, ...]:
         axis_row(170, "smartEnergy hysteresis", "RW", s, 0, 15, 0),
         axis_row(171, "smartEnergy current up step", "RW", s, 0, 3, 0),
         axis_row(172, "smartEnergy hysteresis start", "RW", s, 0, 15, 0),
-        axis_row(173, "stallGuard2 filter enable", "RW", s, *_BOOL),
-        axis_row(174, "stallGuard2 threshold", "RW", s, -64, 63, 0),
+        axis_row(173, "stallGuard2 filter enable", "RW", s, *_BOOL, sg_filter),
+        axis_row(174, "stallGuard2 threshold", "RW", s, -64, 63, threshold),
         axis_row(175, "Slope control high side", "RW", s, 0, 3, 3),
         axis_row(176, "Slope control low side", "RW", s, 0, 3, 3),
         axis_row(177, "Short protection disable", "RW", s, *_BOOL),
         axis_row(178, "Short detection timer", "RW", s, 0, 3, 0),
         axis_row(179, "Vsense", "RW", s, *_BOOL, 1),
-        axis_row(180, "smartEnergy actual current", "R", Motion.AXIS, 0, 31),
+        axis_row(180, "smartEnergy actual current", "R", Motion.TASKS, 0, 31),
         axis_row(181, "Stop on stall", "RW", s, 0, v_max, 0),
         axis_row(182, "smartEnergy threshold speed", "RW", s, 0, v_max, 0),
         axis_row(183, "smartEnergy slow run current", "RW", s, 0, 255, 0),

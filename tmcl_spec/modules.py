@@ -20,6 +20,34 @@ from tmcl_spec.registry import resolve
 
 
 @dataclass(frozen=True)
+class FirmwareClock:
+    """What a module's firmware does on its own clock besides serving commands: the pass its
+    main loop makes over the axes (``SystemControl`` in Trinamic's open TMCL firmware,
+    TMCL-LITE-1110 and TMCL-LITE-1111 ``SysControl.c``), which ``axes/tasks.py`` runs.  The
+    evidence for every field is in docs/motion.md, "The firmware's own clock"."""
+
+    #: The pass runs once more than 10 ticks of the 1 ms system timer went by since the last
+    #: one (TMCL-LITE-1110 SysControl.c line 57, ``abs(GetSysTimer()-Delay)>10``): every 11 ms.
+    pass_ms: int = 11
+    #: Each pass serves one axis, the next one in turn (SysControl.c lines 133-135): an axis
+    #: of a module with n axes has its pass every n x ``pass_ms``.
+    one_axis_per_pass: bool = True
+    #: The pass switches the motor current: AP 7 after AP 214 at rest, AP 183 below the
+    #: AP 182 speed, else AP 6 (SysControl.c lines 61-81).  False: the motion controller
+    #: switches it (the TMC4361's STDBY_DELAY, TMCL-LITE-1111 Commands.c lines 1048-1050):
+    #: exactly AP 214 after the motor stopped, and back at once when it moves.
+    current_in_pass: bool = True
+    #: The pass switches coolStep on at or above the AP 182 speed and off below it
+    #: (SysControl.c lines 83-101).  False: coolStep is on whenever AP 172 > 0 (TMCL-LITE-1111
+    #: stores AP 182 and leaves the driver alone).
+    coolstep_by_speed: bool = True
+    #: The pass checks the motor driver's stall output (SysControl.c lines 106-114).  False:
+    #: the firmware samples stallGuard every millisecond, and stops at once where the load
+    #: under the motor reads 0.
+    stall_in_pass: bool = False
+
+
+@dataclass(frozen=True)
 class ModuleType:
     key: str  # the name users choose it by, e.g. "tmcm-6212"
     name: str  # as printed on the module, e.g. "TMCM-6212"
@@ -44,6 +72,9 @@ class ModuleType:
     commands: frozenset[int]
     #: Input lines whose analogue value ``GIO n, 1`` reads (None: every input line).
     analog_channels: frozenset[int] | None = None
+    #: The GIO port of each input line, in order (None: line n is port n).  The world file,
+    #: the run-time API, WAIT and the input interrupts number the lines; GIO the ports.
+    input_ports: tuple[int, ...] | None = None
     #: ``SIO n, 0, 0|1`` switches pull-up resistors n = 0..pullup_ports-1 (0: no such bank).
     pullup_ports: int = 0
     #: Full scale of an analogue input reading, and where its digital reading switches.
@@ -74,6 +105,8 @@ class ModuleType:
     can_bit_rates: Mapping[int, int] = dataclasses.field(default_factory=dict)
     #: Evaluation system only: the boards on the base board (tmcl_spec/landungsbruecke.py).
     eval_boards: EvalBoards | None = None
+    #: The periodic pass of the firmware's main loop over the axes (:class:`FirmwareClock`).
+    firmware_clock: FirmwareClock = FirmwareClock()
 
     def __post_init__(self) -> None:
         """Every row says how its value moves (ParamSpec.motion): loop skipping reads it, and

@@ -17,5 +17,12 @@ def to_int32(value: int) -> int:
     return value - 0x1_0000_0000 if value & 0x8000_0000 else value
 
 
+def to_signed(value: int, bits: int) -> int:
+    """Wrap any integer to a signed ``bits``-bit range (a 24-bit position register read as a
+    whole AP 1, for example)."""
+    half = 1 << (bits - 1)
+    return ((value + half) & ((half << 1) - 1)) - half
+
+
 def seconds_to_ns(seconds: float) -> int:
     return round(seconds * NS_PER_S)

@@ -26,6 +26,9 @@ class Motion(Enum):
     EVENTS = "changes at events"
     #: Changes while the axis moves (position, speed, load, encoder, coolStep's current).
     AXIS = "moves with the axis"
+    #: Changes only at the firmware's own periodic pass over the axes (axes/tasks.py): what
+    #: the pass reads from the motor driver (AP 180, and on the TMC262 modules AP 206/208).
+    TASKS = "changes at the firmware's pass"
     #: Changes with the clock alone: the millisecond tick (GP 132).
     TIME = "moves with time"
     #: Reading it may change it: the random number, the last command error, error flags
@@ -36,8 +39,9 @@ class Motion(Enum):
     PROGRAM = "follows the program"
 
 
-SETTING, EVENTS, AXIS, TIME, ACCESS, PROGRAM = (
-    Motion.SETTING, Motion.EVENTS, Motion.AXIS, Motion.TIME, Motion.ACCESS, Motion.PROGRAM)
+SETTING, EVENTS, AXIS, TASKS, TIME, ACCESS, PROGRAM = (
+    Motion.SETTING, Motion.EVENTS, Motion.AXIS, Motion.TASKS, Motion.TIME, Motion.ACCESS,
+    Motion.PROGRAM)
 
 
 @dataclass(frozen=True, slots=True)

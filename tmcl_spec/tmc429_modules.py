@@ -39,12 +39,14 @@ from tmcl_spec.family import (
     tmc262_rows,
     without_can,
 )
-from tmcl_spec.modules import ModuleType
+from tmcl_spec.modules import FirmwareClock, ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
-from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, GP, SETTING, Motion, ParamSpec
+from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, GP, SETTING, TASKS, Motion, ParamSpec
 
 #: The TMC429's velocity and acceleration registers (11 bits): the firmware's units.
 V_MAX = 2047
+#: Its position registers (X_TARGET, X_ACTUAL) are 24 bits: AP 0/1's range (docs/modules.md).
+POSITION_MAX = 2**23 - 1
 A_MAX = 2047
 DIVIDER_MAX = 13
 _BOOL = (0, 1)
@@ -58,8 +60,8 @@ def _p(number: int, name: str, access: str, motion: Motion, lo: int = INT32_MIN,
 #: Rows every TMC429 module has (pytrinamic names them for all three).  "E": STAP/RSAP store
 #: them (PyStepRocker's access letters).
 COMMON_AXIS_ROWS: tuple[ParamSpec, ...] = (
-    _p(0, "Target (next) position", "RW", EVENTS),
-    _p(1, "Actual position", "RW", AXIS),
+    _p(0, "Target (next) position", "RW", EVENTS, -POSITION_MAX, POSITION_MAX),
+    _p(1, "Actual position", "RW", AXIS, -POSITION_MAX, POSITION_MAX),
     _p(2, "Target (next) speed", "RW", SETTING, -V_MAX, V_MAX),
     _p(3, "Actual speed", "R", AXIS, -V_MAX, V_MAX),
     _p(4, "Maximum positioning speed", "RWE", SETTING, 0, V_MAX, 1000),
@@ -89,9 +91,9 @@ COMMON_AXIS_ROWS: tuple[ParamSpec, ...] = (
     _p(195, "Reference switch speed", "RWE", SETTING, 0, V_MAX, 50),
     _p(196, "Distance end switches", "R", EVENTS),
     _p(204, "Freewheeling delay", "RWE", SETTING, 0, 65535, 0),
-    _p(206, "Actual load value", "R", AXIS, 0, 1023),
+    _p(206, "Actual load value", "R", TASKS, 0, 1023),  # read in the pass
     _p(207, "Extended error flags", "R", ACCESS, 0, 3),
-    _p(208, "TMC262 driver error flags", "R", AXIS, 0, 255),
+    _p(208, "TMC262 driver error flags", "R", TASKS, 0, 255),
     _p(213, "Group index", "RW", SETTING, 0, 255, 0),
     _p(214, "Power down delay", "RWE", SETTING, 1, 65535, 200),
     # Not a parameter of these modules: MVP REL counts from the actual position (the
@@ -107,7 +109,8 @@ ENCODER_MODE = _p(201, "Encoder mode", "RWE", SETTING, 0, 255, 0)
 ENCODER_ROWS = (
     _p(209, "Encoder position", "RW", AXIS),
     # AP 209 = encoder counts * prescaler / 512; 512: the counts themselves (docs/modules.md).
-    _p(210, "Encoder prescaler", "RWE", SETTING, 0, 65535, 512),
+    # The whole positive 32-bit value: published programs for the TMCM-3110 write 4674113.
+    _p(210, "Encoder prescaler", "RWE", SETTING, 0, INT32_MAX, 512),
     _p(212, "Maximum encoder deviation", "RWE", SETTING, 0, 65535, 0),
 )
 STEP_DIRECTION_MODE = _p(254, "Step/direction mode", "RWE", SETTING, 0, 2, 0)
@@ -194,6 +197,9 @@ _FAMILY: dict[str, Any] = dict(
     nominal_supply_voltage=NOMINAL_SUPPLY_VOLTAGE,
     baud_rates=BAUD_RATES,  # the TMCL family's GP 65 and GP 69 (inferred)
     can_bit_rates=CAN_BIT_RATES,
+    # The stepRocker's firmware (TMCL-LITE-1110): the pass also stops a stalled motor, from
+    # the TMC262's stall output (SysControl.c lines 106-114).
+    firmware_clock=FirmwareClock(stall_in_pass=True),
 )
 
 TMCM_1110 = ModuleType(
@@ -303,6 +309,9 @@ TMCM_1141 = ModuleType(
     storable_axis_parameters=storable(AXIS_PARAMETERS_1141),
     digital_inputs=4,
     analog_inputs=4,
+    # IN3 is GIO port 4 (pytrinamic's TMCM1141.IO: IN0..IN2 = 0..2, IN3 = 4, where its 1140
+    # and 1161 classes say 3; docs/modules.md, "TMCM-1141: IN3")
+    input_ports=(0, 1, 2, 4),
     has_can=False,  # USB, RS485 and Step/Dir (hardware manual's title)
     **_ONE_AXIS,
 )

@@ -7,7 +7,8 @@ acceleration, deceleration, break velocity, final deceleration, stop velocity an
 deceleration, 22..25 the bows, 26..29 the virtual stops, 33/34 swap switches and soft stop,
 108..138 the closed loop.  Rows whose meaning the firmware layer knows under another number
 say so (``ParamSpec.firmware_number``): the axes run on the TMC4361A core with these
-numbers translated.  Speeds are pps, accelerations pps^2 (unit mode 1 only).
+numbers translated.  Speeds are pps, accelerations pps^2 (unit mode 1; in unit mode 0 the
+TMC4361's own register values: 1/256 pps, 1/4 pps^2).
 
 The firmware manual (V1.05) is not among the project's references; sources, per row, are in
 docs/modules.md ("TMCM-1111"): the numbers and names are pytrinamic's ``TMCM1111`` class
@@ -36,7 +37,7 @@ from tmcl_spec.family import (
     bank3,
     tmc262_rows,
 )
-from tmcl_spec.modules import ModuleType
+from tmcl_spec.modules import FirmwareClock, ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
 from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, SETTING, Motion, ParamSpec
 
@@ -135,7 +136,9 @@ AXIS_PARAMETERS: dict[int, ParamSpec] = {
         _p(140, "Microstep resolution", "RW", SETTING, 0, 8, 8),
         _stored(150, "Encoder input sample rate", "RW", 0, 7, 0),
         _p(151, "Encoder input filter length", "RW", SETTING, 0, 7, 0),
-        *tmc262_rows(V_MAX),
+        # the lite firmware's power-up stallGuard2: filter on, threshold 5 (TMC262.c lines
+        # 310-311, as TMCL-LITE-1110's lines 256-257)
+        *tmc262_rows(V_MAX, stallguard=(1, 5)),
         _p(193, "Reference search mode", "RW", SETTING, 1, 136, 1, allowed=REFERENCE_SEARCH_MODES),
         _p(194, "Reference search speed", "RW", SETTING, 0, V_MAX, 51200),
         _p(195, "Reference switch speed", "RW", SETTING, 0, V_MAX, 5120),
@@ -156,8 +159,8 @@ AXIS_PARAMETERS: dict[int, ParamSpec] = {
         _p(251, "Reverse shaft", "RW", SETTING, *_BOOL),
         _p(253, "Step/direction gear ratio", "RW", SETTING),
         _p(254, "Step/direction mode", "RW", SETTING, 0, 15, 0),
-        # pps only: the TMC4361's internal units (0) are not emulated (status 4)
-        _p(255, "Unit mode", "RW", SETTING, 1, 1, 1),
+        # 1: pps; 0: the TMC4361's own register units (TMCL-LITE-1111 Commands.c 1074-1097)
+        _p(255, "Unit mode", "RW", SETTING, *_BOOL, 1),
     )
 }
 
@@ -198,4 +201,7 @@ TMCM_1111 = ModuleType(
     encoder_counts_per_rev=ENCODER_COUNTS_PER_REV,
     baud_rates=BAUD_RATES,
     can_bit_rates=CAN_BIT_RATES,
+    # TMCL-LITE-1111: the TMC4361 switches the current itself (STDBY_DELAY, Commands.c lines
+    # 1048-1050), and its SystemControl leaves coolStep as AP 172 wrote it (lines 191-293).
+    firmware_clock=FirmwareClock(current_in_pass=False, coolstep_by_speed=False),
 )

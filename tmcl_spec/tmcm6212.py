@@ -21,7 +21,7 @@ from tmcl_spec.family import (
 )
 from tmcl_spec.modules import ModuleType
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN
-from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, SETTING, Motion, ParamSpec
+from tmcl_spec.parameters import ACCESS, AP, AXIS, EVENTS, SETTING, TASKS, Motion, ParamSpec
 
 MAX_VELOCITY_PPS = 7_999_774
 MAX_ACCELERATION_PPS2 = 7_629_278
@@ -89,7 +89,7 @@ AXIS_PARAMETERS: dict[int, ParamSpec] = {
         _p(172, "smartEnergy hysteresis start", "RW", SETTING, 0, 15, 0),
         _p(173, "stallGuard2 filter enable", "RW", SETTING, *_BOOL),
         _p(174, "stallGuard2 threshold", "RW", SETTING, -64, 63, 0),
-        _p(180, "smartEnergy actual current", "R", AXIS, 0, 31),
+        _p(180, "smartEnergy actual current", "R", TASKS, 0, 31),
         _p(181, "Stop on stall", "RW", SETTING, 0, _V, 0),
         _p(182, "smartEnergy threshold speed", "RW", SETTING, 0, _V, 0),
         _p(184, "Random TOff mode", "RW", SETTING, *_BOOL),

@@ -26,6 +26,15 @@ MS = 1_000_000
 
 #: The chip cores whose firmware layer the generic tests run on.
 CORES = {"tmc4210": TMC4210Axis, "tmc4361a": TMC4361AAxis}
+#: The firmware's pass over a lone axis (axes/tasks.py): every 11 ms from power-up.
+PASS = 11 * MS
+
+
+def standby_pass(stopped_ns: int, delay_ns: int) -> int:
+    """When the firmware's pass switches to standby: the first pass more than ``delay_ns``
+    after the last pass that saw the motor move, i.e. the last one before it stopped."""
+    moved = (stopped_ns - 1) // PASS * PASS
+    return -(-(moved + delay_ns + 1) // PASS) * PASS
 
 
 class Harness:
@@ -281,7 +290,7 @@ def test_limit_switch_events_and_hard_stop(core: str) -> None:
     h.advance(1)
     assert h.gap(1) == -1000 and h.gap(11) == 1 and h.gap(3) == 0  # stopped on the edge
     standby = h.until(AxisEventKind.CURRENT_CHANGED)  # the switch stop is a standstill
-    assert standby.active is False and standby.time_ns == event.time_ns + 2 * NS
+    assert standby.active is False and standby.time_ns == standby_pass(event.time_ns, 2 * NS)
     assert h.gap(0) == -1000 and h.gap(8) == 1
     h.axis.rotate(20000)
     event = h.until(AxisEventKind.LEFT_SWITCH)
@@ -403,11 +412,14 @@ def test_standby_current_after_the_power_down_delay(core: str) -> None:
     arrived = h.until(AxisEventKind.TARGET_REACHED)
     assert h.axis.current == 200
     standby = h.until(AxisEventKind.CURRENT_CHANGED)
-    assert standby.active is False and standby.time_ns - arrived.time_ns == 500 * MS
+    assert standby.active is False and standby.time_ns == standby_pass(arrived.time_ns, 500 * MS)
     assert h.axis.current == 20
     h.axis.rotate(1000)
     h.advance(0)
+    assert h.events[-1] == standby and h.axis.current == 20  # until the next pass sees it move
+    h.advance(0.011)
     assert h.events[-1].kind is AxisEventKind.CURRENT_CHANGED and h.axis.current == 200
+    assert h.events[-1].time_ns % PASS == 0
 
 
 @pytest.mark.parametrize("core", CORES)
@@ -572,3 +584,21 @@ def test_a_new_target_in_flight_takes_a_higher_speed_limit_where_there_is_room()
     assert abs(h.gap(3) - 100_000) < 100
     h.until(AxisEventKind.TARGET_REACHED)
     assert h.gap(1) == 1_000_000
+
+
+def test_the_speed_reads_0_right_after_ror_until_the_ramp_makes_a_unit() -> None:
+    """Issue 34, item 11, decided (docs/motion.md, "AP 3"): on the TMC4210 V_ACTUAL moves at
+    ramp ticks by A_MAX/256 of a unit of f/(2^PULSE_DIV * 2^16) pps, so AP 3 reads 0 for
+    about 0.6 ms after ROR 51200 at 51,200 pps^2, where the TMC4361A's VACTUAL counts whole
+    pps every clock."""
+    slow = Harness(axis_class=CORES["tmc4210"])
+    slow.axis.rotate(51_200)
+    slow.advance(10e-6)  # one program instruction later
+    assert slow.gap(3) == 0
+    slow.advance(1.2e-3)
+    assert 0 < slow.gap(3) < 200
+    fast = Harness(axis_class=CORES["tmc4361a"])
+    fast.sap(5, 500_000)
+    fast.axis.rotate(51_200)
+    fast.advance(10e-6)
+    assert fast.gap(3) == 5  # 500,000 pps^2 x 10 us

@@ -223,6 +223,8 @@ def test_run_and_standby_current_set_the_tmc262_current_scale() -> None:
     run([axis], 1.0)
     assert axis.chip.driver.cs == 40 >> 3 and axis.current == 40
     axis.rotate(300)
+    assert axis.chip.driver.cs == 40 >> 3  # until the firmware's next pass sees it move
+    run([axis], 1.011)
     assert axis.chip.driver.cs == 200 >> 3
 
 
@@ -259,11 +261,13 @@ def test_coolstep_lowers_the_tmc262_current_at_light_load_above_the_threshold_sp
     axis = make_axes("tmc429", 1, AXIS_PARAMETERS_1110)[0]
     axis.set_world(AxisWorld(free_load=1000))
     for number, value in ((AP.SMARTENERGY_HYSTERESIS_START, 2), (AP.SMARTENERGY_HYSTERESIS, 1),
-                          (AP.SMARTENERGY_CURRENT_DOWN_STEP, 3), (AP.SMARTENERGY_THRESHOLD_SPEED, 800)):
+                          (AP.SMARTENERGY_CURRENT_DOWN_STEP, 3), (AP.SMARTENERGY_THRESHOLD_SPEED, 800),
+                          (AP.SMARTENERGY_SLOW_RUN_CURRENT, 160)):
         axis.set_parameter(number, value)
-    axis.rotate(500)  # below AP 182: coolStep off, the full current
+    axis.rotate(500)  # below AP 182: coolStep off, the slow-run current (AP 183)
     run([axis], 1.0)
-    assert axis.get_parameter(AP.SMARTENERGY_ACTUAL_CURRENT) == 31 and axis.chip.driver.semin == 0
+    assert axis.get_parameter(AP.SMARTENERGY_ACTUAL_CURRENT) == 160 >> 3
+    assert axis.chip.driver.semin == 0 and axis.current == 160
     axis.rotate(1000)
     run([axis], 1.0, NS_PER_S)
     assert axis.get_parameter(AP.ACTUAL_SPEED) == 1000  # the firmware looks: AP 182 passed
@@ -272,15 +276,17 @@ def test_coolstep_lowers_the_tmc262_current_at_light_load_above_the_threshold_sp
     assert axis.get_parameter(AP.SMARTENERGY_ACTUAL_CURRENT) == 15  # half of CS 31: (31+1)/2-1
     assert axis.current == 255 * 16 // 32
     axis.set_parameter(AP.SMARTENERGY_THRESHOLD_SPEED, 1500)  # now below it: off again
-    assert axis.get_parameter(AP.SMARTENERGY_ACTUAL_CURRENT) == 31 and axis.chip.driver.semin == 0
+    run([axis], 0.011, 3 * NS_PER_S)  # at the firmware's next pass
+    assert axis.get_parameter(AP.SMARTENERGY_ACTUAL_CURRENT) == 160 >> 3
+    assert axis.chip.driver.semin == 0
 
 
-def test_a_move_across_the_32_bit_wrap_takes_the_shorter_way() -> None:
-    """The TMC429 modules share the firmware's 32-bit arithmetic (docs/motion.md, "MVP across
-    the 32-bit wrap"): 2000 steps forward across the wrap, not 4.3 billion back."""
+def test_a_move_across_the_24_bit_wrap_takes_the_shorter_way() -> None:
+    """The TMC429 modules' positions are the chip's 24-bit registers (docs/modules.md, "AP 0 /
+    AP 1"): 2000 steps forward across the wrap, not 16.7 million back."""
     axis = six_axes()[4]
-    axis.set_parameter(AP.ACTUAL_POSITION, 2**31 - 1000)
-    axis.move_to(-(2**31) + 1000)
+    axis.set_parameter(AP.ACTUAL_POSITION, 2**23 - 1000)
+    axis.move_to(-(2**23) + 1000)
     events = run([axis], 30)
     assert AxisEventKind.TARGET_REACHED in [event.kind for event in events]
-    assert (axis.get_parameter(AP.ACTUAL_POSITION), axis.chip.motor_position) == (-(2**31) + 1000, 2000)
+    assert (axis.get_parameter(AP.ACTUAL_POSITION), axis.chip.motor_position) == (-(2**23) + 1000, 2000)

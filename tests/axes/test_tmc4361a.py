@@ -10,6 +10,7 @@ the long runs are marked ``soak`` (``--soak``, or ``TMCL_SIM_SOAK=1``).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import random
 
@@ -325,6 +326,93 @@ def test_braking_decision_in_a_rec_stage_with_a_saw_tooth_margin() -> None:
     regs = Registers(rampmode=6, vmax=256, amax=4, dmax=4, bow1=3, bow2=3, bow3=3, bow4=3,
                      clk_freq=500, xtarget=2)
     _compare(regs, 2, [(453, "dmax", 124), (826, "vmax", 771)], tail=900)
+
+
+def _speeds_up_to(ref: ReferenceRamp, end: int) -> list[int]:
+    """The reference's signed speed at every clock up to ``end``."""
+    speeds = [ref.s * ref.w]
+    while ref.t < end:
+        ref.tick()
+        speeds.append(ref.s * ref.w)
+    return speeds
+
+
+def _one_way(speeds: list[int]) -> bool:
+    moves = [later - earlier for earlier, later in itertools.pairwise(speeds) if later != earlier]
+    return all(move > 0 for move in moves) or all(move < 0 for move in moves)
+
+
+def _first_turn(chip: TMC4361A, limit: int) -> int:
+    """Clocks from now to the first tick at which chip.speed_turns' test says the speed may
+    have turned (``limit`` + 1 if it never does), checking on every clock up to ``limit``
+    that the test, once true, stays true."""
+    test = chip.speed_turns()
+    if test is None:
+        return limit + 1
+    twin, first = chip.clone(), None
+    for clock in range(limit + 1):
+        while twin.t < chip.t + clock:
+            twin.run(chip.t + clock)
+        if test(twin):
+            first = clock if first is None else first
+        else:
+            assert first is None, "the test turned false again"
+    return limit + 1 if first is None else first
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(regs=ramp_registers((1, 2, 2)), quantum=st.sampled_from([1, 2, 4, 8, 64]),
+       changes=st.lists(change, max_size=2), first=st.integers(1, 1500),
+       vmax=st.integers(-V_TEST * 256, V_TEST * 256),
+       at=st.one_of(st.just(0), st.integers(0, 200), st.integers(0, 3000)))
+# an S-shaped rotation that has not started: its standstill now is not the turn looked for
+@example(regs=Registers(rampmode=2, vmax=7680, amax=120, dmax=120, bow1=76, bow2=76, bow3=76,
+                        bow4=76, clk_freq=500), quantum=2, changes=[], first=1, vmax=1, at=0)
+# a linear rotation reversed towards a speed below VSTART: it restarts at VSTART, then slows
+@example(regs=Registers(rampmode=1, vmax=4_294_959_616, vstart=17, amax=120, dmax=120,
+                        clk_freq=500, tzerowait=37), quantum=1, changes=[], first=1, vmax=1, at=0)
+def test_a_rotations_speed_moves_one_way_until_the_chip_says_it_may_turn(
+        regs: Registers, quantum: int, changes: list, first: int, vmax: int, at: int) -> None:
+    """Loop skipping bisects a rotation's speed only where it is monotonic (axes/forecast.py
+    F4): before the first tick at which speed_turns' test turns true, the reference's speed,
+    clock by clock, moves one way only; a positioning ramp is turned at once.  The speed
+    asked for changes mid-ramp shortly before (``at`` clocks): an S-shaped slope may be
+    taking back its acceleration then (about one example in ten)."""
+    chip, ref = _pair(regs, quantum)
+    seen: list[tuple[int, Stop]] = []
+    t = 0
+    for gap, name, value in [*changes, (first, "vmax", vmax)]:
+        t += gap
+        _run_both(chip, ref, t, seen)
+        chip.write(Reg[name.upper()], value & MASK32)
+        ref.write(name, value & MASK32)
+    _run_both(chip, ref, t + at, seen)
+    turn = _first_turn(chip, 3000)
+    if chip.ramp.P.positioning:
+        assert turn == 0
+    assert _one_way(_speeds_up_to(ref, chip.t + turn - 1))
+
+
+def test_an_s_shaped_rotation_asked_for_more_while_braking_turns_where_its_deceleration_ends(
+        ) -> None:
+    """The REC stage: braking from 120 pps towards 30, and asked for 120 again, the ramp
+    brakes on until its deceleration is taken back, then rises: monotonic up to that turn,
+    and not past it."""
+    regs = Registers(rampmode=2, vmax=120 * 256, amax=400, dmax=400, bow1=40, bow2=40,
+                     bow3=40, bow4=40, clk_freq=F_TEST)
+    chip, ref = _pair(regs, 64)
+    seen: list[tuple[int, Stop]] = []
+    _run_both(chip, ref, 3000, seen)  # at 120 pps
+    chip.write(Reg.VMAX, 30 * 256)
+    ref.write("vmax", 30 * 256)
+    _run_both(chip, ref, 3300, seen)  # braking, the deceleration still growing
+    chip.write(Reg.VMAX, 120 * 256)
+    ref.write("vmax", 120 * 256)
+    turn = _first_turn(chip, 3000)
+    assert 0 < turn < 3000
+    speeds = _speeds_up_to(ref, chip.t + turn + 200)
+    assert _one_way(speeds[:turn]) and speeds[turn - 1] < speeds[0]  # braked on: a dip
+    assert not _one_way(speeds)  # then rises
 
 
 @settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -96,11 +96,14 @@ def test_ap17_changed_in_flight_takes_effect_and_mst_brakes_with_ap5() -> None:
 
 
 def test_the_manuals_full_speed_and_acceleration_ranges() -> None:
-    """The manual's AP 4 range (7 999 774 pps) is accepted and read back; the chip positions
-    at most at f/4 (datasheet §6.7.2, Table 18: 4 000 000 pps at 16 MHz) and rotates at up
-    to f/2, so a rotation runs at the full range."""
+    """The chip positions at most at f/4 (datasheet §6.7.2, Table 18: 4 000 000 pps at
+    16 MHz), so the manual's AP 4 range (7 999 774 pps) is taken up to there (issue 34, item
+    7: beyond it a value was read back that no move ran); it rotates at up to f/2, so a
+    rotation runs at the full range."""
     h = harness()
-    h.sap(AP.MAX_SPEED, MAX_VELOCITY_PPS)
+    with pytest.raises(ValueError):
+        h.sap(AP.MAX_SPEED, MAX_VELOCITY_PPS)
+    h.sap(AP.MAX_SPEED, CLOCK // 4)
     h.sap(AP.MAX_ACCELERATION, MAX_ACCELERATION_PPS2)
     h.sap(AP.MAX_DECELERATION, MAX_ACCELERATION_PPS2)
     h.axis.move_to(2_000_000_000)
@@ -110,7 +113,7 @@ def test_the_manuals_full_speed_and_acceleration_ranges() -> None:
     assert h.gap(AP.ACTUAL_SPEED) == pytest.approx(MAX_ACCELERATION_PPS2 * 0.5, rel=2e-5)
     assert h.axis.register_access(Reg.GENERAL_CONF) & 0b10
     h.advance(1.0)
-    assert h.gap(AP.MAX_SPEED) == MAX_VELOCITY_PPS
+    assert h.gap(AP.MAX_SPEED) == CLOCK // 4
     assert h.gap(AP.ACTUAL_SPEED) == CLOCK // 4
     assert h.axis.register_access(Reg.VMAX) == (CLOCK // 4) << 8
     h.axis.rotate(-MAX_VELOCITY_PPS)
@@ -121,8 +124,9 @@ def test_the_manuals_full_speed_and_acceleration_ranges() -> None:
 @pytest.mark.parametrize("clock", [16_000_000, 10_000_000])
 def test_the_datasheets_speed_ceiling_in_each_mode(clock: int) -> None:
     """|VMAX| <= f/4 in positioning, <= f/2 in velocity mode (datasheet §6.7.2): beyond them
-    the real chip makes wrong step pulses or positions wrongly, so the firmware writes no
-    more (a raised AP 4 during a move too); AP 4 and AP 2 keep the values the host wrote."""
+    the real chip makes wrong step pulses or positions wrongly, so the firmware refuses a
+    positioning speed beyond f/4 (issue 34, item 7: it used to take it and run slower) and
+    runs a rotation at up to f/2, AP 2 keeping the value the host wrote."""
     h = Harness(axis_class=lambda index, parameters, world=None: TMC4361AAxis(
         index, parameters, world=world, clock_hz=clock))
     h.sap(AP.MAX_ACCELERATION, MAX_ACCELERATION_PPS2)
@@ -131,9 +135,11 @@ def test_the_datasheets_speed_ceiling_in_each_mode(clock: int) -> None:
     h.axis.move_to(1_000_000_000)
     h.advance(0.5)
     assert h.gap(AP.ACTUAL_SPEED) == 1_000_000
-    h.sap(AP.MAX_SPEED, 7_000_000)  # on the fly
+    with pytest.raises(ValueError, match="f/4"):  # the module's status 4
+        h.sap(AP.MAX_SPEED, clock // 4 + 1)
+    h.sap(AP.MAX_SPEED, clock // 4)  # on the fly
     h.advance(1.5)
-    assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.MAX_SPEED)) == (clock // 4, 7_000_000)
+    assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.MAX_SPEED)) == (clock // 4, clock // 4)
     h.axis.rotate(7_000_000)
     h.advance(1.5)
     assert (h.gap(AP.ACTUAL_SPEED), h.gap(AP.TARGET_SPEED)) == (min(7_000_000, clock // 2),
@@ -398,3 +404,23 @@ def test_the_tmc4361_modules_write_vmax_unclamped() -> None:
     sim.replan()
     sim.advance(2.0)
     assert module.execute(Request(1, Opcode.GAP, AP.ACTUAL_SPEED, 0, 0)).value == 6_000_000
+
+
+def test_a_positioning_speed_beyond_f_over_4_is_refused_not_silently_capped() -> None:
+    """Issue 34, item 7: the core positions at up to f/4 (4 Mpps at 16 MHz, datasheet §6.7.2);
+    AP 4 (and AP 195, the search's last move) beyond it used to be accepted and read back
+    while the moves ran at 4 Mpps.  The module refuses it (status 4); rotations keep f/2."""
+    from tmcl_server.module import TMCLModule
+    from tmcl_server.protocol import Request
+    from tmcl_spec.commands import Opcode, Status
+
+    module = TMCLModule(kind="tmcm-6212", chip_core="tmc4361a")
+    for number in (4, 195):
+        refused = module.execute(Request(1, Opcode.SAP, number, 0, 4_000_001))
+        assert refused.status == Status.INVALID_VALUE, number
+        assert module.execute(Request(1, Opcode.GAP, number, 0, 0)).value != 4_000_001
+        assert module.execute(Request(1, Opcode.SAP, number, 0, 4_000_000)).status == Status.OK
+    module.execute(Request(1, Opcode.SAP, 5, 0, 7_000_000))
+    assert module.execute(Request(1, Opcode.ROR, 0, 0, 7_999_774)).status == Status.OK
+    module.advance_to(3_000_000_000)
+    assert module.execute(Request(1, Opcode.GAP, 3, 0, 0)).value == 7_999_774

@@ -105,7 +105,8 @@ def test_the_tmc4361a_core_and_the_evaluation_board_from_the_command_line(tmp_pa
                           "--module-type", "landungsbruecke-tmc4361a")
     try:
         client = RawClient(core.endpoints["tcp"][0])
-        assert client.request(1, Opcode.SAP, 4, 0, 7_999_774).status == 100
+        assert client.request(1, Opcode.SAP, 2, 0, 7_999_774).status == 100  # rotations: f/2
+        assert client.request(1, Opcode.SAP, 4, 0, 7_999_774).status == 4  # positioning: f/4
         assert client.request(1, Opcode.READ_MC, 0x7F).value == 2  # TMC4361A VERSION_NO
         client.close()
         client = RawClient(board.endpoints["tcp"][0])

@@ -24,6 +24,7 @@ def _files(tmp: Path) -> dict[str, str]:
         "faults_deep.json": "[" * 100_000 + "]" * 100_000,
         "faults_text.txt": "delay:ms=inf\n",
         "a_file": "x",
+        "world_core.toml": '[chip]\ncore = "tmc4361a"\n',
     }
     for name, text in made.items():
         (tmp / name).write_text(text)
@@ -68,6 +69,8 @@ CASES = [
     (["--fault", "bogus"], "unknown fault"), (["--fault", "delay:ms=nan"], "ms"),
     (["--loop", "bogus"], "--loop"), (["--module-type", "bogus"], "--module-type"),
     (["--axis-core", "bogus"], "--axis-core"), (["--log-level", "bogus"], "--log-level"),
+    (["--module-type", "tmcm-6110", "--axis-core", "tmc4361a"], "it runs on tmc4210, tmc429"),
+    (["--module-type", "tmcm-6110", "--world", "{world_core.toml}"], "does not run on the tmc4361a"),
     (["--no-such-option"], "unrecognized"), (["--no-tcp"], "no transport"),
     (["--mqtt", ""], "--mqtt"), (["--state-dir", ""], "--state-dir"), (["--world", ""], "--world"),
     (["--ready-file", ""], "--ready-file"), (["--pty", "{tmp}"], "not a symlink"),

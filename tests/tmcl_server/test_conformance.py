@@ -252,22 +252,25 @@ def coolstep(client: RawClient, motor: int, overrides: dict[int, int] | None = N
 def test_coolstep_lowers_the_current_at_light_load_and_raises_it_under_load(sim, client: RawClient):
     set_load(sim, 0, [], 600)  # far above the upper threshold: light load
     coolstep(client, 0)
-    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 31  # at rest: AP 6's scale
+    # AP 180 is what the firmware's pass read (axes/tasks.py): axis 0's is at 11 ms, 77 ms, ...
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 0  # none yet
     ok(client, Opcode.ROR, 0, 0, 51200)  # 200 full steps (readings) a second
-    sim.advance(0.05)
+    sim.advance(0.012)  # after the first pass: running, AP 6's scale, one reading taken off
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 30
+    sim.advance(0.066)
     assert 15 < ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) < 31  # coming down
     sim.advance(1.0)
     assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 15  # half of CS (AP 168 = 0)
     status = sim.call(lambda: sim.module(1).axis(0).status())
     assert status.current == 255 * 16 // 32  # the coil current follows
     set_load(sim, 0, [], 10)  # heavy load: below the lower threshold, +1 per reading
-    sim.advance(0.04)
+    sim.advance(0.066)
     assert 15 < ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) < 31
     sim.advance(0.1)
     assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 31
     ok(client, Opcode.MST)
     sim.advance(0.5)
-    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 31  # coolStep off at rest
+    assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT) == 31  # at rest: nothing measured
 
 
 def test_coolstep_minimum_threshold_speed_and_off_switch(sim, client: RawClient):
@@ -277,7 +280,7 @@ def test_coolstep_minimum_threshold_speed_and_off_switch(sim, client: RawClient)
     sim.advance(1.5)
     assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT, 4) == 7
     ok(client, Opcode.SAP, AP.SMARTENERGY_THRESHOLD_SPEED, 4, 60000)  # only above 60000 pps
-    sim.advance(0.01)
+    sim.advance(0.066)  # axis 4's next pass (one axis every 11 ms, in turn)
     assert ok(client, Opcode.GAP, AP.SMARTENERGY_ACTUAL_CURRENT, 4) == 31
     ok(client, Opcode.SAP, AP.SMARTENERGY_THRESHOLD_SPEED, 4, 0)
     ok(client, Opcode.SAP, AP.SMARTENERGY_HYSTERESIS_START, 4, 0)  # 0 switches coolStep off

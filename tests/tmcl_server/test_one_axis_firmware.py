@@ -135,15 +135,49 @@ def test_the_tmcm_1111_virtual_stops_hold_the_motor_short_of_its_target() -> Non
     assert rig.move(51_200) < 10 and rig.gap(1) == 51_200
 
 
-def test_the_tmcm_1111_answers_in_pps_only_and_reads_the_encoder_speed() -> None:
+def test_the_tmcm_1111_answers_in_pps_and_reads_the_encoder_speed() -> None:
     rig = Rig("tmcm-1111")
     assert rig.gap(255) == 1
-    assert rig.cmd(Opcode.SAP, 255, 0, 0).status == Status.INVALID_VALUE  # no internal units
     rig.ok(Opcode.ROR, 0, 0, 10_000)
     rig.sim.advance(1)
     assert rig.gap(3) == rig.gap(131) == rig.gap(132) == 10_000  # AP 131/132: V_ENC(_MEAN)
     # AP 210 = 4096 lines of a 4096-line encoder: AP 209 in microsteps, 12.5 to a count
     assert abs(rig.gap(209) - rig.gap(1)) < 12.5
+
+
+def test_the_tmcm_1111_unit_mode_0_is_its_tmc4361s_register_units() -> None:
+    """Issue 34, item 8: TMCL-LITE-1111 takes AP 255 = 0 (Commands.c lines 1074-1097) and
+    then writes speeds to VMAX and accelerations to AMAX as they are (1/256 pps, 1/4 pps^2:
+    ``ConvertInternalToInternal``); GAP 3 reads VACTUAL << 8."""
+    rig = Rig("tmcm-1111")
+    rig.sap(255, 0)
+    rig.sap(5, 100_000 * 4)  # 100,000 pps^2
+    rig.ok(Opcode.ROR, 0, 0, 10_000 << 8)  # 10,000 pps
+    rig.sim.advance(1)
+    assert rig.gap(3) == 10_000 << 8 and rig.register(0x24) & 0xFFFF_FFFF == 10_000 << 8
+    assert rig.gap(255) == 0 and rig.gap(5) == 400_000
+
+
+def test_the_tmcm_1111_refuses_resolutions_while_its_closed_loop_runs() -> None:
+    """Issue 34, item 8: a new encoder resolution (AP 210) or motor resolution (AP 202) while
+    the closed loop runs answers status 6 (TMCL-LITE-1111 Commands.c lines 993-1008,
+    1023-1037); the value it has is taken, and everything goes once AP 129 is 0."""
+    rig = Rig("tmcm-1111")
+    rig.sap(129, 1)
+    for number, value in ((210, 1000), (202, 400)):
+        assert rig.cmd(Opcode.SAP, number, 0, value).status == Status.COMMAND_NOT_AVAILABLE
+        assert rig.gap(number) != value
+        rig.sap(number, rig.gap(number))  # the value it has: accepted
+    rig.sap(129, 0)
+    rig.sap(210, 1000)
+    rig.sap(202, 400)
+    assert (rig.gap(210), rig.gap(202)) == (1000, 400)
+
+
+def test_the_tmcm_1111_powers_up_with_the_lite_firmwares_stallguard_settings() -> None:
+    """Issue 34, item 8: filter on, threshold 5 (TMCL-LITE-1111 TMC262.c lines 310-311)."""
+    rig = Rig("tmcm-1111")
+    assert (rig.gap(173), rig.gap(174)) == (1, 5)
 
 
 def test_the_tmcm_1111_stops_on_an_encoder_deviation_in_microsteps() -> None:

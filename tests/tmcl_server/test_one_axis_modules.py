@@ -218,15 +218,17 @@ def test_the_io_ports_the_class_names_and_the_supply(rig: Rig, kind: str) -> Non
             assert iface.get_digital_output(port) == 0
         inputs = {name: n for name, n in io.items() if name.startswith("IN")}
         assert len(inputs) == profile.digital_inputs
-        for name, port in inputs.items():
-            if port >= profile.digital_inputs:  # the TMCM1141 class's IN3 = 4 (sic)
-                with pytest.raises(TMCLReplyStatusError):
-                    iface.get_digital_input(port)
-                continue
-            rig.sim.call(module.set_digital_input, port, True)
+        for line, (name, port) in enumerate(sorted(inputs.items())):
+            # the world numbers the lines (IN0..IN3), GIO the ports: the TMCM-1141's IN3 is
+            # port 4 (issue 34, item 9), as its class says
+            rig.sim.call(module.set_digital_input, line, True)
             assert iface.get_digital_input(port) == 1, name
-            rig.sim.call(module.set_analog_input, port, 1000)  # below half of 4095: 0
+            rig.sim.call(module.set_analog_input, line, 1000)  # below half of 4095: 0
             assert iface.get_digital_input(port) == 0 and iface.get_analog_input(port) == 1000
+        if profile.input_ports is not None:  # a port that is no line answers status 3
+            gap = min(set(range(max(profile.input_ports))) - set(profile.input_ports))
+            with pytest.raises(TMCLReplyStatusError):
+                iface.get_digital_input(gap)
         if profile.supply_voltage_channel is None:
             with pytest.raises(TMCLReplyStatusError):
                 iface.get_analog_input(8)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from axes.interface import AxisEvent, AxisEventKind
+from axes.interface import FOREVER, AxisEvent, AxisEventKind
 from interpreter.assembler import assemble
 from interpreter.isa import Instruction, decode_program
 from interpreter.machine import Interpreter
@@ -537,6 +537,9 @@ class ScriptedAxis:
     def next_event_ns(self) -> int | None:
         return self.script[0].time_ns if self.script else None
 
+    def start_firmware_clock(self, *args: object) -> None:
+        """No firmware pass: the test scripts every event."""
+
     def rotate(self, velocity: int) -> None:
         self.params[2] = velocity
 
@@ -559,6 +562,9 @@ class ScriptedAxis:
         if action in (0, 1):
             self.searching = action == 0
         return int(self.searching)
+
+    def steady_until(self, number: int) -> int:
+        return FOREVER  # a parameter changes only at a scripted event (or a command)
 
 
 def scripted_bench() -> tuple[Bench, Callable[[int], ScriptedAxis]]:

@@ -180,7 +180,11 @@ def test_a_blocked_motor_stalls_through_the_tmc262_at_a_tuned_threshold(tmp_path
         iface.rotate(0, 1500)
         sim.advance(2.0)
         assert motor.get_axis_parameter(AP.ACTUAL_SPEED) == 0
-        assert 8000 <= motor.actual_position <= 8000 + 2 * 256  # within the driver's full steps
+        # the firmware's pass stops it (TMCL-LITE-1110 SysControl.c lines 106-114): one axis
+        # every 11 ms, so at most one period of axis 0's passes into the zone (1500 units at
+        # PULSE_DIV 2: 91,553 pps)
+        period_s = 0.011 * module_type(kind).number_of_axes
+        assert 8000 <= motor.actual_position <= 8000 + 2 * 256 + 91_553 * period_s
         assert motor.get_axis_parameter(AP.ERROR_FLAGS) == 1
         assert motor.get_axis_parameter(AP.LOAD) == 0
 
@@ -281,3 +285,65 @@ def test_end_switch_polarity_pull_ups_and_analogue_channels_of_the_tmcm_3110() -
     assert send(Opcode.GIO, 1, 1).status == Status.WRONG_TYPE  # IN1 is digital only
     with pytest.raises(ValueError):
         module.set_analog_input(0, 4096)  # a 12-bit ADC
+
+
+def test_positions_are_the_tmc429s_24_bit_registers() -> None:
+    """Issue 34, item 5: AP 0 and AP 1 are X_TARGET and X_ACTUAL sign-extended from 24 bits
+    (TMCL-LITE-1110 Commands.c ``Read429Int``): a rotation counts on past 8,388,607 at
+    -8,388,608, the manual's range +-8,388,607 bounds SAP 0/1 and MVP ABS, and a relative move
+    across the wrap takes the short way and arrives."""
+    module = TMCLModule(kind="tmcm-1110")
+
+    def send(opcode: int, type_: int, value: int) -> tuple[int, int]:
+        reply = module.execute(Request(1, opcode, type_, 0, value))
+        return reply.status, reply.value
+
+    assert send(Opcode.SAP, AP.ACTUAL_POSITION, 2**23)[0] == Status.INVALID_VALUE
+    assert send(Opcode.MVP, 0, -(2**23))[0] == Status.INVALID_VALUE
+    assert send(Opcode.SAP, AP.ACTUAL_POSITION, 2**23 - 5000)[0] == Status.OK
+    send(Opcode.ROR, 0, 200)  # about 12,000 steps a second
+    module.advance_to(module.now_ns + 1_000_000_000)
+    position = send(Opcode.GAP, AP.ACTUAL_POSITION, 0)[1]
+    assert -(2**23) <= position < -(2**23) + 10_000  # past the top: counting on from the bottom
+    send(Opcode.MST, 0, 0)
+    module.advance_to(module.now_ns + 1_000_000_000)
+    here = send(Opcode.GAP, AP.ACTUAL_POSITION, 0)[1]
+    assert send(Opcode.MVP, 1, -20_000) == (Status.OK, -20_000)  # back across the wrap
+    module.advance_to(module.now_ns + 5_000_000_000)
+    assert send(Opcode.GAP, AP.TARGET_POSITION, 0)[1] == here - 20_000 + 2**24
+    assert send(Opcode.GAP, AP.ACTUAL_POSITION, 0)[1] == here - 20_000 + 2**24
+    assert send(Opcode.GAP, AP.POSITION_REACHED, 0)[1] == 1
+
+
+def test_ror_beyond_2047_writes_the_12_bit_v_target_as_the_firmware_does() -> None:
+    """Issue 34, item 6: TMCL-LITE-1110 writes ROR's value into the 12-bit V_TARGET
+    (``Write429Short``): 3000 is -1096 there, so the motor runs left at 1096 and AP 2 reads
+    -1096; ROL 3000 writes -3000, +1096: right.  SAP 2 keeps the manual's range."""
+    module = TMCLModule(kind="tmcm-1110")
+
+    def send(opcode: int, type_: int, value: int) -> tuple[int, int]:
+        reply = module.execute(Request(1, opcode, type_, 0, value))
+        return reply.status, reply.value
+
+    assert send(Opcode.SAP, AP.TARGET_SPEED, 3000)[0] == Status.INVALID_VALUE
+    send(Opcode.ROR, 0, 3000)
+    module.advance_to(module.now_ns + 2_000_000_000)
+    assert send(Opcode.GAP, AP.TARGET_SPEED, 0)[1] == -1096
+    assert send(Opcode.GAP, AP.ACTUAL_SPEED, 0)[1] == -1096
+    send(Opcode.ROL, 0, 3000)
+    module.advance_to(module.now_ns + 2_000_000_000)
+    assert send(Opcode.GAP, AP.ACTUAL_SPEED, 0)[1] == 1096
+
+
+@pytest.mark.parametrize("kind", ["tmcm-3110", "tmcm-1110"])
+def test_the_encoder_prescaler_takes_what_published_programs_write(kind: str) -> None:
+    """Issue 34, item 12: four published FLIR programs for the TMCM-3110 write SAP 210, m,
+    4674113; the range was 0..65535 (inferred), the module takes it."""
+    module = TMCLModule(kind=kind)
+    for motor in range(module.type.number_of_axes):
+        reply = module.execute(Request(1, Opcode.SAP, AP.ENCODER_RESOLUTION, motor, 4674113))
+        assert reply.status == Status.OK
+        assert module.execute(Request(1, Opcode.GAP, AP.ENCODER_RESOLUTION, motor, 0)).value == 4674113
+    module.execute(Request(1, Opcode.MVP, 0, 0, 1000))
+    module.advance_to(module.now_ns + 1_000_000_000)
+    assert module.execute(Request(1, Opcode.GAP, AP.ENCODER_POSITION, 0, 0)).status == Status.OK

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from axes.cores import make_axes
+from axes.cores import CHIP_CORES, make_axes, refusal
 from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind
 from axes.world import DEFAULT_SIDES, INFINITY, AxisWorld, LoadZone, Switch, World, check_supply_voltage
 from tmcl_server.dispatch import NO_REPLY, CommandError, Handler, Interface, ReplySink
@@ -47,6 +47,19 @@ _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
 #: The heartbeat period (GP 68 / GP 82, ms) watching each kind of interface.
 HEARTBEAT_PARAMETERS = {Interface.SERIAL: GP.SERIAL_HEARTBEAT, Interface.CAN: GP.CAN_HEARTBEAT}
+
+
+def chip_core_problem(kind: ModuleType, core: str) -> str | None:
+    """One line saying why the module type cannot run on chip core ``core`` and which cores
+    it runs on; None if it can (issue 34, item 10: refused at start, never a crash later)."""
+    reason = refusal(core, kind.axis_parameters)
+    if reason is None:
+        return None
+    if len(reason) > 100:  # a core's own message may list every parameter it lacks
+        reason = f"{reason[:97]}..."
+    fits = [name for name in sorted(CHIP_CORES) if refusal(name, kind.axis_parameters) is None]
+    return (f"the {kind.name} does not run on the {core} core ({reason}); "
+            f"it runs on {', '.join(fits)}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,12 +164,17 @@ class ModuleCore:
         self._stale_axes: set[int] = set(range(len(self.axes)))
         #: Axes the command in progress touched (they are re-planned if it may reschedule).
         self._touched: set[int] = set()
-        for axis in self.axes:
+        for axis in self.axes:  # the firmware's clock starts now (axes/tasks.py)
+            axis.start_firmware_clock(self.type.firmware_clock, self.now_ns, len(self.axes))
             axis.advance_to(self.now_ns)
             if mechanics and mechanics[axis.index]:
                 axis.place_mechanics(mechanics[axis.index])
             for key, value in (ee.get("axis_parameters", axis.index) or {}).items():
-                axis.set_parameter(int(key), value)
+                try:
+                    axis.set_parameter(int(key), value)
+                except ValueError as exc:  # stored on another core, beyond what this one runs
+                    log.warning("axis %d: stored AP %s = %s not restored: %s", axis.index, key,
+                                value, exc)
         self.coordinates = [[0] * self.type.coordinates for _ in self.axes]
         if self.globals[0][GP.COORDINATE_STORAGE] == 1:
             self._copy_coordinates_from_eeprom(range(1, self.type.coordinates))
@@ -191,7 +209,14 @@ class ModuleCore:
         if self._axis_factory is not None:
             axes = [self._axis_factory(index) for index in range(count)]
         else:
-            axes = make_axes(self.chip_core, count, self.type.axis_parameters, self.world.clock_hz)
+            try:
+                axes = make_axes(self.chip_core, count, self.type.axis_parameters,
+                                 self.world.clock_hz)
+            except ValueError:
+                problem = chip_core_problem(self.type, self.chip_core)
+                if problem is None:
+                    raise
+                raise ValueError(problem) from None
         if self.type.encoder_counts_per_rev is not None:
             for axis in axes:  # the module's own encoder, where the world names none
                 axis.builtin_encoder_counts = self.type.encoder_counts_per_rev
@@ -320,13 +345,17 @@ class ModuleCore:
                 return (self.now_ns // NS_PER_MS + 1) * NS_PER_MS
             if row.motion is Motion.ACCESS:  # the next random number; a refused command of
                 return 0  # the same loop sets the last error (a refusal "changes nothing")
-        return FOREVER  # inputs, outputs, variables, coordinates: changed only from outside
+        # inputs, outputs, variables, coordinates: changed only from outside; RFS STATUS: the
+        # search moves on only at its axis's notable instants (events) or by a command
+        return FOREVER
 
-    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...]) -> int:
-        """For GAP of a moving value: when it first answers one of ``values`` (0: unknown)."""
+    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...],
+                      read_ns: int) -> int:
+        """For GAP of a moving value read at ``read_ns``: when it first compares otherwise
+        with one of ``values`` (0: unknown)."""
         if opcode != _GAP or not 0 <= motor < len(self.axes):
             return 0
-        return self.axes[motor].first_time_at(type_, values)
+        return self.axes[motor].first_time_at(type_, values, read_ns)
 
     @staticmethod
     def may_reschedule(opcode: int, bank: int) -> bool:

@@ -50,9 +50,15 @@ class IOCommands(ModuleCore):
             channels = self.type.analog_channels
             if channels is not None and req.type not in channels:
                 raise CommandError(Status.WRONG_TYPE)
-        if not 0 <= req.type < self._input_count(req.motor):
+        line = req.type
+        ports = self.type.input_ports
+        if ports is not None and req.motor != IOBank.OUTPUTS:  # GIO numbers ports, not lines
+            if line not in ports:
+                raise CommandError(Status.WRONG_TYPE)
+            line = ports.index(line)
+        if not 0 <= line < self._input_count(req.motor):
             raise CommandError(Status.WRONG_TYPE)
-        return self.read_input(req.type, req.motor)
+        return self.read_input(line, req.motor)
 
     # == coordinates ===========================================================================
 

@@ -33,6 +33,8 @@ class MotionCommands(ModuleCore):
         axis = self._axis(req.motor)
         if req.type == MoveType.ABS:
             target = req.value
+            if not self.type.axis_parameters[AP.TARGET_POSITION].accepts(target):
+                raise CommandError(Status.INVALID_VALUE)  # beyond the module's position range
         elif req.type == MoveType.REL:
             origin = _RELATIVE_ORIGIN[axis.get_parameter(AP.RELATIVE_POSITIONING_OPTION)]
             target = to_int32(axis.get_parameter(origin) + req.value)

@@ -3,6 +3,7 @@ STGP, RSGP); the RAM copy of the global parameters is the core's (read_global, w
 
 from __future__ import annotations
 
+from axes.interface import NotAvailable
 from tmcl_server.dispatch import CommandError, Interface, ReplySink
 from tmcl_server.module.core import ModuleCore
 from tmcl_server.protocol import Request
@@ -24,6 +25,8 @@ class ParameterCommands(ModuleCore):
             self._arm_reach_watch(axis.index)
         try:
             self.changed = axis.set_parameter(req.type, spec.normalise(req.value))
+        except NotAvailable as exc:  # refused in the firmware's present state
+            raise CommandError(Status.COMMAND_NOT_AVAILABLE) from exc
         except ValueError as exc:
             raise CommandError(Status.INVALID_VALUE) from exc
 

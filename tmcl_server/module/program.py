@@ -81,8 +81,10 @@ class StandaloneHost(Protocol):
     def steady_until(self, opcode: int, type_: int, motor: int, status: int) -> int:
         """How long the unchanged command just performed would answer the same."""
 
-    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...]) -> int:
-        """When a moving value read by GAP first equals one of ``values`` (0: unknown)."""
+    def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...],
+                      read_ns: int) -> int:
+        """When a moving value read by GAP at ``read_ns`` first compares otherwise with one
+        of ``values`` (0: unknown)."""
 
     def perform(self, request: Request, sink: ReplySink | None = None,
                 interface: Interface = Interface.SERIAL) -> tuple[int, Any]:
@@ -168,7 +170,7 @@ class ProgramSupport:
     def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
                       values: tuple[int, ...]) -> int:
         self.module.catch_up(time_ns)
-        return self.module.first_time_at(opcode, type_, motor, values)
+        return self.module.first_time_at(opcode, type_, motor, values, time_ns)
 
     def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
         self.module.catch_up(time_ns)
@@ -177,6 +179,10 @@ class ProgramSupport:
     def reference_search_active(self, time_ns: int, motor: int) -> bool:
         self.module.catch_up(time_ns)
         return self.module.axis(motor).reference_search(RfsType.STATUS) != 0
+
+    def steady_until(self, time_ns: int, opcode: int, type_: int, motor: int) -> int:
+        self.module.catch_up(time_ns)
+        return self.module.steady_until(opcode, type_, motor, _OK)
 
     def program_event(self, time_ns: int, kind: str, **data: int) -> None:
         self.module.emit(kind, None, time_ns=time_ns, **data)

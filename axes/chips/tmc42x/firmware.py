@@ -56,7 +56,7 @@ from axes.chips.tmc42x.units import (
     velocity_register,
 )
 from axes.core import ChipDriver
-from tmcl_spec.numbers import INT32_MAX, INT32_MIN, NS_PER_S, to_int32
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN, NS_PER_S, to_int32, to_signed
 from tmcl_spec.parameters import AP
 
 log = logging.getLogger(__name__)
@@ -413,7 +413,7 @@ class TMC42xDriver(ChipDriver):
         The way to the target is its 32-bit difference, as the firmware's int arithmetic
         gives it (the manual's MVP note): a target more than 2**31 - 1 steps away is reached
         the other way round, the shorter way across the wrap of the 32-bit position."""
-        remaining = to_int32(target - self.position)
+        remaining = to_signed(target - self.position, self.position_bits)
         if abs(remaining) > ROLLING_SPAN:
             remaining = ROLLING_SPAN if remaining > 0 else -ROLLING_SPAN
         self._chip_target = (self._x_last + remaining) & MASK24
@@ -421,7 +421,8 @@ class TMC42xDriver(ChipDriver):
 
     def _chip_goal(self) -> int:
         """Where the chip is headed now, as a 32-bit position."""
-        return to_int32(self.position + sdiff24(self._chip_target, self._x_last))
+        return to_signed(self.position + sdiff24(self._chip_target, self._x_last),
+                         self.position_bits)
 
     def continue_move(self, target: int) -> None:
         """At a notable instant of a move to ``target``: hand the chip the next rolling piece."""
@@ -432,7 +433,8 @@ class TMC42xDriver(ChipDriver):
     def refill_mark(self, target: int) -> int | None:
         """The motor position at which a long move to ``target`` needs its next piece."""
         ahead = sdiff24(self._chip_target, self._x_last)
-        if abs(ahead) > ROLLING_REFRESH and target != to_int32(self.position + ahead):
+        if abs(ahead) > ROLLING_REFRESH and target != to_signed(self.position + ahead,
+                                                                  self.position_bits):
             step = 1 if ahead > 0 else -1
             return self.chip.motor_position + ahead - step * ROLLING_REFRESH
         return None

@@ -24,14 +24,14 @@ from collections.abc import Mapping, Sequence
 
 from axes.board import AxisBoard
 from axes.chips.tmc42x.firmware import TMC42xDriver
-from axes.chips.tmc42x.registers import DEFAULT_CLOCK_HZ
+from axes.chips.tmc42x.registers import DEFAULT_CLOCK_HZ, HALF24
 from axes.chips.tmc42x.tmc262 import TMC262, DriverFlag, DrvReg, ReadSelect, drv_datagram
 from axes.chips.tmc42x.tmc429 import EN_REFR, EN_SD, NUMBER_OF_MOTORS, SDO_INT, TMC429, Reg, TMC429Motor
-from axes.core import MotorDriverLink
+from axes.core import ChipModel, MotorDriverLink
 from axes.firmware import AxisFirmware
 from axes.interface import Axis
-from axes.stallguard import CoolStep
 from axes.world import AxisWorld
+from tmcl_spec.numbers import to_signed
 from tmcl_spec.parameters import AP, ParamSpec
 
 #: IF_CONFIGURATION at power-up: Step/Dir outputs, a right switch input per motor (REFR1..3),
@@ -41,6 +41,8 @@ IF_CONFIGURATION_FIRMWARE = EN_SD | EN_REFR | SDO_INT
 SMGP_FIRMWARE = 0x000002
 #: The firmware reads the TMC262's stallGuard2 value (RDSEL = 1) between its other reads.
 READ_SELECT = ReadSelect.SG
+#: V_TARGET is a 12-bit two's complement register.
+V_TARGET_BITS = 12
 
 
 class TMC262Link(MotorDriverLink):
@@ -72,9 +74,11 @@ class TMC262Link(MotorDriverLink):
         self.params = params
         self.motor = motor
         self.parameters = frozenset(self.REGISTER_OF)
-        #: coolStep may regulate (SEMIN is written as AP 172; else 0: off).
+        #: coolStep is switched on (SEMIN is written as AP 172; else 0: off).
         self.regulating = False
         self._current = 0  # CS as last written
+        #: What the firmware's last pass read from the driver: SG, SE, flags (Read262State).
+        self._sampled = (0, 0, 0)
 
     def _get(self, number: int) -> int:
         return self.params.get(number, 0)
@@ -123,39 +127,55 @@ class TMC262Link(MotorDriverLink):
             self._current = value >> 3
             self._send(DrvReg.SGCSCONF)
 
-    def regulate(self, speed: int) -> None:
-        active = CoolStep.active(self.params, speed)
-        if active != self.regulating:
-            self.regulating = active
+    def switch_coolstep(self, on: bool) -> None:
+        if on != self.regulating:
+            self.regulating = on
             self._send(DrvReg.SMARTEN)
 
     def _poll(self) -> int:
         """A datagram that changes nothing (DRVCONF again), for the status word it answers."""
         return self._send(DrvReg.DRVCONF)
 
+    def observe(self) -> None:
+        """The model's driver measures when it is looked at (tmc262.py): a datagram that
+        changes nothing makes it catch up (the real one measures as the motor goes)."""
+        self._poll()
+
+    def sample(self, chip: ChipModel | None = None) -> None:
+        """SG and the flags (RDSEL = 1), then SE with RDSEL = 2 for one datagram (then back)."""
+        own = self.motor
+        if isinstance(chip, TMC429Motor):
+            self.motor = chip  # a copy of this motor (axes/tasks.py, T2)
+        try:
+            word = self._poll()
+            drvconf = self._data(DrvReg.DRVCONF) & ~(3 << 4)
+            self.motor.driver_spi(drv_datagram(DrvReg.DRVCONF, drvconf | ReadSelect.SG_SE << 4))
+            se = self._send(DrvReg.DRVCONF) >> 10 & 0x1F
+        finally:
+            self.motor = own
+        self._sampled = (word >> 10, se, word & 0xFF)
+
     def load(self) -> int:
-        return self._poll() >> 10  # RDSEL = 1: SG in bits 19..10
+        return self._sampled[0]
 
     def flags(self) -> int:
-        return self._poll() & 0xFF
+        return self._sampled[2]
 
     def stalled(self) -> bool:
-        return bool(self.flags() & DriverFlag.SG)
+        return bool(self._poll() & DriverFlag.SG)
 
-    def current_scale(self) -> int | None:
-        """SE, read with RDSEL = 2 for one datagram (then back to SG)."""
-        if not self.regulating:
-            return None
-        drvconf = self._data(DrvReg.DRVCONF) & ~(3 << 4)
-        self.motor.driver_spi(drv_datagram(DrvReg.DRVCONF, drvconf | ReadSelect.SG_SE << 4))
-        word = self._send(DrvReg.DRVCONF)
-        return word >> 10 & 0x1F
+    def current_scale(self) -> int:
+        return self._sampled[1]
 
 
 class TMC429Driver(TMC42xDriver):
     """The firmware's routines for one motor of a TMC429 (an :class:`axes.core.ChipDriver`)."""
 
     chip_name = "TMC429"
+    #: AP 0 and AP 1 are the chip's 24-bit X_TARGET and X_ACTUAL, sign-extended (TMCL-LITE-1110
+    #: Commands.c lines 488-496, 734-741: ``Read429Int``/``Write429Int``): positions wrap at
+    #: +-2**23, as the TMC429 modules' manuals give their range (docs/modules.md).
+    position_bits = 24
 
     def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard, chip: TMC429,
                  motor: int) -> None:
@@ -165,6 +185,13 @@ class TMC429Driver(TMC42xDriver):
         super().__init__(index, params, board, model, motor)
         #: The axis's TMC262, on the microcontroller's SPI (None: a Step/Dir output only).
         self.motor_driver = TMC262Link(params, model) if model.driver is not None else None
+
+    def read_position(self) -> int:
+        """AP 1: X_ACTUAL as it is, sign-extended from 24 bits (no 32-bit count)."""
+        x = self.chip.spi_data(self._read_x_actual)
+        self._x_last = x
+        self.position = x - ((x & HALF24) << 1)
+        return self.position
 
     def register_access(self, address: int, value: int | None = None) -> int:
         """Commands 146/147 on a TMC429 axis: addresses 0x00..0x0F are this axis's own motor
@@ -212,6 +239,15 @@ class TMC429Axis(AxisFirmware):
             for first in range(0, count, NUMBER_OF_MOTORS)]
         return [cls(index, parameters, chip=chips[index // NUMBER_OF_MOTORS],
                     motor=index % NUMBER_OF_MOTORS) for index in range(count)]
+
+    def rotate(self, velocity: int) -> bool:
+        """ROR/ROL in the chip's units (no unit mode) write the 12-bit V_TARGET as it is
+        (TMCL-LITE-1110 Commands.c lines 401 and 420: ``Write429Short(IDX_VTARGET, value)``),
+        so ROR 3000 runs left at 1096 and AP 2 reads -1096 (docs/modules.md, "ROR beyond
+        2047")."""
+        if not self._params[AP.UNIT_MODE]:
+            velocity = to_signed(velocity, V_TARGET_BITS)
+        return super().rotate(velocity)
 
     def get_parameter(self, number: int) -> int:
         """AP 9 is the reference switch status: the left switch, the one the TMC429 calls

@@ -11,13 +11,15 @@ mapping choice is explained in docs/motion.md ("The TMC4361A core") and docs/tmc
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import cast
 
 from axes.board import AxisBoard
 from axes.chips.tmc4361a import TMC4361A, Event, GeneralConf, RefConf, Reg, Status, datagram
 from axes.chips.tmc4361a.registers import MASK32, WRITE_MASKS, signed32
-from axes.core import ChipDriver
+from axes.core import ChipDriver, ChipModel
 from axes.firmware import AxisFirmware
+from axes.interface import NotAvailable
 from axes.world import AxisWorld
 from tmcl_spec.numbers import NS_PER_S, to_int32
 from tmcl_spec.parameters import AP, ParamSpec
@@ -65,6 +67,9 @@ _BOWS = ((Reg.BOW1, AP.BOW1), (Reg.BOW2, AP.BOW2), (Reg.BOW3, AP.BOW3), (Reg.BOW
 _VIRTUAL_REF_BITS = (RefConf.VIRTUAL_LEFT_LIMIT_EN | RefConf.VIRTUAL_RIGHT_LIMIT_EN
                      | RefConf.VIRT_STOP_MODE)
 
+#: The TMCM-1111's closed loop mode (its own number; the firmware layer keeps it as it is).
+CLOSED_LOOP_MODE = 129
+
 #: Registers only a datagram changes (the chip never does): the firmware remembers what it
 #: wrote and answers its own questions from that instead of reading them back.
 _REMEMBERED = frozenset({Reg.RAMPMODE, Reg.VMAX, Reg.XTARGET})
@@ -78,6 +83,10 @@ class TMC4361ADriver(ChipDriver):
 
     #: XACTUAL is the whole 32-bit AP 1: the look-ahead need not stop every 4 s to read it.
     lookahead_ns = 60 * NS_PER_S
+    #: Positioning speeds beyond the datasheet's f/4 (refused), and the TMCM-1111's encoder
+    #: and motor resolution while its closed loop runs (status 6).
+    checked_parameters = frozenset({AP.MAX_SPEED, AP.RFS_SWITCH_SPEED, AP.FULLSTEPS,
+                                    AP.ENCODER_RESOLUTION})
 
     def __init__(self, index: int, params: Mapping[int, int], board: AxisBoard,
                  clock_hz: int = DEFAULT_CLOCK_HZ) -> None:
@@ -188,6 +197,14 @@ class TMC4361ADriver(ChipDriver):
         """AP 3: VACTUAL (integer pps), or in unit mode 0 the manual's internal units."""
         return self._speed_from_pps(signed32(self._read(Reg.VACTUAL)))
 
+    def speed_turns(self, start: ChipModel) -> Callable[[ChipModel], bool] | None:
+        """S-shaped ramps bend: the chip says how far a rotation's speed moves one way."""
+        assert isinstance(start, TMC4361A)
+        test = start.speed_turns()
+        if test is None:
+            return None
+        return lambda later: test(cast(TMC4361A, later))
+
     def levels(self) -> tuple[bool, bool, bool]:
         """Logical (left, right, home) levels, read from the input stage.
 
@@ -229,21 +246,44 @@ class TMC4361ADriver(ChipDriver):
     def _pps_units(self) -> bool:
         return self.params[AP.UNIT_MODE] == 1
 
+    def check_write(self, number: int, value: int) -> None:
+        """AP 4 and AP 195 (the reference search's last move) are positioning speeds: beyond
+        f/4 the chip does not position (datasheet §6.7.2, Table 18), so the module refuses
+        them rather than run slower than it says (the TMCM-1111's own firmware writes what
+        it is given, and runs it).  The TMCM-1111 refuses a new AP 202/210 while its closed
+        loop runs (TMCL-LITE-1111 Commands.c lines 993-1008, 1023-1037: status 6)."""
+        if self._own_ramp:
+            if (number in (AP.FULLSTEPS, AP.ENCODER_RESOLUTION)
+                    and self.params.get(CLOSED_LOOP_MODE) and value != self.params[number]):
+                raise NotAvailable("not while the closed loop runs (AP 129 = 1)")
+        elif number in (AP.MAX_SPEED, AP.RFS_SWITCH_SPEED):
+            ceiling = self.chip.clock_hz / POSITIONING_CEILING_DIVISOR
+            if self._pps(abs(value)) > ceiling:
+                raise ValueError(f"{value} is beyond the {ceiling:.0f} pps the TMC4361A "
+                                 f"positions at {self.chip.clock_hz} Hz (f/4)")
+
     def _pps(self, speed: int) -> float:
-        """A speed parameter in pps (unit mode 0: internal units of f/2^24 pps)."""
+        """A speed parameter in pps (unit mode 0: internal units of f/2^24 pps; on the
+        TMCM-1111 VMAX's own, 1/256 pps: TMCL-LITE-1111 ``ConvertInternalToInternal``)."""
         if self._pps_units:
             return float(speed)
+        if self._own_ramp:
+            return speed / (1 << 8)
         return speed * self.chip.clock_hz / (1 << INTERNAL_VELOCITY_SHIFT)
 
     def _speed_from_pps(self, pps: int) -> int:
         if self._pps_units:
             return pps
+        if self._own_ramp:
+            return pps << 8  # GAP 3: VACTUAL << 8 (TMCL-LITE-1111 Commands.c line 1242)
         return round(pps * (1 << INTERNAL_VELOCITY_SHIFT) / self.chip.clock_hz)
 
     def _velocity_register(self, speed: int) -> int:
         """VMAX/VSTART/VSTOP/VBREAK register (24.8 pps) for a speed parameter, sign kept."""
         if self._pps_units:
             magnitude = abs(speed) << 8  # exact: whole pps
+        elif self._own_ramp:
+            magnitude = abs(speed)  # the TMCM-1111's unit mode 0: VMAX itself
         else:
             magnitude = round(abs(speed) * self.chip.clock_hz / (1 << (INTERNAL_VELOCITY_SHIFT - 8)))
         magnitude = min(magnitude, VELOCITY_REGISTER_MAX)
@@ -266,6 +306,8 @@ class TMC4361ADriver(ChipDriver):
         """An acceleration parameter in pps² (unit mode 0: internal units of f²/2^41 pps²)."""
         if self._pps_units:
             return float(acceleration)
+        if self._own_ramp:
+            return acceleration / 4  # the TMCM-1111's unit mode 0: the 22.2 registers' own
         f = self.chip.clock_hz
         return acceleration * f * f / (1 << INTERNAL_ACCELERATION_SHIFT)
 
@@ -484,6 +526,9 @@ class TMC4361AAxis(AxisFirmware):
 
     def __init__(self, index: int, parameters: Mapping[int, ParamSpec],
                  world: AxisWorld | None = None, clock_hz: int | None = None) -> None:
+        if AP.PULSE_DIVISOR in parameters:
+            raise ValueError("its speeds are TMC429 register values at the divisors of "
+                             "AP 153/154, which only a TMC42x core has")
         clock = DEFAULT_CLOCK_HZ if clock_hz is None else clock_hz
         super().__init__(index, parameters, world,
                          lambda params, board: TMC4361ADriver(index, params, board, clock))

@@ -397,7 +397,9 @@ def test_an_idle_module_on_a_real_clock_publishes_its_state_once(broker):
         async def scenario():
             async with probing(broker) as probe:
                 await probe.client.subscribe("idle/1/state", qos=1)
-                first = await probe.wait(lambda m: m.topic.value == "idle/1/state")
+                # idle once the firmware's passes switched every axis to standby (by 66 ms)
+                first = await probe.wait(lambda m: m.topic.value == "idle/1/state" and all(
+                    axis["standby"] for axis in json_of(m)["axes"]))
                 mark = probe.mark()
                 # 25 publishing periods of 20 ms; before the fix each one sent a new message
                 with contextlib.suppress(AssertionError):
