@@ -592,7 +592,13 @@ def cmd_decode(args: argparse.Namespace) -> int:
     """Streams: frames are printed as they are read, so a long capture needs little memory."""
     if args.file is None and not args.hex and sys.stdin.isatty():
         raise UsageError("give hex bytes, --file FILE, or pipe a dump in")
-    conversation = Conversation(_words(args), replies_only=args.replies)
+    if not _show_frames(args, Conversation(_words(args), replies_only=args.replies)):
+        raise BadInput("no TMCL frame found in the input")
+    return 0
+
+
+def _show_frames(args: argparse.Namespace, conversation: Conversation) -> int:
+    """Each frame printed as it is read (a line or JSON); how many were."""
     shown = 0
     try:
         for frame in conversation.decode(_capture_frames(args)):
@@ -604,9 +610,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
         raise
     except OSError as exc:
         raise BadInput(f"{args.file}: {exc.strerror or exc}") from None
-    if not shown:
-        raise BadInput("no TMCL frame found in the input")
-    return 0
+    return shown
 
 
 def _capture_frames(args: argparse.Namespace) -> Iterator[Frame]:
