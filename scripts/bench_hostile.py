@@ -32,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from local_server import StreamClient, UploadError, tcp_host, wait_for_ready
+from local_server import StreamClient, UploadError, rss_kb, tcp_host, wait_for_ready
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ("baseline", "api-flood", "websockets", "idle-tcp")
@@ -53,10 +53,7 @@ class Server:
         self.http = endpoints["http"][0]
 
     def rss_kb(self) -> int:
-        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-        return 0
+        return rss_kb(self.proc.pid)
 
     def stop(self) -> None:
         self.proc.terminate()

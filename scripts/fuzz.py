@@ -75,7 +75,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from local_server import wait_for_ready
+from local_server import rss_kb, wait_for_ready
 
 from tmcl_spec.commands import FACTORY_RESET_KEY, Opcode, Status
 from tmcl_spec.modules import module_type
@@ -558,10 +558,7 @@ class ServerProcess:
         self.tcp = (host, int(port))
 
     def rss_kb(self) -> int:
-        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-        return 0
+        return rss_kb(self.proc.pid)
 
     def run_delay_ns(self) -> int:
         """How long the server's event-loop thread has waited for a CPU (schedstat), 0 if unknown.

@@ -1,5 +1,5 @@
 """What the benchmarks and long runs share to start a ``tmcl-server`` process and speak to it:
-waiting for its ready file, and a raw 9-byte TCP host.
+waiting for its ready file, a raw 9-byte TCP host, and its resident memory.
 
 The host is the ``tmcl`` client's own :class:`tmcl_server.upload.StreamClient` (nine bytes
 out, nine back, Nagle off), so the scripts measure the server with the client users run
@@ -24,7 +24,7 @@ if str(ROOT) not in sys.path:
 from tmcl_server.protocol import Reply, Request, decode_reply  # noqa: E402
 from tmcl_server.upload import StreamClient, UploadError  # noqa: E402
 
-__all__ = ["ROOT", "StreamClient", "UploadError", "request", "tcp_host", "wait_for_ready"]
+__all__ = ["ROOT", "StreamClient", "UploadError", "request", "rss_kb", "tcp_host", "wait_for_ready"]
 
 
 def wait_for_ready(proc: subprocess.Popen[Any], ready: Path, *, seconds: float = 30.0,
@@ -55,3 +55,12 @@ def request(host: StreamClient, address: int, opcode: int, type_: int = 0, motor
             value: int = 0) -> Reply:
     """One request to any module address on the line, its reply checked and decoded."""
     return decode_reply(host.exchange(Request(address, opcode, type_, motor, value).encode()))
+
+
+def rss_kb(pid: int) -> int:
+    """A live process's resident memory in KiB (``VmRSS`` in /proc/PID/status; 0 if the
+    kernel does not say)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0

@@ -35,7 +35,7 @@ import aiomqtt
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # tests.helpers: the throwaway broker
 
-from local_server import UploadError, tcp_host, wait_for_ready  # noqa: E402
+from local_server import UploadError, rss_kb, tcp_host, wait_for_ready  # noqa: E402
 
 from interpreter.assembler import assemble  # noqa: E402
 from tests.helpers.mosquitto import Broker  # noqa: E402
@@ -150,10 +150,7 @@ class Server:
                 self.dropped = dropped
 
     def rss_kb(self) -> int:
-        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-        return 0
+        return rss_kb(self.proc.pid)
 
     def take(self) -> tuple[list[float], int]:
         latencies, self.latencies = self.latencies, []
