@@ -399,7 +399,7 @@ def _can_bus_name(args: argparse.Namespace) -> str:
 
 def _faults(args: argparse.Namespace) -> list[Any]:
     """The faults of every ``--faults`` file, then of every ``--fault``, at most MAX_FAULTS."""
-    from tmcl_server.faults import MAX_FAULTS, FaultSpecError, load_fault_file, parse_fault
+    from tmcl_server.fault_language import MAX_FAULTS, FaultSpecError, load_fault_file, parse_fault
 
     faults = []
     try:

@@ -82,7 +82,8 @@ def test_a_flood_of_faults_over_mqtt_is_bounded(broker: Broker) -> None:
     """The issue: 2,000 faults republished the retained list 2,000 times (341 MB sent).  Now
     at most MAX_FAULTS are installed, the rest answered on sim_error, and the retained list is
     coalesced: it is published far fewer times than faults were sent."""
-    from tmcl_server.faults import MAX_FAULTS, FaultInjector
+    from tmcl_server.fault_language import MAX_FAULTS
+    from tmcl_server.faults import FaultInjector
 
     sim = start_sim(broker, mqtt_faults=True)
     sent = MAX_FAULTS + 44
