@@ -170,6 +170,18 @@ class ModulePort(Protocol):
         then, or a time before which it surely does not (0: cannot tell)."""
         ...
 
+    def epoch(self) -> int:
+        """Counts what may have changed the module's answers from outside the program's loop
+        (host requests, commands that changed something, events, world changes), but not a
+        program's write of a user variable: while it holds, an analysed pass holds
+        (skipping.py I10)."""
+        ...
+
+    def user_variable(self, number: int) -> int | None:
+        """User variable ``number`` (bank 2) as GGP would read it, if it is plain RAM (None
+        otherwise): an analysed pass that read it holds while it has the same value (I10)."""
+        ...
+
 
 @dataclass(slots=True)
 class Wait:
@@ -847,6 +859,12 @@ class Interpreter:
     def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
                       values: tuple[int, ...]) -> int:
         return self.port.first_time_at(time_ns, opcode, type_, motor, values)
+
+    def epoch(self) -> int:
+        return self.port.epoch()
+
+    def user_variable(self, number: int) -> int | None:
+        return self.port.user_variable(number)
 
 
 _INTERNAL: dict[int, Callable[[Interpreter, int, int, int], int]] = {

@@ -52,6 +52,21 @@ I8. A WAIT TICKS inside a pass lasts the same in every pass (its deadline is a f
     holds forever, I3).
 I9. A loop that touches nothing but registers (no command, no WAIT) is, by I2 with no
     answers to hold, skipped again without an analysis whenever its registers are the same.
+I10. A plan survives a batch boundary.  The module counts everything that may change a
+    pass's answers from outside the loop (``ModulePort.epoch``): every host request, every
+    command that changed something (the program's own included), every module event
+    handled, every world change, power-up.  A pass found skippable is kept (:class:`_Plan`)
+    with the epoch after it, the registers it left as it found them and the user variables
+    it read (a program's write of a plain user variable, a timer handler counting, is not
+    counted: ``ModulePort.user_variable`` is compared instead).  At a later loop head at the
+    same address, with the same epoch, registers and variables and no interrupt due, every
+    call answers as it did in the analysis: its ``steady_until`` and its flip (I3, I5) are
+    absolute instants promised "nothing intervening", which the unchanged epoch witnesses,
+    and the path is the analysed one (I2, I6).  So the passes from there are skipped by I4
+    as if the analysed pass had begun one period earlier, the last whole one still stepped
+    where I7 asks.  A batch end at which nothing intervenes (an ``advance`` returning, a
+    timer tick whose handler only counts, a recorder's sample, which reads and changes
+    nothing) costs no analysis.
 """
 
 from __future__ import annotations
@@ -90,6 +105,7 @@ FOREVER = 1 << 62
 #: Commands that, in a program, load the value they read into the accumulator.
 LOADS_ACCUMULATOR = frozenset({Opcode.GAP.value, Opcode.GGP.value, Opcode.GIO.value, OP_GCO})
 _RFS_STATUS = RfsType.STATUS.value
+OP_GGP = Opcode.GGP.value
 
 
 def loads_accumulator(op: int, ty: int, motor: int) -> bool:
@@ -144,6 +160,14 @@ class Program(Protocol):
         """The module's forecast for a moving read (``ModulePort.first_time_at``)."""
         ...
 
+    def epoch(self) -> int:
+        """What may have intervened from outside the loop, counted (``ModulePort.epoch``)."""
+        ...
+
+    def user_variable(self, number: int) -> int | None:
+        """A plain user variable's value (``ModulePort.user_variable``), or None."""
+        ...
+
 
 class LoopSkipper:
     """Decides, at a loop head, how many passes of the loop can be left out, and leaves them
@@ -157,6 +181,11 @@ class LoopSkipper:
         #: Loop head -> (registers, pass ns, pass instructions) of loops that touch nothing
         #: but registers: skipped again without an analysis (I9).
         self._idle_loops: dict[int, tuple[tuple[object, ...], int, int]] = {}
+        #: The last pass analysed that could be skipped, kept for the next batch (I10).
+        self._plan: _Plan | None = None
+        #: Passes analysed, and passes skipped again from a kept plan (tests, benchmarks).
+        self.analyses = 0
+        self.reuses = 0
 
     def at_loop_head(self, limit: int) -> int:
         """A backward jump brought the program to a loop head: skip the passes that would do
@@ -166,7 +195,32 @@ class LoopSkipper:
         if idle is not None and idle[0] == program.registers():
             self._skip(idle[1], idle[2], limit, (), program.time_ns - idle[1])  # I9
             return CONTINUE
+        plan = self._plan
+        if plan is not None and plan.head == program.pc and self._reuse(plan, limit):
+            return CONTINUE
         return self._analyse(limit)
+
+    def _reuse(self, plan: _Plan, limit: int) -> bool:
+        """I10: nothing intervened since ``plan`` was analysed and the program is where it
+        began, so its passes are skipped as the analysis would (False: analyse again)."""
+        program = self.program
+        if program.epoch() != plan.epoch or program.interrupt_due():  # I10: something intervened
+            return False
+        registers = program.registers()
+        if any(registers[index] != value for index, value in plan.registers):  # I2, I6
+            return False
+        if any(program.user_variable(number) != value for number, value in plan.variables):
+            return False  # I10: a user variable it reads was written since
+        self.countdown = 1
+        if program.time_ns + (1 + plan.real_passes) * plan.period > limit:
+            return True  # no whole pass to leave out before the batch ends: step on to it
+        # I4 counts from a pass that began a period ago, as the analysed one did; I7
+        if self._skip(plan.period, plan.length, limit, plan.horizons,
+                      program.time_ns - plan.period, plan.real_passes):
+            self.reuses += 1
+            return True
+        self._plan = None  # its answers no longer hold
+        return False
 
     def _give_up(self) -> None:
         """This loop cannot be skipped now: analyse again later, less often each time."""
@@ -206,6 +260,8 @@ class LoopSkipper:
         if program.interrupt_due():
             self._give_up()
             return CONTINUE
+        self._plan = None
+        self.analyses += 1
         head, start, executed = program.pc, program.time_ns, program.executed
         before = program.registers()
         calls: list[Call] = []
@@ -219,12 +275,26 @@ class LoopSkipper:
         repeats = analysed.repeats()
         skipped = (self._skip_repeats(analysed, limit) if repeats
                    else self._skip_to_flip(analysed, limit))
-        if skipped:
+        plan = self._plan
+        if skipped or (plan is not None and plan.start == start and  # kept for the next batch
+                       program.time_ns + (1 + plan.real_passes) * plan.period > limit):
             self._backoff = 1
             self.countdown = 1 if repeats else 2
         else:
             self._give_up()
         return CONTINUE
+
+    def _keep(self, analysed: _Pass, horizons: tuple[tuple[int, int], ...],
+              real_passes: int) -> None:
+        """Keep a pass that could be skipped for the next batch (I10): the registers it must
+        find (those the pass left as it found them: I2, I6), the user variables it read."""
+        before, after = analysed.before, analysed.after
+        registers = tuple((index, value) for index, value in enumerate(before)
+                          if after[index] == value)
+        variables = tuple((call.request[1], call.value) for call in analysed.calls
+                          if call.request[0] == OP_GGP and call.request[2] == 2)
+        self._plan = _Plan(analysed.head, analysed.start, self.program.epoch(), registers,
+                           variables, analysed.period, analysed.length, horizons, real_passes)
 
     def _skip_repeats(self, analysed: _Pass, limit: int) -> int:
         """I2: the next passes do exactly the same while every answer holds (I3, I4)."""
@@ -232,6 +302,7 @@ class LoopSkipper:
             self._idle_loops[analysed.head] = (analysed.before, analysed.period, analysed.length)
         horizons = tuple((call.time_ns - analysed.start, call.steady_until)
                          for call in analysed.calls)
+        self._keep(analysed, horizons, 0)
         return self._skip(analysed.period, analysed.length, limit, horizons, analysed.start)
 
     def _skip(self, period: int, length: int, limit: int,
@@ -273,8 +344,27 @@ class LoopSkipper:
                 horizon = self.program.first_time_at(call.time_ns, opcode, type_, motor,
                                                      values) if values else FOREVER  # I5
             horizons.append((call.time_ns - start, horizon))
+        self._keep(analysed, tuple(horizons), 1)
         return self._skip(analysed.period, analysed.length, limit, tuple(horizons), start,
                           real_passes=1)  # I7
+
+
+@dataclass(slots=True)
+class _Plan:
+    """A pass analysed and found skippable, kept for the batches after its own (I10): where
+    and when it began, the module's epoch then, the registers (index, value) and user
+    variables (number, value) it needs, its period and length, each call's (offset,
+    horizon), and how many whole passes before a batch's end are stepped (I7)."""
+
+    head: int
+    start: int
+    epoch: int
+    registers: tuple[tuple[int, object], ...]
+    variables: tuple[tuple[int, int], ...]
+    period: int
+    length: int
+    horizons: tuple[tuple[int, int], ...]
+    real_passes: int
 
 
 @dataclass(slots=True)

@@ -559,3 +559,32 @@ def test_the_server_option_steps_every_instruction() -> None:
     skipping = build_simulation(ServerConfig(endpoints={}, clock="virtual"))
     assert not stepping.modules[0].program.skip_loops
     assert skipping.modules[0].program.skip_loops
+
+
+def _flag_poll(steps_ms: float, seconds: float, record_s: float | None = None) -> TMCLModule:
+    """POLL_TARGET's first loop over a long move, the clock advanced in ``steps_ms`` steps."""
+    module = TMCLModule(kind="tmcm-6212")
+    sim = Simulation([module], VirtualClock())
+    source = "SAP 4, 0, 2000\nMVP ABS, 0, 100000\nWait:\nGAP 8, 0\nCOMP 1\nJC NE, Wait\nSTOP"
+    for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
+                (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
+        module.execute(Request(1, *ins))
+    sim.replan(module)
+    if record_s is not None:
+        Recorder(sim, record_s).start()
+    step = round(steps_ms * MS)
+    for _ in range(round(seconds * 1000 * MS) // step):
+        sim.advance_to_ns(sim.now_ns + step)
+    return module
+
+
+def test_a_plan_survives_a_batch_boundary() -> None:
+    """I10: the clock advanced in 1 ms steps (a lockstep host), or a recorder sampling every
+    millisecond, ends a batch every millisecond; nothing intervenes, so the pass analysed in
+    the first is skipped again in the others, not analysed in each (it was, 1,000 times a
+    second)."""
+    for module in (_flag_poll(1, 1.0), _flag_poll(0.37, 1.0), _flag_poll(10, 1.0, 0.001)):
+        skipper = module.program.interpreter.skipper
+        assert module.program.interpreter.pc in (2, 3, 4)  # still polling: the move takes 50 s
+        assert skipper.analyses <= 20 and skipper.reuses >= 900, (skipper.analyses,
+                                                                  skipper.reuses)

@@ -122,6 +122,12 @@ class ModuleCore:
         #: Whether the command last performed changed anything (a refusal, a read and a write
         #: of what already is do not): a program loop that changes nothing may be skipped.
         self.changed = False
+        #: Counts what may change a program's view of the module from outside its loop: host
+        #: requests, a command that changed something, module events, world changes, power-up.
+        #: A loop's pass analysed under one value is reused while it holds
+        #: (interpreter/skipping.py I10); a program's write of a user variable does not count
+        #: (the plan checks the variables it reads).
+        self.epoch = 0
         #: Standalone mode: program memory, the interpreter, control commands 128-135.
         self.program = ProgramSupport(self, self.type.program_memory, self.type.number_of_axes,
                                       self.type.digital_inputs)
@@ -140,6 +146,7 @@ class ModuleCore:
 
     def power_up(self) -> None:
         """Reset RAM state and reload what the EEPROM holds, as after switching on."""
+        self.epoch += 1
         ee = self.eeprom
         self.globals: dict[int, dict[int, int]] = {
             bank: {n: spec.default for n, spec in table.items()}
@@ -287,6 +294,7 @@ class ModuleCore:
                 sink: ReplySink | None = None) -> AnyReply | None:
         """Run one direct-mode command and build its reply (None: no reply is sent)."""
         opcode = request.opcode
+        self.epoch += 1  # a host request: whatever it does, a loop's plan is analysed again
         self._last_command_ns[interface] = self.now_ns
         self._heartbeat_tripped[interface] = False
         if self.program.downloading and opcode < Opcode.STOP_APPLICATION:
@@ -325,6 +333,8 @@ class ModuleCore:
             self.last_error = int(Status.EEPROM_LOCKED)
             return Status.EEPROM_LOCKED, request.value
         finally:
+            if self.changed:
+                self.epoch += 1
             if self.changed and self.may_reschedule(opcode, request.motor):
                 self._stale_axes |= touched  # the command may start, stop or move an event
                 self._due_stale = True
@@ -419,6 +429,7 @@ class ModuleCore:
         """Forget the cached next-event times (the world changed from outside)."""
         self._stale_axes.update(range(len(self.axes)))
         self._due_stale = True
+        self.epoch += 1
 
     def snapshot(self) -> dict[str, Any]:
         """A JSON-ready picture of the module for telemetry (docs/mqtt.md names the fields)."""
@@ -456,6 +467,7 @@ class ModuleCore:
         """Make ``t_ns`` the present and handle every event due at it (none may lie before)."""
         self.now_ns = t_ns
         self._due_stale = True
+        self.epoch += 1  # events are handled here: what a loop reads may change
         for index, due in enumerate(self._axis_due):
             if (due is not None and due <= t_ns) or index in self._stale_axes:
                 self._stale_axes.add(index)
@@ -518,6 +530,7 @@ class ModuleCore:
         if not 0 <= port < self.type.analog_inputs or not 0 <= value <= self.type.analog_full_scale:
             raise ValueError(f"input {port} value {value} out of range")
         before = self.digital_input(port)
+        self.epoch += 1
         self.analog_inputs[port] = value
         if self.digital_input(port) != before:
             self.emit("input_changed", None, port=port, level=int(not before))
@@ -538,6 +551,7 @@ class ModuleCore:
     def set_supply_voltage(self, volts: float) -> None:
         """Change the supply (V) at run time, e.g. to test a host's under-voltage check."""
         self.world.supply_voltage = check_supply_voltage(volts)
+        self.epoch += 1
         self.emit("supply_changed", None, volts=self.world.supply_voltage)
 
     def supply_voltage_reading(self) -> int:
@@ -563,6 +577,7 @@ class ModuleCore:
         axis = self.axis(index)
         self._stale_axes.add(index)  # switches and load zones decide when the next event is
         self._due_stale = True
+        self.epoch += 1
         return axis
 
     def set_switch(self, axis: int, name: str, position: int | None, width: int | None = None,
