@@ -209,16 +209,21 @@ class Recording:
     ``with`` block) records up to the present and detaches.
     """
 
-    def __init__(self, recorder: Recorder, call: Callable[..., Any]) -> None:
+    def __init__(self, recorder: Recorder, call: Callable[..., Any],
+                 settle: Callable[[], None] = lambda: None) -> None:
         self._recorder = recorder
         self._call = call
+        #: Applies the time the test's thread advanced (SimulatorThread.settle).
+        self._settle = settle
 
     @property
     def rows(self) -> list[Sample]:
+        self._settle()
         return self._recorder.rows
 
     @property
     def marks(self) -> list[Mark]:
+        self._settle()
         return self._recorder.marks
 
     def stop(self) -> list[Sample]:
