@@ -67,6 +67,12 @@ I10. A plan survives a batch boundary.  The module counts everything that may ch
     where I7 asks.  A batch end at which nothing intervenes (an ``advance`` returning, a
     timer tick whose handler only counts, a recorder's sample, which reads and changes
     nothing) costs no analysis.
+I11. The millisecond tick (GGP 132) is arithmetic on the instant: it answers the same until
+    the next millisecond (I3), and it is also a moving read whose flip the module forecasts
+    exactly (``ModulePort.first_time_at``: it meets every value above the one read, one a
+    millisecond, and wraps to 0 past 2**31 - 1; only SGP 132 and a power-up move its origin,
+    and both count in the epoch).  A pass that reads it is skipped to its flip (I5) when it
+    only compares it, else to its next millisecond (I4).
 """
 
 from __future__ import annotations
@@ -92,6 +98,7 @@ from interpreter.isa import (
     Instruction,
 )
 from tmcl_spec.commands import MOTOR_ALL, STATUS_OK, CalcOp, Opcode, RfsType
+from tmcl_spec.parameters import GP
 
 #: A loop is analysed after this many backward jumps; while it cannot be skipped, the wait
 #: doubles up to LOOP_BACKOFF_MAX (docs/scheduling.md, "Loops that change nothing").
@@ -106,6 +113,7 @@ FOREVER = 1 << 62
 LOADS_ACCUMULATOR = frozenset({Opcode.GAP.value, Opcode.GGP.value, Opcode.GIO.value, OP_GCO})
 _RFS_STATUS = RfsType.STATUS.value
 OP_GGP = Opcode.GGP.value
+_TICK_READ = (OP_GGP, int(GP.TICK_TIMER), 0)
 
 
 def loads_accumulator(op: int, ty: int, motor: int) -> bool:
@@ -273,8 +281,13 @@ class LoopSkipper:
         analysed = _Pass(head, start, program.time_ns - start, program.executed - executed,
                          before, program.registers(), calls, path, ran[1])
         repeats = analysed.repeats()
-        skipped = (self._skip_repeats(analysed, limit) if repeats
-                   else self._skip_to_flip(analysed, limit))
+        if analysed.reads_clock():  # I11: to the tick's flip, else to its next millisecond
+            skipped = self._skip_to_flip(analysed, limit)
+            if skipped is None and repeats:
+                skipped = self._skip_repeats(analysed, limit)
+        else:
+            skipped = (self._skip_repeats(analysed, limit) if repeats
+                       else self._skip_to_flip(analysed, limit))
         plan = self._plan
         if skipped or (plan is not None and plan.start == start and  # kept for the next batch
                        program.time_ns + (1 + plan.real_passes) * plan.period > limit):
@@ -322,24 +335,25 @@ class LoopSkipper:
         program.loops_skipped += passes
         return passes
 
-    def _skip_to_flip(self, analysed: _Pass, limit: int) -> int:
-        """A pass that reads moving values (positions) and only compares them: skip to the pass
-        where a comparison could flip, the first time a value reaches one of its boundaries."""
+    def _skip_to_flip(self, analysed: _Pass, limit: int) -> int | None:
+        """A pass that reads moving values (positions, the tick) and only compares them: skip
+        to the pass where a comparison could flip, the first time a value reaches one of its
+        boundaries (None: the pass is not of that shape)."""
         calls, start = analysed.calls, analysed.start
         moving = analysed.moving_reads()
         if moving is None:
-            return 0
+            return None
         found = boundaries(self.program.code, analysed.path, calls, moving, analysed.before,
                            analysed.after)
         if found is None:
-            return 0
+            return None
         horizons = []
         for index, call in enumerate(calls):
             horizon = call.steady_until
             if index in found:
                 values = found[index]
                 if call.value in values:
-                    return 0  # on a boundary now: the next pass may compare otherwise
+                    return None  # on a boundary now: the next pass may compare otherwise
                 opcode, type_, motor, _ = call.request
                 horizon = self.program.first_time_at(call.time_ns, opcode, type_, motor,
                                                      values) if values else FOREVER  # I5
@@ -383,19 +397,33 @@ class _Pass:
     waited: bool
 
     def moving_reads(self) -> set[int] | None:
-        """The indices of the calls whose answers are not steady, if all of them are GAPs
-        answered (the only moving values a flip is forecast for); None otherwise."""
+        """The indices of the calls whose answers are not steady, and of the tick's reads
+        (I11), if all of them are GAPs or GGPs answered (the moving values a flip is
+        forecast for); None otherwise."""
         moving = {index for index, call in enumerate(self.calls)
-                  if call.steady_until <= call.time_ns}
-        if any(self.calls[i].status != STATUS_OK or self.calls[i].request[0] != OP_GAP
+                  if call.steady_until <= call.time_ns or _reads_clock(call)}
+        if any(self.calls[i].status != STATUS_OK or self.calls[i].request[0] not in _FORECAST
                for i in moving):
             return None
         return moving
+
+    def reads_clock(self) -> bool:
+        """I11: the pass reads the millisecond tick (GP 132)."""
+        return any(_reads_clock(call) for call in self.calls)
 
     def repeats(self) -> bool:
         """I2: every answer steady and the registers as found: the next passes do the same."""
         return self.after == self.before and all(call.steady_until > call.time_ns
                                                  for call in self.calls)
+
+
+#: The reads whose flips the module forecasts: GAP (axes/forecast.py), GGP (the tick, I11).
+_FORECAST = frozenset({OP_GAP, OP_GGP})
+
+
+def _reads_clock(call: Call) -> bool:
+    """GGP 132 of bank 0 answered: the millisecond tick, which moves with time alone."""
+    return call.request[:3] == _TICK_READ and call.status == STATUS_OK
 
 
 #: Registers of the pass analysis (the indices in Program.registers()).

@@ -249,6 +249,28 @@ def s_ramp_programs(draw: st.DrawFn) -> str:
     return "\n".join(lines)
 
 
+@st.composite
+def tick_programs(draw: st.DrawFn) -> str:
+    """Delay loops on the millisecond tick (GP 132, I11): set, then polled against values
+    around it, also across its 31-bit wrap, with more commands in the pass and a timer."""
+    start = draw(st.sampled_from([0, 0, 5, 2**31 - 40, 2**31 - 1]))
+    near = [start + d for d in (-1, 0, 1, 2, 7, 30, 45, 200)] + [0, 1, 2**31 - 1, -1]
+    lines = ["SAP 4, 0, 100000", f"MVP ABS, 0, {draw(st.integers(-60000, 60000))}"]
+    if draw(st.booleans()):
+        lines += ["VECT 0, Tick", f"SGP 0, 3, {draw(st.integers(1, 12))}", "EI 0", "EI 255"]
+    lines += [f"SGP 132, 0, {start}", "Loop:", "GGP 132, 0",
+              f"COMP {draw(st.sampled_from(near))}",
+              f"JC {draw(st.sampled_from(CONDITIONS))}, Out",
+              *draw(st.lists(st.sampled_from(["GAP 8, 0", "GGP 0, 2", "WAIT TICKS, 0, 1",
+                                              "GGP 132, 0", "CALC ADD, 1", "GAP 1, 0"]),
+                             max_size=2)),
+              "JA Loop", "Out:", "GGP 132, 0", "AGP 9, 2", "Again:", "GGP 132, 0",
+              f"COMP {draw(st.sampled_from(near))}",
+              f"JC {draw(st.sampled_from(CONDITIONS))}, Again", "GGP 132, 0", "AGP 10, 2",
+              "STOP", "Tick:", "GGP 3, 2", "CALC ADD, 1", "AGP 3, 2", "RETI"]
+    return "\n".join(lines)
+
+
 #: Program shapes, and the modules each runs on.
 SHAPES = {
     "poll": (programs, MODULES),
@@ -256,6 +278,7 @@ SHAPES = {
     "monitor": (monitor_programs, MODULES),
     "wait": (wait_programs, MODULES),
     "s-ramp": (s_ramp_programs, [("tmcm-1111", None)]),
+    "tick": (tick_programs, MODULES),
 }
 
 
@@ -268,7 +291,7 @@ def scenarios(shape: str) -> st.SearchStrategy[tuple[str, World]]:
 def run(source: str, world: World, skip: bool) -> list[object]:
     """Run ``source`` in ``world``: with skipping and the world's steps, or stepping every
     instruction in one ``advance`` call a stretch; what was seen, and at the end the number
-    of skipped passes (the only entry allowed to differ)."""
+    of skipped and of analysed passes (the only entry allowed to differ)."""
     module = (TMCLModule(kind=world.kind, chip_core=world.core) if world.core
               else TMCLModule(kind=world.kind))
     sim = Simulation([module], VirtualClock())
@@ -332,7 +355,9 @@ def run(source: str, world: World, skip: bool) -> list[object]:
     seen.append(("end", *registers(module)))
     if recorder is not None:
         seen.append(("recorded", recorder.stop(), recorder.marks))
-    seen.append(("skipped", module.program.interpreter.loops_skipped) if skip else ("skipped", 0))
+    interp = module.program.interpreter
+    seen.append(("skipped", interp.loops_skipped, interp.skipper.analyses) if skip
+                else ("skipped", 0, 0))
     return seen
 
 
@@ -461,6 +486,31 @@ def test_skipping_loops_with_waits_is_exactly_as_stepping(scenario: tuple[str, W
 @given(scenarios("s-ramp"))
 def test_skipping_s_ramp_speed_polls_is_exactly_as_stepping(scenario: tuple[str, World]) -> None:
     same(*scenario)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios("tick"))
+def test_skipping_delay_loops_on_the_tick_is_exactly_as_stepping(
+        scenario: tuple[str, World]) -> None:
+    same(*scenario)
+
+
+def test_a_delay_loop_on_the_tick_is_skipped_to_its_end() -> None:
+    """I11: a loop polling GP 132 against a value 400 ms on is skipped to the millisecond the
+    tick meets it (it was analysed again every millisecond), and leaves as stepping does;
+    likewise across the tick's wrap from 2**31 - 1 to 0."""
+    for start, limit, condition in ((0, 400, "LT"), (2**31 - 200, 1000, "GT")):
+        source = (f"SGP 132, 0, {start}\nLoop:\nGGP 132, 0\nCOMP {limit}\nJC {condition}, Loop\n"
+                  "GGP 132, 0\nAGP 9, 2\nSTOP")
+        for steps in ((), (1000,), (370,)):
+            world = World(None, [], 600, steps_us=steps)
+            fast, slow = run(source, world, True), run(source, world, False)
+            assert fast[:-1] == slow[:-1]
+            (stopped,) = _stopped_at(fast)
+            assert 190 * MS < stopped < 410 * MS
+            if not steps:  # skipped to the end, not analysed a millisecond at a time
+                assert fast[-1][1] > 5_000 and fast[-1][2] < 30, fast[-1]  # (the power-up
+                # passes of the six axes switch their currents, events: 66 ms of them)
 
 
 def _stopped_at(seen: list[object]) -> list[int]:

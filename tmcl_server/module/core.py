@@ -43,6 +43,8 @@ _OK = int(Status.OK)
 _REFUSALS = frozenset({int(Status.INVALID_COMMAND), int(Status.WRONG_TYPE),
                        int(Status.INVALID_VALUE)})
 _GAP, _GGP = int(Opcode.GAP), int(Opcode.GGP)
+#: GP 132, the tick timer, is 31 bits wide (read_global).
+_TICK_MASK = 0x7FFF_FFFF
 _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
 #: The heartbeat period (GP 68 / GP 82, ms) watching each kind of interface.
@@ -361,11 +363,29 @@ class ModuleCore:
 
     def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...],
                       read_ns: int) -> int:
-        """For GAP of a moving value read at ``read_ns``: when it first compares otherwise
-        with one of ``values`` (0: unknown)."""
+        """For GAP of a moving value, or GGP of the tick timer, read at ``read_ns``: when it
+        first compares otherwise with one of ``values`` (0: unknown)."""
+        if opcode == _GGP:
+            row = self.type.global_parameters.get(motor, {}).get(type_)
+            if row is None or row.motion is not Motion.TIME:
+                return 0
+            return self._tick_first_time_at(values, read_ns)
         if opcode != _GAP or not 0 <= motor < len(self.axes):
             return 0
         return self.axes[motor].first_time_at(type_, values, read_ns)
+
+    def _tick_first_time_at(self, values: tuple[int, ...], read_ns: int) -> int:
+        """GP 132 counts whole milliseconds from its origin, 31 bits wide (read_global): it
+        meets every value above the one read, one a millisecond, and wraps to 0 past the top
+        (a comparison flips there without meeting its boundary, as AP 1's at its wrap).  Only
+        a command (SGP 132) or a power-up moves its origin, and both count in the epoch."""
+        read_ms = read_ns // NS_PER_MS
+        tick = (read_ms - self._tick_origin_ms) & _TICK_MASK
+        first = read_ms + _TICK_MASK - tick + 1  # the wrap to 0
+        for value in values:
+            if tick < value <= _TICK_MASK:
+                first = min(first, read_ms + value - tick)
+        return first * NS_PER_MS
 
     @staticmethod
     def may_reschedule(opcode: int, bank: int) -> bool:
@@ -666,7 +686,7 @@ class ModuleCore:
             if mirrored is not None:
                 return mirrored
             if number == GP.TICK_TIMER:
-                return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & 0x7FFF_FFFF
+                return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & _TICK_MASK
             if number == GP.RANDOM_NUMBER:
                 return self._random.randrange(2**31)
             if number == GP.LAST_TMCL_ERROR:
