@@ -215,7 +215,10 @@ class LoopSkipper:
         if program.epoch() != plan.epoch or program.interrupt_due():  # I10: something intervened
             return False
         registers = program.registers()
-        if any(registers[index] != value for index, value in plan.registers):  # I2, I6
+        if plan.everything is not None:  # the usual case, a pass that keeps every register
+            if registers != plan.everything:  # I2
+                return False
+        elif any(registers[index] != value for index, value in plan.registers):  # I2, I6
             return False
         if any(program.user_variable(number) != value for number, value in plan.variables):
             return False  # I10: a user variable it reads was written since
@@ -306,8 +309,10 @@ class LoopSkipper:
                           if after[index] == value)
         variables = tuple((call.request[1], call.value) for call in analysed.calls
                           if call.request[0] == OP_GGP and call.request[2] == 2)
+        everything = before if len(registers) == len(before) else None
         self._plan = _Plan(analysed.head, analysed.start, self.program.epoch(), registers,
-                           variables, analysed.period, analysed.length, horizons, real_passes)
+                           everything, variables, analysed.period, analysed.length, horizons,
+                           real_passes)
 
     def _skip_repeats(self, analysed: _Pass, limit: int) -> int:
         """I2: the next passes do exactly the same while every answer holds (I3, I4)."""
@@ -366,14 +371,15 @@ class LoopSkipper:
 @dataclass(slots=True)
 class _Plan:
     """A pass analysed and found skippable, kept for the batches after its own (I10): where
-    and when it began, the module's epoch then, the registers (index, value) and user
-    variables (number, value) it needs, its period and length, each call's (offset,
+    and when it began, the module's epoch then, the registers (index, value; or all of them
+    as a tuple) and user variables (number, value) it needs, its period and length, each call's (offset,
     horizon), and how many whole passes before a batch's end are stepped (I7)."""
 
     head: int
     start: int
     epoch: int
     registers: tuple[tuple[int, object], ...]
+    everything: tuple[object, ...] | None  # all the registers, when it needs all of them
     variables: tuple[tuple[int, int], ...]
     period: int
     length: int

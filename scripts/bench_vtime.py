@@ -7,6 +7,7 @@ polled against a threshold >= 200 x; a 1 ms timer interrupt >= 100 x; six axes i
 program-driven back-and-forth moves, one simulated hour, <= 0.5 s of wall time on every core.
 
     .venv/bin/python scripts/bench_vtime.py [--seconds S] [--repeat N] [--only NAME,...]
+                                            [--code DIR]
 
 Each shape runs ``--seconds`` of simulated time (default 600, ten minutes; the six-axis shape
 one hour) with loop skipping on (the default) and, with the same program and world, in the
@@ -28,7 +29,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+# ``--code DIR`` runs another checkout's simulator (a baseline, side by side in one session)
+sys.path.insert(0, next((sys.argv[i + 1] for i, arg in enumerate(sys.argv[:-1])
+                         if arg == "--code"), str(Path(__file__).resolve().parent.parent)))
 
 from interpreter.assembler import assemble
 from tmcl_server.clock import VirtualClock
@@ -40,6 +43,7 @@ from tmcl_server.simulation import Simulation
 from tmcl_spec.commands import Opcode
 
 NS = 1_000_000_000
+_CODE = sys.path[0]
 
 
 @dataclass(frozen=True)
@@ -433,9 +437,13 @@ def main() -> int:
                              "takes less)")
     parser.add_argument("--repeat", type=int, default=3, help="runs of each; the median counts")
     parser.add_argument("--only", default="", help="comma-separated shape names")
+    parser.add_argument("--code", default=_CODE,
+                        help="the checkout whose simulator runs (default: this one; e.g. a "
+                             "baseline worktree, run alternately with this one)")
     args = parser.parse_args()
     chosen = {n for n in args.only.split(",") if n}
     failed = False
+    print(f"code: {args.code}")
     print(f"{'shape':<14} {'skipping':>16} {'stepping':>16} {'ratio':>8}  goal      same state")
     for shape in SHAPES:
         if chosen and shape.name not in chosen:
