@@ -73,6 +73,20 @@ I11. The millisecond tick (GGP 132) is arithmetic on the instant: it answers the
     millisecond, and wraps to 0 past 2**31 - 1; only SGP 132 and a power-up move its origin,
     and both count in the epoch).  A pass that reads it is skipped to its flip (I5) when it
     only compares it, else to its next millisecond (I4).
+I12. A timer whose handler only counts is applied for k ticks at once.  A handler that is
+    nothing but ``GGP n, 2; CALC ADD|SUB, c; AGP n, 2`` groups (one per plain user variable)
+    and RETI leaves the registers as it found them (RETI restores PC, accumulator, X and
+    flags) and adds c to each variable n, whatever they hold.  One whole cycle, from one
+    dispatch of the timer to the next, is recorded like a pass (every command with its
+    answer, I3).  If the next dispatch finds the registers, the epoch (I10) and the period
+    as the recorded one began, no WAIT in progress and nothing else pending, every command of
+    the cycle but the handler's counting changed nothing, no other command read or wrote a
+    counted variable, and each answer is steady over the cycles to skip (I4 with the timer's
+    period for the pass's), then each of those cycles does exactly what the recorded one
+    did: the same instructions at the same offsets, the same answers, and the variables one
+    c further.  They are skipped at once (time, instruction count, the timer's next tick,
+    each dispatch's ``interrupt_taken`` event at its instant, the variables k c further),
+    ending no later than the batch (I1); the dispatch after them is executed.
 """
 
 from __future__ import annotations
@@ -113,6 +127,8 @@ FOREVER = 1 << 62
 LOADS_ACCUMULATOR = frozenset({Opcode.GAP.value, Opcode.GGP.value, Opcode.GIO.value, OP_GCO})
 _RFS_STATUS = RfsType.STATUS.value
 OP_GGP = Opcode.GGP.value
+OP_SGP = Opcode.SGP.value
+OP_RETI = Opcode.RETI.value
 _TICK_READ = (OP_GGP, int(GP.TICK_TIMER), 0)
 
 
@@ -220,7 +236,8 @@ class LoopSkipper:
                 return False
         elif any(registers[index] != value for index, value in plan.registers):  # I2, I6
             return False
-        if any(program.user_variable(number) != value for number, value in plan.variables):
+        if plan.variables and any(program.user_variable(number) != value
+                                  for number, value in plan.variables):
             return False  # I10: a user variable it reads was written since
         self.countdown = 1
         if program.time_ns + (1 + plan.real_passes) * plan.period > limit:
@@ -421,6 +438,49 @@ class _Pass:
         """I2: every answer steady and the registers as found: the next passes do the same."""
         return self.after == self.before and all(call.steady_until > call.time_ns
                                                  for call in self.calls)
+
+
+def counting_handler(code: list[Instruction], address: int) -> dict[int, int] | None:
+    """I12: the variables a timer handler at ``address`` counts and by how much a tick, if
+    it is nothing but ``GGP n, 2; CALC ADD|SUB, c; AGP n, 2`` groups (each variable once)
+    and RETI; None otherwise."""
+    counters: dict[int, int] = {}
+    pc = address
+    while pc < len(code):
+        op, ty, motor, _ = code[pc]
+        if op == OP_RETI:
+            return counters
+        if pc + 2 >= len(code):
+            return None
+        calc, store = code[pc + 1], code[pc + 2]
+        if (op != OP_GGP or motor != 2 or ty in counters or calc.opcode != OP_CALC
+                or calc.type not in (CalcOp.ADD, CalcOp.SUB)
+                or store[:3] != (OP_AGP, ty, 2)):
+            return None
+        counters[ty] = calc.value if calc.type == CalcOp.ADD else -calc.value
+        pc += 3
+    return None
+
+
+def ticks_to_skip(calls: list[Call], counters: dict[int, int], start: int, period: int,
+                  limit: int) -> int:
+    """I12: how many timer cycles after the recorded one (``calls``, begun at ``start``) do
+    exactly what it did, ending by ``limit`` (0: none, or the cycle is not of that shape)."""
+    reads = dict.fromkeys(counters, 0)
+    writes = dict.fromkeys(counters, 0)
+    cycles = (limit - 1 - start) // period - 1  # the dispatch after them within the batch
+    for call in calls:
+        opcode, type_, motor, _ = call.request
+        if motor == 2 and type_ in counters and opcode in (OP_GGP, OP_SGP):
+            (reads if opcode == OP_GGP else writes)[type_] += 1
+            continue
+        if call.changed or call.steady_until <= call.time_ns:
+            return 0  # changed something, or no promise about the next answer
+        # I4: cycle i sends at start + i * period + offset, certain while < steady_until
+        cycles = min(cycles, -(-(call.steady_until - call.time_ns) // period) - 1)
+    if any(count != 1 for count in (*reads.values(), *writes.values())):
+        return 0  # the handler's counting, once each, and nothing else touches the counters
+    return max(cycles, 0)
 
 
 #: The reads whose flips the module forecasts: GAP (axes/forecast.py), GGP (the tick, I11).

@@ -18,7 +18,13 @@ TMCM-1111's own S-shaped ramps):
 
 * coolStep and stallGuard set up by the program over load zones of the world: they run on
   the firmware's own clock (axes/tasks.py T1-T3), never at a read, so a skipped read changes
-  nothing (issue 33's D1, issue 34).
+  nothing (issue 33's D1, issue 34);
+* delay loops on the millisecond tick, across its wrap (I11), and timers whose handlers count
+  (I12).
+
+The skipping run's clock moves in one call or in 1 ms, 0.37 ms or mixed steps, so the plans
+kept across batch ends (I10) are reused at odd instants, with hosts and world changes
+arriving mid-plan.
 """
 
 from __future__ import annotations
@@ -511,6 +517,51 @@ def test_a_delay_loop_on_the_tick_is_skipped_to_its_end() -> None:
             if not steps:  # skipped to the end, not analysed a millisecond at a time
                 assert fast[-1][1] > 5_000 and fast[-1][2] < 30, fast[-1]  # (the power-up
                 # passes of the six axes switch their currents, events: 66 ms of them)
+
+
+#: I12: a 1 ms timer counting in user variable 3 over a poll of "position reached"; the main
+#: loop leaves when the count reaches {limit} (it reads the counter: nothing is skipped then)
+#: or, with limit 0, when the move ends.
+TIMER_OVER_POLL = ("VECT 0, Tick\nSGP 0, 3, {period}\nEI 0\nEI 255\nSAP 4, 0, 20000\n"
+                   "MVP ABS, 0, 4000\nWait:\nGAP 8, 0\nCOMP 1\nJC EQ, Out\n{read}JA Wait\n"
+                   "Out:\nGGP 3, 2\nAGP 9, 2\nSTOP\nTick:\nGGP 3, 2\nCALC ADD, {step}\n"
+                   "AGP 3, 2\nRETI")
+
+
+def test_a_timer_whose_handler_counts_is_applied_for_many_ticks_at_once() -> None:
+    """I12: the cycles of a 1 ms (3 ms) timer whose handler only counts, over a poll that
+    changes nothing, are skipped many at once, each dispatch's event still at its instant;
+    the same with the clock advanced in 1 ms and 0.37 ms steps.  A main loop that reads the
+    counter is stepped (the count decides when it leaves), and ends as stepping does."""
+    for period, step in ((1, 1), (3, -7)):
+        source = TIMER_OVER_POLL.format(period=period, step=step, read="")
+        for steps in ((), (1000,), (370,)):
+            world = World(None, [(50, "gap", 0)], 400, steps_us=steps)
+            fast, slow = run(source, world, True), run(source, world, False)
+            assert fast[:-1] == slow[:-1], (period, steps)
+            assert len([e for e in fast if e[1:2] == ("interrupt_taken",)]) > 100
+    counting = TIMER_OVER_POLL.format(period=1, step=1,
+                                      read="GGP 3, 2\nCOMP 120\nJC GE, Out\n")
+    world = World(None, [], 400)
+    fast, slow = run(counting, world, True), run(counting, world, False)
+    assert fast[:-1] == slow[:-1]
+    (stopped,) = _stopped_at(fast)
+    assert 119 * MS < stopped < 125 * MS
+
+
+def test_timer_cycles_are_skipped_not_stepped() -> None:
+    """I12: over a long move, almost every tick of a counting 1 ms timer is skipped."""
+    module = TMCLModule(kind="tmcm-6212")
+    sim = Simulation([module], VirtualClock())
+    source = TIMER_OVER_POLL.format(period=1, step=1, read="").replace("4000", "400000")
+    for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
+                (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
+        module.execute(Request(1, *ins))
+    sim.replan(module)
+    sim.advance(10.0)
+    interp = module.program.interpreter
+    assert module.globals[2][3] == 9_999  # a tick a millisecond, the first at 1 ms
+    assert interp.ticks_skipped > 9_000
 
 
 def _stopped_at(seen: list[object]) -> list[int]:
