@@ -319,7 +319,7 @@ def run(source: str, world: World, skip: bool) -> list[object]:
     module.listeners.append(listen)
     if world.switch_at is not None:
         module.set_switch(0, "right", world.switch_at)
-    for axis in range(min(2, len(module.axes))):  # the TMCM-1111 has one axis
+    for axis in range(min(2, module.type.number_of_axes)):
         zones = [(start, end, load) for on, start, end, load in world.loads if on == axis]
         if zones:
             module.set_load(axis, zones)
