@@ -389,8 +389,9 @@ class LoopSkipper:
 class _Plan:
     """A pass analysed and found skippable, kept for the batches after its own (I10): where
     and when it began, the module's epoch then, the registers (index, value; or all of them
-    as a tuple) and user variables (number, value) it needs, its period and length, each call's (offset,
-    horizon), and how many whole passes before a batch's end are stepped (I7)."""
+    as a tuple) and user variables (number, value) it needs, its period and length, each
+    call's (offset, horizon), and how many whole passes before a batch's end are stepped
+    (I7)."""
 
     head: int
     start: int

@@ -196,6 +196,8 @@ class SimulatorThread:
 
     def _pay(self) -> None:
         """On the loop: apply the time owed, in one advance."""
+        if not self._owed_ns and not self._owed_queued:
+            return  # (every request asks: the usual answer, without the lock)
         with self._owed_lock:
             owed, self._owed_ns, self._owed_queued = self._owed_ns, 0, False
         if owed and self.server is not None:
