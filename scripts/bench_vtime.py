@@ -320,20 +320,8 @@ Delay:
 """),
     Shape("flag-record10", 1000, FLAG, record_s=0.01),
     Shape("flag-record1", 200, FLAG, record_s=0.001),
-    Shape("timer-count", 1000, """
-    // a 1 ms timer whose handler counts (GGP / CALC ADD / AGP), the main loop idle
-    VECT 0, Tick
-    SGP 0, 3, 1
-    EI 0
-    EI 255
-Main:
-    JA Main
-Tick:
-    GGP 0, 2
-    CALC ADD, 1
-    AGP 0, 2
-    RETI
-"""),
+    # a 1 ms timer whose handler counts (GGP / CALC ADD / AGP), the main loop idle
+    Shape("timer-count", 1000, next(shape.source for shape in SHAPES if shape.name == "timer")),
     Shape("monitor-record10", 200, MONITOR, record_s=0.01),
     Shape("six-record10", 200, SIX_AXES, record_s=0.01, seconds=60),
     Shape("speed-record10", 200, SHAPES[6].source, record_s=0.01),

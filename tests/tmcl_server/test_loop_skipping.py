@@ -551,17 +551,23 @@ def test_a_timer_whose_handler_counts_is_applied_for_many_ticks_at_once() -> Non
 
 def test_timer_cycles_are_skipped_not_stepped() -> None:
     """I12: over a long move, almost every tick of a counting 1 ms timer is skipped."""
-    module = TMCLModule(kind="tmcm-6212")
-    sim = Simulation([module], VirtualClock())
-    source = TIMER_OVER_POLL.format(period=1, step=1, read="").replace("4000", "400000")
-    for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
-                (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
-        module.execute(Request(1, *ins))
-    sim.replan(module)
+    sim, module = _running(TIMER_OVER_POLL.format(period=1, step=1, read="")
+                           .replace("4000", "400000"))
     sim.advance(10.0)
     interp = module.program.interpreter
     assert module.globals[2][3] == 9_999  # a tick a millisecond, the first at 1 ms
     assert interp.ticks_skipped > 9_000
+
+
+def _running(source: str) -> tuple[Simulation, TMCLModule]:
+    """A TMCM-6212 on a virtual clock running ``source`` (skipping on)."""
+    module = TMCLModule(kind="tmcm-6212")
+    sim = Simulation([module], VirtualClock())
+    for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
+                (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
+        module.execute(Request(1, *ins))
+    sim.replan(module)
+    return sim, module
 
 
 def _stopped_at(seen: list[object]) -> list[int]:
@@ -638,12 +644,7 @@ def test_an_s_shaped_rotation_asked_for_another_speed_first_turns_away() -> None
 def test_a_polling_loop_is_skipped_not_stepped() -> None:
     """The skipping actually happens: a poll of "position reached" over a long move executes
     a few hundred instructions, not one per 10 us of the move."""
-    module = TMCLModule(kind="tmcm-6212")
-    sim = Simulation([module], VirtualClock())
-    for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(POLL_TARGET).instructions,
-                (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
-        module.execute(Request(1, *ins))
-    sim.replan(module)
+    sim, module = _running(POLL_TARGET)
     sim.advance(10.0)
     interp = module.program.interpreter
     # the first read at or below 0 ends the second poll: a step or three past it at 100 kpps
@@ -664,13 +665,8 @@ def test_the_server_option_steps_every_instruction() -> None:
 
 def _flag_poll(steps_ms: float, seconds: float, record_s: float | None = None) -> TMCLModule:
     """POLL_TARGET's first loop over a long move, the clock advanced in ``steps_ms`` steps."""
-    module = TMCLModule(kind="tmcm-6212")
-    sim = Simulation([module], VirtualClock())
-    source = "SAP 4, 0, 2000\nMVP ABS, 0, 100000\nWait:\nGAP 8, 0\nCOMP 1\nJC NE, Wait\nSTOP"
-    for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
-                (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
-        module.execute(Request(1, *ins))
-    sim.replan(module)
+    sim, module = _running(
+        "SAP 4, 0, 2000\nMVP ABS, 0, 100000\nWait:\nGAP 8, 0\nCOMP 1\nJC NE, Wait\nSTOP")
     if record_s is not None:
         Recorder(sim, record_s).start()
     step = round(steps_ms * MS)
