@@ -275,6 +275,9 @@ class Interpreter:
         self.loops_skipped = 0
         #: While a pass is analysed, the module commands it sends (interpreter.skipping).
         self.recording: list[Call] | None = None
+        #: A kept plan's reads by PC, and the module epoch they hold under (skipping.py I13).
+        self.replay: dict[int, tuple[int, int, int]] | None = None
+        self.replay_epoch = 0
         self.skipper = LoopSkipper(self)
         #: The timer cycle being recorded (I12), and how many dispatches to let pass before
         #: recording one again (doubling while they cannot be skipped, as loops back off).
@@ -932,7 +935,12 @@ class Interpreter:
                 return YIELD if self._hold_ns else CONTINUE
             op, va = OP_SCO, self.accumulator
         calls = self.recording
-        if calls is None:
+        replay = self.replay
+        known = None if replay is None or calls is not None else replay.get(self.pc)
+        if (known is not None and t < known[2]
+                and self.port.epoch() == self.replay_epoch):  # skipping.py I13
+            status, value, replan = known[0], known[1], False
+        elif calls is None:
             status, value, replan = self.port.execute(t, op, ty, motor, va)
         else:
             status, value, changed, steady = self.port.probe(t, op, ty, motor, va)

@@ -67,6 +67,12 @@ I10. A plan survives a batch boundary.  The module counts everything that may ch
     where I7 asks.  A batch end at which nothing intervenes (an ``advance`` returning, a
     timer tick whose handler only counts, a recorder's sample, which reads and changes
     nothing) costs no analysis.
+I13. A kept plan answers its reads.  While the epoch is the plan's (I10), a GAP or GIO the
+    analysed pass sent from a PC, answered OK and changing nothing, answers the same at any
+    instant before its ``steady_until`` (I3) wherever the program executes that PC: a read
+    changes nothing in the module (F6, T3), so the passes that are still stepped (the one
+    I7 keeps, the part of a pass before a batch's end) take those answers from the plan
+    instead of the module.
 I11. The millisecond tick (GGP 132) is arithmetic on the instant: it answers the same until
     the next millisecond (I3), and it is also a moving read whose flip the module forecasts
     exactly (``ModulePort.first_time_at``: it meets every value above the one read, one a
@@ -161,6 +167,10 @@ class Program(Protocol):
     loops_skipped: int
     #: While a pass is analysed, every module command is appended here (None otherwise).
     recording: list[Call] | None
+    #: A kept plan's reads by PC, (status, value, steady until), with the epoch they hold
+    #: under (I13); None: every command goes to the module.
+    replay: dict[int, tuple[int, int, int]] | None
+    replay_epoch: int
 
     def registers(self) -> tuple[object, ...]:
         """What a pass may read of the program's state besides the module (I2)."""
@@ -240,6 +250,7 @@ class LoopSkipper:
                                   for number, value in plan.variables):
             return False  # I10: a user variable it reads was written since
         self.countdown = 1
+        program.replay, program.replay_epoch = plan.answers, plan.epoch  # I13
         if program.time_ns + (1 + plan.real_passes) * plan.period > limit:
             return True  # no whole pass to leave out before the batch ends: step on to it
         # I4 counts from a pass that began a period ago, as the analysed one did; I7
@@ -247,7 +258,7 @@ class LoopSkipper:
                       program.time_ns - plan.period, plan.real_passes):
             self.reuses += 1
             return True
-        self._plan = None  # its answers no longer hold
+        self._plan = program.replay = None  # its answers no longer hold
         return False
 
     def _give_up(self) -> None:
@@ -288,7 +299,7 @@ class LoopSkipper:
         if program.interrupt_due():
             self._give_up()
             return CONTINUE
-        self._plan = None
+        self._plan = program.replay = None
         self.analyses += 1
         head, start, executed = program.pc, program.time_ns, program.executed
         before = program.registers()
@@ -329,7 +340,8 @@ class LoopSkipper:
         everything = before if len(registers) == len(before) else None
         self._plan = _Plan(analysed.head, analysed.start, self.program.epoch(), registers,
                            everything, variables, analysed.period, analysed.length, horizons,
-                           real_passes)
+                           real_passes, _answers(self.program.code, analysed.path,
+                                                 analysed.calls))
 
     def _skip_repeats(self, analysed: _Pass, limit: int) -> int:
         """I2: the next passes do exactly the same while every answer holds (I3, I4)."""
@@ -403,6 +415,32 @@ class _Plan:
     length: int
     horizons: tuple[tuple[int, int], ...]
     real_passes: int
+    answers: dict[int, tuple[int, int, int]] | None  # its reads by PC (I13)
+
+
+def _answers(code: list[Instruction], path: list[int],
+             calls: list[Call]) -> dict[int, tuple[int, int, int]] | None:
+    """I13: the pass's GAP and GIO reads that succeeded and changed nothing, by the PC that
+    sent them: (status, value, steady until); None if a PC sent two calls (an inner loop)
+    or the path and the calls do not pair up."""
+    answers: dict[int, tuple[int, int, int]] = {}
+    pending = iter(calls)
+    for pc in path:
+        op, _, motor, _ = code[pc]
+        if op in _NO_CALL or (op in INTERNAL_OPCODES and op != OP_WAIT) or (
+                op == OP_ACO and motor == MOTOR_ALL):
+            continue  # the interpreter's own: no module command
+        call = next(pending, None)
+        if call is None or pc in answers:
+            return None
+        if op in _REPLAYED and call.status == STATUS_OK and not call.changed:
+            answers[pc] = (call.status, call.value, call.steady_until)
+    return answers if next(pending, None) is None else None
+
+
+#: What the dispatch loop keeps to itself (no call), and the reads a plan answers (I13).
+_NO_CALL = frozenset({OP_CALC, OP_COMP, OP_JC, OP_JA})
+_REPLAYED = frozenset({OP_GAP, Opcode.GIO.value})
 
 
 @dataclass(slots=True)
