@@ -22,11 +22,12 @@ the wall clock also counts the others' turns; alone, the two agree.
 from __future__ import annotations
 
 import argparse
+import inspect
 import statistics
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 # ``--code DIR`` runs another checkout's simulator (a baseline, side by side in one session)
@@ -61,8 +62,10 @@ class Shape:
     step_s: float | None = None
     #: A recorder samples every axis this often (seconds; None: no recorder).
     record_s: float | None = None
-    #: The clock is advanced through ``SimulatorThread.advance`` (the embedding API).
+    #: The clock is advanced through ``SimulatorThread.advance`` (the embedding API), with
+    #: these keywords.
     embed: bool = False
+    advance: dict[str, bool] = field(default_factory=dict)
 
 
 def _toggle_input(sim: Simulation, module: TMCLModule, second: int) -> None:
@@ -305,6 +308,7 @@ SHAPES += [
     Shape("flag-step10", 1000, FLAG, step_s=0.01),
     Shape("flag-step1", 100, FLAG, step_s=0.001),
     Shape("stopped-step1", 200, "STOP", step_s=0.001, embed=True),
+    Shape("stopped-owed1", 200, "STOP", step_s=0.001, embed=True, advance={"wait": False}),
     Shape("tick-delay", 1000, """
     // a delay loop on the ms tick: GP 132 set to 0, polled until it reaches 500; a count
 Loop:
@@ -409,8 +413,11 @@ def run_embedded(shape: Shape, seconds: float,
         module, events = thread.call(lambda: load(sim, sim.modules[0], shape))
         step = shape.step_s or seconds
         start = time.process_time()
+        keywords = shape.advance
+        if any(name not in inspect.signature(thread.advance).parameters for name in keywords):
+            keywords = {}  # a baseline without them: its plain advance
         for _ in range(round(seconds / step)):
-            thread.advance(step)
+            thread.advance(step, **keywords)
         state = thread.call(lambda: state_of(module, events, []))
         return time.process_time() - start, state
 

@@ -9,13 +9,17 @@
 The server runs on its own event loop in a background thread; :meth:`SimulatorThread.call`
 runs a function on that loop, so the models are only ever touched from one thread.
 
-:meth:`SimulatorThread.advance` does not wait for that thread (issue 33, item 6: a hand-off
-costs about 90 µs of CPU, so a test advancing in 1 ms steps ran at 11 x real time whatever
-the simulation had to do): it adds the time to what is owed and returns, and the loop applies
+:meth:`SimulatorThread.advance` waits for that thread, as a call does (so a frame the test
+sent before it is served first, as it always was), but without ``call``'s re-planning of
+every module.  ``advance(s, wait=False)`` does not wait (issue 33, item 6: a hand-off costs
+tens of µs of CPU, so a test advancing in 1 ms steps ran at 11 x real time whatever the
+simulation had to do): it adds the time to what is owed and returns, and the loop applies
 all that is owed in one ``advance`` before anything else reaches the simulation: a
 :meth:`call`, a request on any transport (``Simulation.settle``), a recording's rows, the
 stop.  One advance of the sum ends as the steps would (virtual time is exact however it is
-cut, docs/scheduling.md), and whatever the test does next sees it applied.
+cut, docs/scheduling.md), and whatever the test does next sees it applied; what it cannot
+order is a frame sent before the call that the loop has not read yet (a fire-and-forget
+frame): it may be served after the time owed.
 """
 
 from __future__ import annotations
@@ -164,12 +168,15 @@ class SimulatorThread:
         """The module object itself: only touch it through :meth:`call`."""
         return self.call(self.simulation.module, address)
 
-    def advance(self, seconds: float) -> None:
+    def advance(self, seconds: float, wait: bool = True) -> None:
         """Move the virtual clock forward, handling every event on the way.
 
-        From the test's thread it returns at once: the time is owed, and applied on the
-        loop before anything else reaches the simulation (the module docstring)."""
-        assert self._loop is not None, "simulator not started"
+        ``wait=False`` (from the test's thread) returns at once: the time is owed, and
+        applied on the loop before anything else reaches the simulation (the module
+        docstring); a frame the test sent before the call that the loop has not read yet is
+        then served after that time, where waiting serves it first."""
+        loop = self._loop
+        assert loop is not None, "simulator not started"
         simulation = self.simulation
         if threading.current_thread() is self._thread:
             simulation.advance(seconds)
@@ -180,12 +187,19 @@ class SimulatorThread:
         if step < 0:
             raise ValueError("virtual time cannot go backwards")
         self._raise_owed_error()
+        if wait:  # (no notify_changed, as call() does: advancing changes nothing outside)
+            async def run() -> None:
+                self._pay()
+                simulation.advance_to_ns(simulation.clock.now_ns() + step)
+
+            asyncio.run_coroutine_threadsafe(run(), loop).result(timeout=60)
+            return
         with self._owed_lock:
             self._owed_ns += step
             if self._owed_queued:
                 return
             self._owed_queued = True
-        self._loop.call_soon_threadsafe(self._pay)
+        loop.call_soon_threadsafe(self._pay)
 
     def settle(self) -> None:
         """Wait until the time :meth:`advance` owes is applied (what reads the simulation

@@ -1,6 +1,7 @@
-"""``SimulatorThread.advance`` from the test's thread owes the time and returns at once; the
-loop applies it before anything else reaches the simulation (tmcl_server/embed.py; issue 33,
-item 6: each call used to wait for a hand-off to the loop's thread)."""
+"""``SimulatorThread.advance(s, wait=False)`` from the test's thread owes the time and
+returns at once; the loop applies it before anything else reaches the simulation
+(tmcl_server/embed.py; issue 33, item 6: each call used to wait for a hand-off to the loop's
+thread, which ``wait=True``, the default, still does)."""
 
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ def test_advance_returns_without_waiting_for_the_loop() -> None:
     with SimulatorThread(clock="virtual") as sim:
         release, freed = _blocked(sim)
         for _ in range(100):
-            sim.advance(0.001)
+            sim.advance(0.001, wait=False)
         assert not freed.is_set()  # every call returned while the loop was held
         release.set()
         assert sim.call(lambda: sim.simulation.now_ns) == 100 * MS
@@ -58,7 +59,7 @@ def test_time_owed_is_applied_before_a_request_and_a_recording_is_read() -> None
         sim.call(load)
         recording = sim.record(0.01, axes=[0])
         for step in [0.001] * 500 + [0.00037] * 1000 + [0.13]:
-            sim.advance(step)
+            sim.advance(step, wait=False)
         host, port = sim.tcp.rsplit(":", 1)
         with socket.create_connection((host, int(port)), timeout=10) as link:
             link.sendall(Request(1, Opcode.GGP, 0, 2, 0).encode())
@@ -73,7 +74,9 @@ def test_time_owed_is_applied_before_a_request_and_a_recording_is_read() -> None
 
 def test_advance_refuses_what_it_refused() -> None:
     """Bad input still gets its answer at the call: a real clock, negative time."""
-    with SimulatorThread(clock="virtual") as sim, pytest.raises(ValueError, match="backwards"):
-        sim.advance(-0.001)
-    with SimulatorThread(clock="real") as sim, pytest.raises(RuntimeError, match="virtual"):
-        sim.advance(0.001)
+    for wait in (True, False):
+        with (SimulatorThread(clock="virtual") as sim,
+              pytest.raises(ValueError, match="backwards")):
+            sim.advance(-0.001, wait=wait)
+        with SimulatorThread(clock="real") as sim, pytest.raises(RuntimeError, match="virtual"):
+            sim.advance(0.001, wait=wait)
