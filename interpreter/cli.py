@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import NoReturn
 
-from interpreter.assembler import AssemblyError, assemble_file
+from interpreter.assembler import AssemblyError, Program, assemble_file
 from interpreter.disassembler import disassemble, listing
 from interpreter.isa import decode_program
 from tmcl_spec.package import (
@@ -79,13 +79,7 @@ def main(argv: list[str] | None = None) -> int:
 def _run(args: argparse.Namespace) -> int:
     try:
         if args.command == "disassemble":
-            instructions = decode_program(args.binary.read_bytes())
-            text = listing(instructions) if args.listing else disassemble(instructions)
-            if args.output:
-                args.output.write_text(text, encoding="utf-8")
-            else:
-                sys.stdout.write(text)
-            return 0
+            return _disassemble(args)
         program = assemble_file(args.source, args.include,
                                 append_stop=getattr(args, "append_stop", False))
     except AssemblyError as exc:
@@ -97,8 +91,25 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "list":
         sys.stdout.write(program.listing())
         return EXIT_OK
+    return _write_program(args, program)
+
+
+def _disassemble(args: argparse.Namespace) -> int:
+    """The binary as source (or a listing), to ``--output`` or standard output."""
+    instructions = decode_program(args.binary.read_bytes())
+    text = listing(instructions) if args.listing else disassemble(instructions)
+    if args.output:
+        args.output.write_text(text, encoding="utf-8")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def _write_program(args: argparse.Namespace, program: Program) -> int:
+    """The ``.bin`` (and ``--listing``); an output that is a directory, or cannot be written:
+    one line (N9)."""
     output = args.output or args.source.with_suffix(".bin")
-    try:  # an output that is a directory, or cannot be written: one line (N9)
+    try:
         output.write_bytes(program.binary())
         if args.listing:
             args.listing.write_text(program.listing(), encoding="utf-8")

@@ -36,6 +36,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import can
+from local_server import wait_for_ready
 
 from tmcl_server.protocol import Request
 from tmcl_spec.commands import Opcode
@@ -188,12 +189,7 @@ def start_server(workdir: Path) -> tuple[subprocess.Popen[bytes], dict[str, list
         [sys.executable, "-m", "tmcl_server", "--modules", "5", "--no-tcp",
          "--socketcand", "127.0.0.1:0", "--slcan-pty", str(workdir / "ttySLCAN"),
          "--ready-file", str(ready)], stdout=subprocess.DEVNULL)
-    deadline = time.monotonic() + 30
-    while not ready.exists():
-        if process.poll() is not None or time.monotonic() > deadline:
-            raise RuntimeError("tmcl-server did not start")
-        time.sleep(0.05)
-    return process, json.loads(ready.read_text())
+    return process, wait_for_ready(process, ready, poll_s=0.05)
 
 
 def main() -> int:

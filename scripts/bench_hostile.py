@@ -32,6 +32,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from local_server import StreamClient, UploadError, rss_kb, tcp_host, wait_for_ready
+
 ROOT = Path(__file__).resolve().parents[1]
 CASES = ("baseline", "api-flood", "websockets", "idle-tcp")
 GAP = bytes([1, 6, 1, 0, 0, 0, 0, 0, 8])
@@ -45,21 +47,13 @@ class Server:
              "--ready-file", str(ready)], cwd=checkout, stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
             env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})  # leave another checkout as it is
-        deadline = time.monotonic() + 30
-        while not ready.exists():
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError("server did not start")
-            time.sleep(0.05)
-        endpoints = json.loads(ready.read_text())
+        endpoints = wait_for_ready(self.proc, ready, what="server", poll_s=0.05)
         host, port = endpoints["tcp"][0].rsplit(":", 1)
         self.tcp = (host, int(port))
         self.http = endpoints["http"][0]
 
     def rss_kb(self) -> int:
-        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-        return 0
+        return rss_kb(self.proc.pid)
 
     def stop(self) -> None:
         self.proc.terminate()
@@ -74,27 +68,20 @@ def host_rate(tcp: tuple[str, int], seconds: float) -> float:
     out host scores what it manages)."""
     done = 0
     end = time.monotonic() + seconds
-    sock: socket.socket | None = None
+    host: StreamClient | None = None
     while time.monotonic() < end:
         try:
-            if sock is None:
-                sock = socket.create_connection(tcp, timeout=1)
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock.sendall(GAP)
-            data = b""
-            while len(data) < 9:
-                chunk = sock.recv(9 - len(data))
-                if not chunk:
-                    raise ConnectionError("closed")
-                data += chunk
+            if host is None:
+                host = tcp_host(tcp, timeout=1)
+            host.exchange(GAP)
             done += 1
-        except OSError:
-            if sock is not None:
-                sock.close()
-            sock = None
+        except (OSError, UploadError):  # UploadError: the server closed the connection
+            if host is not None:
+                host.close()
+            host = None
             time.sleep(0.05)
-    if sock is not None:
-        sock.close()
+    if host is not None:
+        host.close()
     return done / seconds
 
 

@@ -25,13 +25,14 @@ prints the best and the median.
 from __future__ import annotations
 
 import argparse
-import socket
 import statistics
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from local_server import tcp_host
 
 from interpreter.assembler import assemble
 from tmcl_server.clock import VirtualClock
@@ -115,19 +116,17 @@ def latency(requests: int) -> list[float]:
             module.program.interpreter.start(module.now_ns)
 
         sim.call(start)
-        host, port = sim.tcp.rsplit(":", 1)
-        with socket.create_connection((host, int(port))) as sock:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        host = tcp_host(sim.tcp, timeout=None)
+        try:
             frame = Request(1, 6, 1, 0, 0).encode()
             times = []
             for _ in range(requests):
                 t0 = time.perf_counter()
-                sock.sendall(frame)
-                data = b""
-                while len(data) < 9:
-                    data += sock.recv(9 - len(data))
+                data = host.exchange(frame)
                 times.append(time.perf_counter() - t0)
                 assert decode_reply(data).status == 100
+        finally:
+            host.close()
         running = sim.call(lambda: sim.simulation.module(1).program.interpreter.executed)
         print(f"  (the program executed {running} instructions meanwhile)")
         return times

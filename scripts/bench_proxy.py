@@ -22,10 +22,10 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from bench_wire import lockstep_tcp  # the lockstep host: GAP 1 requests, each awaiting its reply
+from local_server import wait_for_ready
 
 #: The floors: forwarders that do nothing else (one host; argv: module port, ready file).
 _LISTEN = r"""
@@ -60,12 +60,10 @@ while True:
 
 def start(argv: list[str], ready: Path) -> subprocess.Popen[str]:
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 30
-    while not ready.exists():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            raise SystemExit(f"did not start: {' '.join(argv)}: {proc.communicate()[1]}")
-        time.sleep(0.01)
+    try:
+        wait_for_ready(proc, ready, what=" ".join(argv), details=lambda: proc.communicate()[1])
+    except RuntimeError as exc:
+        raise SystemExit(str(exc)) from None
     return proc
 
 

@@ -21,9 +21,7 @@ switch-held move costs no CPU; 255 modules reach >= 0.8 x the rate of one.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -35,8 +33,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from local_server import request, tcp_host, wait_for_ready  # noqa: E402
+
 from interpreter.assembler import assemble  # noqa: E402
-from tmcl_server.protocol import Request, decode_reply  # noqa: E402
 from tmcl_spec.commands import Opcode  # noqa: E402
 from tmcl_spec.parameters import AP, GP  # noqa: E402
 
@@ -141,25 +140,18 @@ SCENARIOS = [
 
 
 class Client:
+    """The scripts' TCP host, asking any module address on the line (status, value)."""
+
     def __init__(self, endpoint: str) -> None:
-        host, port = endpoint.rsplit(":", 1)
-        self.sock = socket.create_connection((host, int(port)))
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.host = tcp_host(endpoint, timeout=None)
 
     def request(self, address: int, opcode: int, type_: int = 0, motor: int = 0,
                 value: int = 0) -> tuple[int, int]:
-        self.sock.sendall(Request(address, opcode, type_, motor, value).encode())
-        data = b""
-        while len(data) < 9:
-            chunk = self.sock.recv(9 - len(data))
-            if not chunk:
-                raise ConnectionError("server closed the connection")
-            data += chunk
-        reply = decode_reply(data)
+        reply = request(self.host, address, opcode, type_, motor, value)
         return reply.status, reply.value
 
     def close(self) -> None:
-        self.sock.close()
+        self.host.close()
 
 
 def cpu_seconds(pid: int) -> float:
@@ -179,12 +171,7 @@ def start_server(scenario: Scenario, tmp: Path,
         args += ["--world", str(world)]
     process = subprocess.Popen(args, cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                env={**os.environ, "PYTHONPATH": str(root)})
-    deadline = time.monotonic() + 30
-    while not ready.exists():
-        if process.poll() is not None or time.monotonic() > deadline:
-            raise RuntimeError(f"{scenario.name}: the server did not start")
-        time.sleep(0.01)
-    return process, json.loads(ready.read_text())["tcp"][0]
+    return process, wait_for_ready(process, ready, what=f"{scenario.name}: the server")["tcp"][0]
 
 
 def download(client: Client, source: str) -> None:

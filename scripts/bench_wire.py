@@ -26,9 +26,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -38,6 +36,7 @@ import time
 from pathlib import Path
 
 import serial
+from local_server import tcp_host, wait_for_ready
 
 REQUEST = bytes([1, 6, 1, 0, 0, 0, 0, 0, 8])  # GAP 1, 0: the actual position, the usual poll
 
@@ -62,19 +61,14 @@ asyncio.run(main())
 
 
 def lockstep_tcp(endpoint: str, seconds: float, latencies: list[int], counts: list[int]) -> None:
-    host, port = endpoint.rsplit(":", 1)
-    sock = socket.create_connection((host, int(port)))
-    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    host = tcp_host(endpoint, timeout=None)
     local: list[int] = []
     deadline = time.perf_counter() + seconds
     while time.perf_counter() < deadline:
         t0 = time.perf_counter_ns()
-        sock.sendall(REQUEST)
-        got = 0
-        while got < 9:
-            got += len(sock.recv(9 - got))
+        host.exchange(REQUEST)
         local.append(time.perf_counter_ns() - t0)
-    sock.close()
+    host.close()
     latencies.extend(local)
     counts.append(len(local))
 
@@ -172,12 +166,7 @@ def start_simulator(tmp: Path, *extra: str, name: str = "plain"
     proc = subprocess.Popen([sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0",
                              "--pty", str(tmp / f"ttyBENCH-{name}"), "--ready-file", str(ready),
                              *extra], stdout=subprocess.DEVNULL)
-    deadline = time.monotonic() + 20
-    while not ready.exists():
-        if time.monotonic() > deadline:
-            raise RuntimeError("simulator did not start")
-        time.sleep(0.01)
-    return proc, json.loads(ready.read_text())
+    return proc, wait_for_ready(proc, ready, seconds=20, what="simulator")
 
 
 class DashboardPage:

@@ -75,6 +75,8 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from local_server import rss_kb, wait_for_ready
+
 from tmcl_spec.commands import FACTORY_RESET_KEY, Opcode, Status
 from tmcl_spec.modules import module_type
 
@@ -550,20 +552,13 @@ class ServerProcess:
             stdout=subprocess.DEVNULL, stderr=self.stderr, cwd=str(SERVER_ROOT[0]),
             env={**os.environ, "PYTHONPATH": os.pathsep.join(
                 [str(SERVER_ROOT[0]), *filter(None, [os.environ.get("PYTHONPATH")])])})
-        deadline = time.monotonic() + 30
-        while not ready.exists():
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"server did not start: {self.stderr_path.read_text()}")
-            time.sleep(0.01)
-        endpoints = json.loads(ready.read_text())
+        endpoints = wait_for_ready(self.proc, ready, what="server",
+                                   details=self.stderr_path.read_text)
         host, port = endpoints["tcp"][0].rsplit(":", 1)
         self.tcp = (host, int(port))
 
     def rss_kb(self) -> int:
-        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-        return 0
+        return rss_kb(self.proc.pid)
 
     def run_delay_ns(self) -> int:
         """How long the server's event-loop thread has waited for a CPU (schedstat), 0 if unknown.

@@ -24,7 +24,6 @@ import argparse
 import json
 import random
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -35,8 +34,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from local_server import UploadError, tcp_host, wait_for_ready
+
 from tmcl_server.eeprom import FILE_NAME, JOURNAL_NAMES, Eeprom
-from tmcl_server.protocol import Request, decode_reply
 from tmcl_spec.commands import Opcode
 
 #: Values stored on each pass: (set opcode, store opcode, type, motor/bank, read opcode).
@@ -61,35 +61,22 @@ class Server:
             [sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0", "--state-dir",
              str(state), "--ready-file", str(self.ready)],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        deadline = time.monotonic() + 30
-        while not self.ready.exists():
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                self.proc.kill()
-                raise RuntimeError(f"server did not start: {self.proc.communicate()[1]!r}")
-            time.sleep(0.005)
-        host, port = json.loads(self.ready.read_text())["tcp"][0].rsplit(":", 1)
-        self.sock = socket.create_connection((host, int(port)), timeout=10)
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        endpoints = wait_for_ready(self.proc, self.ready, what="server", poll_s=0.005,
+                                   details=lambda: repr(self.proc.communicate()[1]))
+        self.host = tcp_host(endpoints["tcp"][0], timeout=10)
 
     def request(self, opcode: int, type_: int, motor: int, value: int = 0) -> tuple[int, int]:
-        self.sock.sendall(Request(1, opcode, type_, motor, value).encode())
-        data = b""
-        while len(data) < 9:
-            chunk = self.sock.recv(9 - len(data))
-            if not chunk:
-                raise ConnectionError("server closed the connection")
-            data += chunk
-        reply = decode_reply(data)
-        return reply.status, reply.value
+        _, status, _, result = self.host.send(opcode, type_, motor, value)
+        return status, result
 
     def kill(self) -> None:
         self.proc.send_signal(signal.SIGKILL)
         self.proc.wait(10)
-        self.sock.close()
+        self.host.close()
         self.ready.unlink(missing_ok=True)
 
     def stop(self) -> None:
-        self.sock.close()
+        self.host.close()
         self.proc.terminate()
         self.proc.wait(10)
         self.ready.unlink(missing_ok=True)
@@ -112,7 +99,7 @@ def store_until_killed(server: Server, trial: Trial, counter: int, kill_after: f
                 if status != STATUS_OK:
                     raise RuntimeError(f"store {key} answered status {status}")
                 trial.acknowledged[key] = counter
-    except (ConnectionError, OSError):
+    except (OSError, UploadError):  # UploadError: the killed server closed the connection
         return counter  # the kill
     finally:
         timer.join()

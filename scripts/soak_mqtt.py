@@ -21,7 +21,6 @@ import argparse
 import asyncio
 import json
 import os
-import socket
 import statistics
 import subprocess
 import sys
@@ -35,6 +34,8 @@ import aiomqtt
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # tests.helpers: the throwaway broker
+
+from local_server import UploadError, rss_kb, tcp_host, wait_for_ready  # noqa: E402
 
 from interpreter.assembler import assemble  # noqa: E402
 from tests.helpers.mosquitto import Broker  # noqa: E402
@@ -99,12 +100,8 @@ class Server:
              "--mqtt", f"{self.broker.url}/{PREFIX}", "--ready-file", str(ready)],
             cwd=checkout, stdout=subprocess.DEVNULL, stderr=open(self.stderr_path, "wb"),  # noqa: SIM115
             env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})  # leave another checkout as it is
-        deadline = time.monotonic() + 30
-        while not ready.exists():
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"{name}: server did not start: {self.stderr_path.read_text()}")
-            time.sleep(0.05)
-        self.tcp = json.loads(ready.read_text())["tcp"][0]
+        self.tcp = wait_for_ready(self.proc, ready, what=f"{name}: server", poll_s=0.05,
+                                  details=self.stderr_path.read_text)["tcp"][0]
         client = StreamClient.tcp(self.tcp, 1, 5.0)
         try:
             upload(client, assemble(source).instructions, run=True)
@@ -125,28 +122,19 @@ class Server:
             thread.start()
 
     def _poll(self) -> None:
-        host, port = self.tcp.rsplit(":", 1)
-        sock = socket.create_connection((host, int(port)), timeout=5)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        host = tcp_host(self.tcp)
         frame = Request(1, Opcode.GGP, 7, 2, 0).encode()
         while not self._stop.is_set():
             began = time.perf_counter()
             try:
-                sock.sendall(frame)
-                data = b""
-                while len(data) < 9:
-                    chunk = sock.recv(9 - len(data))
-                    if not chunk:
-                        raise ConnectionError("closed")
-                    data += chunk
-                decode_reply(data)
-            except OSError:
+                decode_reply(host.exchange(frame))
+            except (OSError, UploadError):  # UploadError: the server closed the connection
                 self.failures += 1
                 time.sleep(0.1)
                 continue
             self.latencies.append(time.perf_counter() - began)
             time.sleep(self.poll_s)
-        sock.close()
+        host.close()
 
     def _count(self) -> None:
         """What the broker delivers, counted by a subscriber in a process of its own (in this
@@ -162,10 +150,7 @@ class Server:
                 self.dropped = dropped
 
     def rss_kb(self) -> int:
-        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-        return 0
+        return rss_kb(self.proc.pid)
 
     def take(self) -> tuple[list[float], int]:
         latencies, self.latencies = self.latencies, []

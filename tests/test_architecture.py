@@ -6,6 +6,7 @@ docs/architecture.md draws the layers; these tests keep the code honest about th
 from __future__ import annotations
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -226,3 +227,48 @@ def test_the_pytest_plugin_loads_nothing_of_the_simulator_until_a_fixture_is_use
     ours = {m for m in loaded if m.split(".")[0] in ("tmcl_server", "interpreter", "axes", "tmcl_spec")}
     assert ours == {"tmcl_server", "tmcl_server.pytest_plugin"}, sorted(ours)
     assert "asyncio" not in loaded
+
+
+# == the map ==================================================================================
+
+MAP = ROOT / "docs" / "architecture.md"
+MAP_SECTION = "## Every file"
+
+
+def _mapped_files() -> tuple[list[str], list[str]]:
+    """The folders (``### `folder/` `` headings) and the files (their tables' first column)
+    the map lists, as paths from the checkout's root."""
+    text = MAP.read_text(encoding="utf-8")
+    assert MAP_SECTION in text, f"{MAP.name} has no section {MAP_SECTION!r}"
+    section = text.split(MAP_SECTION, 1)[1].split("\n## ", 1)[0]
+    folders: list[str] = []
+    files: list[str] = []
+    for line in section.splitlines():
+        if match := re.fullmatch(r"### `([\w/]+/)`", line.strip()):
+            folders.append(match[1])
+        elif match := re.match(r"\| `([\w.]+)` \|", line):
+            assert folders, f"{line!r} comes before any folder heading"
+            files.append(folders[-1] + match[1])
+    return folders, files
+
+
+def _files_to_map() -> tuple[set[str], set[str]]:
+    """Every product package (a folder with ``__init__.py``) and module, and every script."""
+    modules = {p.relative_to(ROOT).as_posix() for package in PACKAGES
+               for p in (ROOT / package).rglob("*.py") if "__pycache__" not in p.parts}
+    packages = {m.rsplit("/", 1)[0] + "/" for m in modules if m.endswith("/__init__.py")}
+    scripts = {p.relative_to(ROOT).as_posix() for p in (ROOT / "scripts").iterdir()
+               if p.is_file() and not p.name.startswith(".")}
+    return packages, modules | scripts
+
+
+def test_the_map_lists_every_package_module_and_script_and_nothing_else() -> None:
+    """docs/architecture.md "Every file" is the map a newcomer reads: a file added without its
+    line, or a line left behind by a file renamed or removed, fails here."""
+    folders, files = _mapped_files()
+    packages, expected = _files_to_map()
+    assert len(files) == len(set(files)), sorted({f for f in files if files.count(f) > 1})
+    unheaded, missing, stale = packages - set(folders), expected - set(files), set(files) - expected
+    assert not unheaded, f"packages the map has no heading for: {sorted(unheaded)}"
+    assert not missing, f"files missing from the map: {sorted(missing)}"
+    assert not stale, f"the map lists files that do not exist: {sorted(stale)}"

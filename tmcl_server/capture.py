@@ -148,20 +148,7 @@ def _record_frame(record: Any, where: str) -> CapturedFrame:
 def open_capture(path: str | Path) -> Capture:
     """Open a capture of any kind ``tmcl replay`` reads; CaptureError (one line) if it cannot."""
     path = Path(path)
-    if not path.is_file():
-        raise CaptureError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
-    try:
-        stream = path.open("r", encoding="utf-8", newline="")
-    except OSError as exc:
-        raise CaptureError(f"{path}: {exc.strerror or exc}") from None
-    try:
-        first = stream.readline(MAX_LINE + 1)
-    except UnicodeDecodeError:
-        first = ""  # not ours: a binary CAN log (.blf), or not a capture at all
-    except OSError as exc:
-        raise CaptureError(f"{path}: {exc.strerror or exc}") from None
-    finally:
-        stream.close()
+    first = _first_line(path)
     header = _header(first)
     if header is None and f'"{FORMAT}"' in first:
         raise CaptureError(f"{path}: its header line is cut short (the capture stopped before "
@@ -171,6 +158,25 @@ def open_capture(path: str | Path) -> Capture:
     _check_header(header, path)
     return Capture(path, f"{FORMAT} v{header['version']}", header.get("link"),
                    header.get("identity"), own=True)
+
+
+def _first_line(path: Path) -> str:
+    """The file's first line as text ("" when it is not UTF-8: a binary CAN log, or not a
+    capture at all); CaptureError for a file that is missing or cannot be read."""
+    if not path.is_file():
+        raise CaptureError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
+    try:
+        stream = path.open("r", encoding="utf-8", newline="")
+    except OSError as exc:
+        raise CaptureError(f"{path}: {exc.strerror or exc}") from None
+    try:
+        return stream.readline(MAX_LINE + 1)
+    except UnicodeDecodeError:
+        return ""
+    except OSError as exc:
+        raise CaptureError(f"{path}: {exc.strerror or exc}") from None
+    finally:
+        stream.close()
 
 
 def _header(line: str) -> dict[str, Any] | None:

@@ -9,7 +9,7 @@ import logging
 import math
 import sys
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from axes.cores import CHIP_CORES
 from tmcl_server.loops import LOOPS, new_event_loop
@@ -296,13 +296,18 @@ _NAMING_OPTIONS = ("tcp", "pty", "serial", "can", "slcan_pty", "socketcand", "mq
                    "record", "trace", "faults", "ready_file", "can_bus")
 
 
-def _check_paths(args: argparse.Namespace) -> None:
-    """Files and directories named on the command line, before anything starts."""
+def _check_named(args: argparse.Namespace) -> None:
+    """No option that names something is given an empty (or blank) value."""
     for name in _NAMING_OPTIONS:
         value = getattr(args, name)
         values = value if isinstance(value, list) else [value]
         if any(v is not None and not v.strip() for v in values):
             raise UsageError(f"argument --{name.replace('_', '-')}: an empty value names nothing")
+
+
+def _check_paths(args: argparse.Namespace) -> None:
+    """Files and directories named on the command line, before anything starts."""
+    _check_named(args)
     for option, path in (("--trace", None if args.trace in (None, "-") else args.trace),
                          ("--record", args.record)):
         if path is not None and not Path(path).absolute().parent.is_dir():
@@ -320,49 +325,81 @@ def _check_paths(args: argparse.Namespace) -> None:
 
 def config_from_args(args: argparse.Namespace) -> ServerConfig:
     _check_paths(args)
+    addresses = _addresses(args)
+    endpoints = _endpoints(args)
+    can_bus_name = _can_bus_name(args)
+    faults = _faults(args)
+    _check_axis_core(args)
+    record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
+    return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
+                        clock=args.clock, speed=args.speed, ready_file=args.ready_file,
+                        mqtt_rate=args.mqtt_rate, can_bus_name=can_bus_name, world=args.world,
+                        module_type=args.module_type, axis_core=args.axis_core,
+                        request_time=args.request_time, trace=args.trace,
+                        trace_format=args.trace_format, record=args.record,
+                        record_resolution=args.record_resolution, record_axes=record_axes,
+                        faults=faults, wire_timing=args.wire_timing,
+                        processing_time=args.processing_time, max_connections=args.max_connections,
+                        skip_loops=not args.step_every_instruction,
+                        trace_max=args.trace_max, record_max=args.record_max,
+                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults,
+                        mqtt_commands=args.mqtt_commands)
+
+
+def _addresses(args: argparse.Namespace) -> list[int]:
+    """``--address N`` alone, or 1..``--modules``."""
     if args.address is not None:
         if not 1 <= args.address <= 255:
             raise UsageError("argument --address: must be 1..255")
-        addresses = [args.address]
-    else:
-        count = args.modules if args.modules is not None else 1
-        if not 1 <= count <= 255:
-            raise UsageError("argument --modules: must be 1..255")
-        addresses = list(range(1, count + 1))
-    endpoints: dict[str, list[str]] = {}
+        return [args.address]
+    count = args.modules if args.modules is not None else 1
+    if not 1 <= count <= 255:
+        raise UsageError("argument --modules: must be 1..255")
+    return list(range(1, count + 1))
+
+
+def _endpoints(args: argparse.Namespace) -> dict[str, list[str]]:
+    """What to listen on, by transport (TCP on its default port unless ``--no-tcp`` or
+    other ``--tcp``), and ``http`` for the dashboard, which serves no host."""
     tcp = args.tcp if args.tcp else ([] if args.no_tcp else [DEFAULT_TCP])
-    if tcp:
-        endpoints["tcp"] = tcp
-    if args.pty:
-        endpoints["pty"] = args.pty
-    if args.serial:
-        endpoints["serial"] = args.serial
-    for kind, values in (("can", args.can), ("slcan", args.slcan_pty),
-                         ("socketcand", args.socketcand)):
+    endpoints: dict[str, list[str]] = {}
+    for kind, values in (("tcp", tcp), ("pty", args.pty), ("serial", args.serial),
+                         ("can", args.can), ("slcan", args.slcan_pty),
+                         ("socketcand", args.socketcand), ("mqtt", args.mqtt)):
         if values:
             endpoints[kind] = values
-    if args.mqtt:
-        endpoints["mqtt"] = args.mqtt
     if not endpoints:
         raise UsageError("no transport left to serve on")
     if args.http:  # not a transport for hosts: it does not count as one to serve on
-        import importlib.util
-
-        if importlib.util.find_spec("aiohttp") is None:
-            raise UsageError("argument --http: needs aiohttp: pip install 'tmcl-sim[http]'")
+        _check_http(args)
         endpoints["http"] = args.http
-        from tmcl_server.dashboard.guard import AccessPolicy
+    return endpoints
 
-        try:
-            AccessPolicy("127.0.0.1", args.http_allow_origin)
-        except ValueError as exc:
-            raise UsageError(f"argument --http-allow-origin: {exc}") from None
+
+def _check_http(args: argparse.Namespace) -> None:
+    """``--http`` needs aiohttp, and its ``--http-allow-origin`` values must parse."""
+    import importlib.util
+
+    if importlib.util.find_spec("aiohttp") is None:
+        raise UsageError("argument --http: needs aiohttp: pip install 'tmcl-sim[http]'")
+    from tmcl_server.dashboard.guard import AccessPolicy
+
     try:
-        can_bus_name = (check_bus_name(args.can_bus) if args.can_bus is not None
-                        else DEFAULT_BUS_NAME)
+        AccessPolicy("127.0.0.1", args.http_allow_origin)
+    except ValueError as exc:
+        raise UsageError(f"argument --http-allow-origin: {exc}") from None
+
+
+def _can_bus_name(args: argparse.Namespace) -> str:
+    try:
+        return check_bus_name(args.can_bus) if args.can_bus is not None else DEFAULT_BUS_NAME
     except ValueError as exc:
         raise UsageError(f"argument --can-bus: {exc}") from None
-    from tmcl_server.faults import MAX_FAULTS, FaultSpecError, load_fault_file, parse_fault
+
+
+def _faults(args: argparse.Namespace) -> list[Any]:
+    """The faults of every ``--faults`` file, then of every ``--fault``, at most MAX_FAULTS."""
+    from tmcl_server.fault_language import MAX_FAULTS, FaultSpecError, load_fault_file, parse_fault
 
     faults = []
     try:
@@ -379,26 +416,17 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
     if len(faults) > MAX_FAULTS:
         raise UsageError(f"argument --fault/--faults: {len(faults)} faults, at most {MAX_FAULTS} "
                          "at once")
-    if args.axis_core:  # a module type and a core that cannot work together: one line now
+    return faults
+
+
+def _check_axis_core(args: argparse.Namespace) -> None:
+    """A module type and a core that cannot work together: one line now, not at start."""
+    if args.axis_core:
         from tmcl_server.module.core import chip_core_problem
 
         problem = chip_core_problem(module_type(args.module_type), args.axis_core)
         if problem is not None:
             raise UsageError(f"argument --axis-core: {problem}")
-    record_axes = _record_axes(args.record_axes, args.module_type) if args.record_axes else None
-    return ServerConfig(addresses=addresses, endpoints=endpoints, state_dir=args.state_dir,
-                        clock=args.clock, speed=args.speed, ready_file=args.ready_file,
-                        mqtt_rate=args.mqtt_rate, can_bus_name=can_bus_name, world=args.world,
-                        module_type=args.module_type, axis_core=args.axis_core,
-                        request_time=args.request_time, trace=args.trace,
-                        trace_format=args.trace_format, record=args.record,
-                        record_resolution=args.record_resolution, record_axes=record_axes,
-                        faults=faults, wire_timing=args.wire_timing,
-                        processing_time=args.processing_time, max_connections=args.max_connections,
-                        skip_loops=not args.step_every_instruction,
-                        trace_max=args.trace_max, record_max=args.record_max,
-                        http_allow_origins=args.http_allow_origin, mqtt_faults=args.mqtt_faults,
-                        mqtt_commands=args.mqtt_commands)
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given

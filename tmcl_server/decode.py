@@ -103,12 +103,8 @@ def _symbol(opcode: int, type_: int) -> str:
 def describe_request(opcode: int, type_: int, motor: int, value: int,
                      words: Vocabulary | None = None) -> str:
     """A command as text, e.g. ``SAP 4 MaxPositioningSpeed m0 = 51200``, ``MVP ABS m0 51200``."""
-    words = words or vocabulary()
     if opcode in AXIS_PARAMETER_COMMANDS or opcode in GLOBAL_PARAMETER_COMMANDS:
-        name = words.parameter_name(opcode, type_, motor)
-        where = f"m{motor}" if opcode in AXIS_PARAMETER_COMMANDS else f"b{motor}"
-        text = f"{_OPCODE_NAMES[opcode]} {type_}{' ' + name if name else ''} {where}"
-        return f"{text} = {value}" if opcode in _WRITES else text
+        return _describe_parameter(opcode, type_, motor, value, words or vocabulary())
     if opcode == Opcode.SIO:
         return f"SIO {type_} b{motor} = {value}"
     if opcode == Opcode.GIO:
@@ -121,16 +117,29 @@ def describe_request(opcode: int, type_: int, motor: int, value: int,
     except ValueError:
         return f"opcode {opcode} type {type_} motor {motor} value {value}"
     if known in OPERANDS:
-        parts = [known.name]
-        for spec in OPERANDS[known]:
-            if spec.slot == "type":
-                parts.append(_symbol(opcode, type_))
-            elif spec.slot == "motor":
-                parts.append(f"m{motor}")
-            else:
-                parts.append(str(value))
-        return " ".join(parts)
+        return _describe_operands(known, type_, motor, value)
     return _describe_control(known, type_, motor, value)
+
+
+def _describe_parameter(opcode: int, type_: int, motor: int, value: int, words: Vocabulary) -> str:
+    """SAP/GAP/STAP/RSAP/AAP and the global ones: the number with its name, motor or bank."""
+    name = words.parameter_name(opcode, type_, motor)
+    where = f"m{motor}" if opcode in AXIS_PARAMETER_COMMANDS else f"b{motor}"
+    text = f"{_OPCODE_NAMES[opcode]} {type_}{' ' + name if name else ''} {where}"
+    return f"{text} = {value}" if opcode in _WRITES else text
+
+
+def _describe_operands(opcode: Opcode, type_: int, motor: int, value: int) -> str:
+    """A command by the manual's operand list: its symbol for the type, m<motor>, the value."""
+    parts = [opcode.name]
+    for spec in OPERANDS[opcode]:
+        if spec.slot == "type":
+            parts.append(_symbol(opcode, type_))
+        elif spec.slot == "motor":
+            parts.append(f"m{motor}")
+        else:
+            parts.append(str(value))
+    return " ".join(parts)
 
 
 def _describe_control(opcode: Opcode, type_: int, motor: int, value: int) -> str:

@@ -70,6 +70,13 @@ def _parameter(field: str, value: Any, spec: ParamSpec) -> None:
 
 
 def _check(data: Mapping[str, Mapping[str, Any]], kind: ModuleType) -> None:
+    """Each section in turn, in the order a problem is reported in."""
+    for section in (_check_globals, _check_user_variables, _check_coordinates,
+                    _check_axis_parameters, _check_program):
+        section(data, kind)
+
+
+def _check_globals(data: Mapping[str, Mapping[str, Any]], kind: ModuleType) -> None:
     bank0 = kind.global_parameters[0]
     stored_globals = {n: spec for bank, table in kind.global_parameters.items() if bank != 2
                       for n, spec in table.items() if spec.storable or spec.auto_stored}
@@ -77,11 +84,17 @@ def _check(data: Mapping[str, Mapping[str, Any]], kind: ModuleType) -> None:
         field = f"globals.{key}"
         number = _key(field, key, stored_globals, "stored global parameter")
         _parameter(field, value, bank0.get(number, stored_globals[number]))
+
+
+def _check_user_variables(data: Mapping[str, Mapping[str, Any]], kind: ModuleType) -> None:
     user = range(kind.storable_user_variables)
     for key, value in _object("user_variables", data.get("user_variables", {})).items():
         field = f"user_variables.{key}"
         _key(field, key, user, "storable user variable")
         _int32(field, value)
+
+
+def _check_coordinates(data: Mapping[str, Mapping[str, Any]], kind: ModuleType) -> None:
     axes = range(kind.number_of_axes)
     coordinates = range(1, kind.coordinates)
     for axis, row in _object("coordinates", data.get("coordinates", {})).items():
@@ -90,12 +103,21 @@ def _check(data: Mapping[str, Mapping[str, Any]], kind: ModuleType) -> None:
             field = f"coordinates.{axis}.{key}"
             _key(field, key, coordinates, "coordinate")
             _int32(field, value)
+
+
+def _check_axis_parameters(data: Mapping[str, Mapping[str, Any]], kind: ModuleType) -> None:
+    axes = range(kind.number_of_axes)
     for axis, row in _object("axis_parameters", data.get("axis_parameters", {})).items():
         _key(f"axis_parameters.{axis}", axis, axes, "axis")
         for key, value in _object(f"axis_parameters.{axis}", row).items():
             field = f"axis_parameters.{axis}.{key}"
             number = _key(field, key, kind.storable_axis_parameters, "storable axis parameter")
             _parameter(field, value, kind.axis_parameters[number])
+
+
+def _check_program(data: Mapping[str, Mapping[str, Any]], kind: ModuleType) -> None:
+    """Each stored record: an address in program memory, [opcode, type, motor, value] with
+    three bytes (the opcode not 0) and a 32-bit value."""
     memory = range(kind.program_memory)
     byte = range(256)
     for key, fields in _object("program", data.get("program", {})).items():

@@ -43,7 +43,7 @@ class Client(Protocol):
 
 
 class StreamClient:
-    """Raw TMCL over a byte stream: write 9 bytes, read 9 bytes."""
+    """Raw TMCL over a byte stream: write 9 bytes, read 9 bytes (also the scripts' TCP host)."""
 
     def __init__(self, write: Callable[[bytes], Any], read: Callable[[int], bytes],
                  close: Callable[[], None], address: int) -> None:
@@ -51,7 +51,8 @@ class StreamClient:
         self.address = address
 
     @classmethod
-    def tcp(cls, endpoint: str, address: int, timeout: float) -> StreamClient:
+    def tcp(cls, endpoint: str, address: int, timeout: float | None) -> StreamClient:
+        """``HOST:PORT`` with Nagle off; ``timeout`` None blocks (the benchmarks' lockstep)."""
         sock = socket.create_connection(parse_host_port(endpoint), timeout=timeout)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
@@ -81,9 +82,14 @@ class StreamClient:
 
         return cls(port.write, read, port.close, address)
 
+    def exchange(self, frame: bytes) -> bytes:
+        """Write one frame, return the 9 bytes that answer it as they came (unchecked: the
+        136 version string has no checksum, a host under test may judge a bad one itself)."""
+        self._write(frame)
+        return self._read(FRAME_LENGTH)
+
     def send(self, opcode: int, type_: int, motor: int, value: int) -> ReplyFields:
-        self._write(Request(self.address, opcode, type_, motor, value).encode())
-        frame = self._read(FRAME_LENGTH)
+        frame = self.exchange(Request(self.address, opcode, type_, motor, value).encode())
         reply = decode_reply(frame)  # checks the checksum (also right for the 134 layout)
         return reply.module, reply.status, reply.opcode, reply.value
 

@@ -131,27 +131,41 @@ def _option_strings(parser: argparse.ArgumentParser) -> list[str]:
 def with_suggestion(parser: argparse.ArgumentParser, message: str) -> str:
     """An argparse error with a did-you-mean for a misspelt option, command or choice, and a
     word for an argument PowerShell split at an unquoted comma (``mode=rs485`` alone)."""
-    import difflib
     import re
 
     unknown = re.fullmatch(r"unrecognized arguments: (.*)", message)
     if unknown:
         options = _option_strings(parser)
-        hints = []
-        for word in unknown.group(1).split():
-            name = word.split("=", 1)[0]
-            close = difflib.get_close_matches(name, options, n=1) if word.startswith("--") else []
-            if close:
-                hints.append(f"did you mean {close[0]} for {name}?")
-            elif re.fullmatch(r"[a-z_]+=\S*", word):
-                hints.append(f"{word} looks like part of an argument split at a comma: PowerShell "
-                             "splits unquoted commas, quote the argument (--serial "
-                             "'COM11,mode=rs485'; docs/windows.md)")
+        hints = [hint for word in unknown.group(1).split()
+                 if (hint := _unknown_word_hint(word, options)) is not None]
         return message + "".join(f"; {hint}" for hint in hints)
     choice = re.fullmatch(r"(argument .*?: )?invalid choice: '?(.*?)'? \(choose from (.*)\)", message)
     if choice:
-        choices = [c.strip(" '\"") for c in choice.group(3).split(",")]
-        close = difflib.get_close_matches(choice.group(2).lower(), [c.lower() for c in choices], n=1)
-        if close:
-            return f"{message}; did you mean {choices[[c.lower() for c in choices].index(close[0])]}?"
+        return message + _choice_hint(choice.group(2), choice.group(3))
     return message
+
+
+def _unknown_word_hint(word: str, options: list[str]) -> str | None:
+    """A did-you-mean for a misspelt ``--option``, or the PowerShell comma word; else None."""
+    import difflib
+    import re
+
+    name = word.split("=", 1)[0]
+    close = difflib.get_close_matches(name, options, n=1) if word.startswith("--") else []
+    if close:
+        return f"did you mean {close[0]} for {name}?"
+    if re.fullmatch(r"[a-z_]+=\S*", word):
+        return (f"{word} looks like part of an argument split at a comma: PowerShell "
+                "splits unquoted commas, quote the argument (--serial "
+                "'COM11,mode=rs485'; docs/windows.md)")
+    return None
+
+
+def _choice_hint(given: str, listed: str) -> str:
+    """``; did you mean CHOICE?`` for the listed choice closest to ``given`` (any case), or ""."""
+    import difflib
+
+    choices = [c.strip(" '\"") for c in listed.split(",")]
+    lowered = [c.lower() for c in choices]
+    close = difflib.get_close_matches(given.lower(), lowered, n=1)
+    return f"; did you mean {choices[lowered.index(close[0])]}?" if close else ""

@@ -25,8 +25,8 @@ from axes.chips.tmc42x.tmc4210 import (
     datagram,
     signed,
 )
-from axes.chips.tmc42x.units import pmul_pdiv, stop_speed
 from tests.axes.reference_tmc4210 import ReferenceChip
+from tests.helpers.tmc42x import apply_change, configure, run_alongside
 
 IDLE_STATUS = 0x15
 
@@ -202,15 +202,9 @@ def test_spi_data_answers_the_data_bits_of_spi_and_acts_the_same(
 def _configured(*, v_max: int, a_max: int, pulse_div: int, ramp_div: int, v_min: int | None = None,
                 mode: RampMode = RampMode.RAMP) -> TMC4210:
     chip = TMC4210()
-    pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
     chip.write(Reg.IF_CONFIGURATION, EN_SD)
-    chip.write(Reg.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div)
-              if v_min is None else v_min)
-    chip.write(Reg.V_MAX, v_max)
-    chip.write(Reg.A_MAX, a_max)
-    chip.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
-    chip.write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
-    chip.write(Reg.REF_CONF_RAMP_MODE, mode)
+    configure(chip, v_max=v_max, a_max=a_max, pulse_div=pulse_div, ramp_div=ramp_div, v_min=v_min,
+              mode=mode)
     return chip
 
 
@@ -221,13 +215,7 @@ def _reference_for(chip: TMC4210) -> ReferenceChip:
 
 
 def _run_both(chip: TMC4210, ref: ReferenceChip, until: int, arrivals: list[int]) -> None:
-    while ref.t < until:
-        ref.tick()
-    while chip.t < until:
-        if chip.run(until) is Stop.ARRIVED:
-            arrivals.append(chip.t)
-    assert (chip.x_actual, chip.v, chip.v_target) == (ref.x_actual, ref.v, ref.v_target), (
-        f"at clk32 tick {until}")
+    run_alongside(chip, ref, until, arrivals, f"at clk32 tick {until}")
 
 
 change = st.one_of(
@@ -249,18 +237,7 @@ def _replay_changes(chip, ref, changes: list[tuple[int, tuple[str, int]]], conf:
     for gap, (what, value) in changes:
         t += gap
         _run_both(chip, ref, t, arrivals)
-        if what == "x_target":
-            chip.write(Reg.X_TARGET, value & MASK24)
-            ref.x_target = value & MASK24
-        elif what == "v_target":
-            chip.write(Reg.V_TARGET, value & 0xFFF)
-            ref.v_target = value
-        elif what == "mode":
-            chip.write(Reg.REF_CONF_RAMP_MODE, conf | value)
-            ref.mode = RampMode(value)
-        else:
-            chip.write(getattr(Reg, what.upper()), value)
-            setattr(ref, what, value)
+        apply_change(chip, ref, what, value, conf)
     _run_both(chip, ref, t + 150_000, arrivals)
     assert arrivals == ref.arrivals
 
@@ -489,16 +466,10 @@ def _long_case(pulse_div: int, ramp_div: int, v_max: int, a_max: int, v_min: int
     ``changes`` applied at fractions of that time, both models compared at checkpoints."""
     horizon = _REFERENCE_EVENTS << min(ramp_div, pulse_div)
     chip = TMC4210(board=board)
-    pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
     chip.write(Reg.IF_CONFIGURATION, EN_SD)
     chip.write(Reg.SMGP, MOT1R)  # wire the right switch
-    chip.write(Reg.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div)
-               if v_min is None else v_min)
-    chip.write(Reg.V_MAX, v_max)
-    chip.write(Reg.A_MAX, a_max)
-    chip.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
-    chip.write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
-    chip.write(Reg.REF_CONF_RAMP_MODE, soft << 10 | mode)
+    configure(chip, v_max=v_max, a_max=a_max, pulse_div=pulse_div, ramp_div=ramp_div, v_min=v_min,
+              mode=soft << 10 | mode)
     chip.write(Reg.INTERRUPT, 1 << (8 + Irq.REF_MISS))  # X_ACTUAL 0 is a position of interest
     if pos_comp is not None:
         chip.write(Reg.POS_COMP, pos_comp & MASK24)

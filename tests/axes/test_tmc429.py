@@ -31,30 +31,17 @@ from axes.chips.tmc42x.tmc429 import (
 from axes.chips.tmc42x.units import (
     choose_pulse_div,
     choose_ramp_div,
-    pmul_pdiv,
-    stop_speed,
     velocity_register,
 )
 from axes.core import Stop
 from tests.axes.reference_tmc4210 import ReferenceChip
+from tests.helpers.tmc42x import apply_change, configure, run_alongside
 
 IDLE_STATUS = 0x15  # no INT, no CDGW, no switch, all three motors at target
 
 
 def status(chip: TMC429) -> int:
     return chip.spi(datagram(Reg.TYPE_VERSION, read=True)) >> 24
-
-
-def configure(motor: TMC429Motor, *, v_max: int, a_max: int, pulse_div: int, ramp_div: int,
-              v_min: int | None = None, mode: RampMode = RampMode.RAMP) -> None:
-    pmul, pdiv = pmul_pdiv(a_max, ramp_div, pulse_div) or (128, 0)
-    motor.write(Reg.V_MIN, stop_speed(a_max, pmul, pdiv, v_max, ramp_div, pulse_div)
-                if v_min is None else v_min)
-    motor.write(Reg.V_MAX, v_max)
-    motor.write(Reg.A_MAX, a_max)
-    motor.write(Reg.PMUL_PDIV, pmul << 8 | pdiv)
-    motor.write(Reg.DIVIDERS, pulse_div << 12 | ramp_div << 8)
-    motor.write(Reg.REF_CONF_RAMP_MODE, mode)
 
 
 def step_dir_chip(**kwargs) -> TMC429:
@@ -379,14 +366,8 @@ def _reference_for(motor: TMC429Motor) -> ReferenceChip:
 def _run_all(chip: TMC429, refs: list[ReferenceChip], until: int, order: list[int],
              arrivals: list[list[int]]) -> None:
     for index in order:
-        motor, ref = chip.motor(index), refs[index]
-        while ref.t < until:
-            ref.tick()
-        while motor.t < until:
-            if motor.run(until) is Stop.ARRIVED:
-                arrivals[index].append(motor.t)
-        assert (motor.x_actual, motor.v, motor.v_target) == (ref.x_actual, ref.v, ref.v_target), (
-            f"motor {index} at tick {until}")
+        run_alongside(chip.motor(index), refs[index], until, arrivals[index],
+                      f"motor {index} at tick {until}")
     xeq = status(chip) & 0x15
     assert xeq == sum((r.x_actual == r.x_target) << 2 * i for i, r in enumerate(refs))
 
@@ -423,18 +404,8 @@ def _three_motor_case(setups: list[tuple[int, int, int, int, int]],
         if what == "global":  # global writes that must not disturb motion (no switches wired)
             chip.write(Reg.SMGP, value & 0x0FFFFF | 2)  # refmux/mot1r off, chain kept
             chip.write(Reg.IF_CONFIGURATION, value >> 8 & 0x1DE)  # not inv_ref, not en_sd
-        elif what == "x_target":
-            motor.write(Reg.X_TARGET, value & MASK24)
-            ref.x_target = value & MASK24
-        elif what == "v_target":
-            motor.write(Reg.V_TARGET, value & 0xFFF)
-            ref.v_target = value
-        elif what == "mode":
-            motor.write(Reg.REF_CONF_RAMP_MODE, value)
-            ref.mode = RampMode(value)
         else:
-            motor.write(Reg[what.upper()], value)
-            setattr(ref, what, value)
+            apply_change(motor, ref, what, value)
     _run_all(chip, refs, t + 150_000, order, arrivals)
     assert arrivals == [ref.arrivals for ref in refs]
     assert [m.motor_position for m in chip.motors] == [signed(r.x_actual, 24) for r in refs]

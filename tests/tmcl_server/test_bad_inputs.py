@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.faults import FaultSpecError
+from tmcl_server.fault_language import FaultSpecError
 
 BIG = "9" * 5000  # past int()'s 4,300-digit limit
 

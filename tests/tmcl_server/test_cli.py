@@ -2,39 +2,18 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from tests.conftest import RawClient
+from tests.helpers.processes import ServerProcess
 from tmcl_server.cli import build_parser, config_from_args
 from tmcl_spec.commands import Opcode
-
-
-class ServerProcess:
-    def __init__(self, tmp_path: Path, *args: str) -> None:
-        self.ready_file = tmp_path / f"ready-{time.monotonic_ns()}.json"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tmcl_server", "--ready-file", str(self.ready_file), *args],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        deadline = time.monotonic() + 20
-        while not self.ready_file.exists():  # readiness, not a result: poll with a deadline
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                out, err = self.proc.communicate(timeout=5)
-                raise AssertionError(f"server did not start: {out}\n{err}")
-            time.sleep(0.01)
-        self.endpoints = json.loads(self.ready_file.read_text())
-
-    def stop(self, sig: int = signal.SIGTERM) -> tuple[int, str, str]:
-        self.proc.send_signal(sig)
-        out, err = self.proc.communicate(timeout=20)
-        return self.proc.returncode, out, err
 
 
 def test_endpoints_ready_file_and_clean_shutdown(tmp_path):

@@ -15,7 +15,7 @@ import can
 import pytest
 
 from tests.conftest import Bench
-from tests.tmcl_server.test_cli import ServerProcess
+from tests.helpers.processes import ServerProcess
 from tmcl_server.decode import (
     Conversation,
     Frame,

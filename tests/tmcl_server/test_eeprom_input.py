@@ -13,7 +13,7 @@ import os
 import pytest
 
 from tests.conftest import Bench, RawClient
-from tests.tmcl_server.test_cli import ServerProcess
+from tests.helpers.processes import ServerProcess
 from tmcl_server.eeprom import FILE_NAME, Eeprom
 from tmcl_server.module import TMCM6212, TMCLModule
 from tmcl_spec.commands import Opcode
@@ -153,21 +153,7 @@ class LimitedServer(ServerProcess):
     root cannot get around."""
 
     def __init__(self, tmp_path, *args: str) -> None:
-        import subprocess
-        import sys
-        import time
-        self.ready_file = tmp_path / "r.json"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tmcl_server", "--ready-file", str(self.ready_file), *args],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            preexec_fn=_file_size_limit(40))
-        deadline = time.monotonic() + 20
-        while not self.ready_file.exists():  # written atomically
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                out, err = self.proc.communicate(timeout=5)
-                raise AssertionError(f"server did not start: {out}\n{err}")
-            time.sleep(0.01)
-        self.endpoints = json.loads(self.ready_file.read_text())
+        super().__init__(tmp_path, *args, preexec_fn=_file_size_limit(40))
 
 
 def _read_only_state(tmp_path):

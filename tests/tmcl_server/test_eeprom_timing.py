@@ -183,7 +183,7 @@ def test_kill_9_during_a_store_loop_leaves_a_valid_file_old_or_new(tmp_path: Pat
     import random
     import signal
 
-    from tests.tmcl_server.test_cli import ServerProcess
+    from tests.helpers.processes import ServerProcess
 
     rng = random.Random(11)
     state = tmp_path / "state"

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import can
@@ -15,6 +13,7 @@ from pytrinamic.connections import ConnectionManager
 from pytrinamic.modules import TMCM6212
 
 from tests.conftest import RawClient
+from tests.helpers.processes import wait_for_ready_file
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.loops import new_event_loop, uvloop_available
 from tmcl_server.protocol import Request, decode_can_reply
@@ -68,12 +67,7 @@ def test_the_command_line_runs_on_uvloop_by_default_and_on_asyncio_when_asked(tm
             [sys.executable, "-m", "tmcl_server", "--tcp", "127.0.0.1:0", "--ready-file", str(ready),
              "--log-level", "DEBUG", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
-            deadline = time.monotonic() + WAIT_S
-            while not ready.exists():
-                assert process.poll() is None, process.communicate()
-                assert time.monotonic() < deadline, "no ready file"
-                time.sleep(0.02)
-            client = RawClient(json.loads(ready.read_text())["tcp"][0])
+            client = RawClient(wait_for_ready_file(process, ready, WAIT_S)["tcp"][0])
             assert client.request(1, Opcode.GGP, GP.SERIAL_ADDRESS, 0).value == 1
             client.close()
         finally:

@@ -13,14 +13,14 @@ from pathlib import Path
 import pytest
 
 from tmcl_server.clock import VirtualClock
-from tmcl_server.faults import (
+from tmcl_server.fault_language import (
     MAX_FAULT_FILE,
     MAX_FAULTS,
-    FaultInjector,
     FaultSpecError,
     load_fault_file,
     parse_fault,
 )
+from tmcl_server.faults import FaultInjector
 from tmcl_server.module import TMCM6212
 from tmcl_server.simulation import Simulation
 

@@ -12,9 +12,7 @@ from interpreter.assembler import assemble
 from tests.conftest import Collector
 from tmcl_server.clock import VirtualClock
 from tmcl_server.eeprom import Eeprom
-from tmcl_server.faults import (
-    Delivery,
-    FaultInjector,
+from tmcl_server.fault_language import (
     FaultSpecError,
     describe_kinds,
     fault_from_mapping,
@@ -22,6 +20,7 @@ from tmcl_server.faults import (
     load_fault_file,
     parse_fault,
 )
+from tmcl_server.faults import Delivery, FaultInjector
 from tmcl_server.module import TMCM6212, TMCLModule
 from tmcl_server.protocol import Reply, Request
 from tmcl_server.simulation import Simulation

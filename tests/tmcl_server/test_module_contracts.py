@@ -10,7 +10,8 @@ import pytest
 
 from tmcl_server.clock import VirtualClock
 from tmcl_server.dispatch import Interface
-from tmcl_server.faults import KINDS, FaultInjector, FaultSpecError
+from tmcl_server.fault_language import KINDS, FaultSpecError
+from tmcl_server.faults import FaultInjector
 from tmcl_server.module import TMCLModule
 from tmcl_server.protocol import RawReply, Reply, Request
 from tmcl_server.simulation import Simulation

@@ -16,7 +16,7 @@ from pytrinamic.connections import ConnectionManager
 from pytrinamic.modules import TMCM6212
 
 from tests.conftest import RawClient
-from tests.tmcl_server.test_cli import ServerProcess
+from tests.helpers.processes import ServerProcess
 from tmcl_server.embed import SimulatorThread
 from tmcl_spec.commands import Opcode
 from tmcl_spec.parameters import AP, GP

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 from pytrinamic.connections import ConnectionManager
 
+from tests.helpers.processes import wait_for_ready_file
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.tool import main as tmcl
 from tmcl_spec.commands import Opcode
@@ -44,14 +45,7 @@ class ProxyProcess:
              "--capture", str(self.capture), "--ready-file", str(ready), *extra],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # Ctrl-C reaches it
-        deadline = time.monotonic() + 30
-        while not ready.exists():  # readiness, not a result: poll with a deadline
-            if self.proc.poll() is not None or time.monotonic() > deadline:
-                self.proc.kill()
-                out, err = self.proc.communicate(timeout=10)
-                raise AssertionError(f"proxy did not start: {out}\n{err}")
-            time.sleep(0.01)
-        self.tcp = json.loads(ready.read_text())["tcp"][0]
+        self.tcp = wait_for_ready_file(self.proc, ready, 30, "proxy")["tcp"][0]
 
     def stop(self, sig: int = signal.SIGINT) -> tuple[int, str, str]:
         if self.proc.poll() is None:

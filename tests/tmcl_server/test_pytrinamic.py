@@ -7,6 +7,7 @@ from pytrinamic.connections import ConnectionManager
 from pytrinamic.modules import TMCM6212
 from pytrinamic.tmcl import TMCLReplyStatusError
 
+from tests.helpers.pytrinamic_link import connect
 from tmcl_server.embed import SimulatorThread
 from tmcl_spec.parameters import GP
 from tmcl_spec.tmcm6212 import AXIS_PARAMETERS, BANK0_PARAMETERS
@@ -19,13 +20,6 @@ def sim(tmp_path):
     with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"], pty=[str(tmp_path / "ttyTMCL0")],
                          state_dir=str(tmp_path / "state")) as sim:
         yield sim
-
-
-def connect(sim: SimulatorThread, path: str):
-    if path == "tcp":
-        return ConnectionManager(f"--interface socket_serial_tmcl --port {sim.tcp}").connect()
-    return ConnectionManager(
-        f"--interface serial_tmcl --port {sim.pty} --data-rate 115200").connect()
 
 
 @pytest.fixture(params=["tcp", "pty"])

@@ -10,7 +10,7 @@ from collections.abc import Callable
 import pytest
 
 from tmcl_server.decode import Vocabulary
-from tmcl_server.faults import parse_fault
+from tmcl_server.fault_language import parse_fault
 from tmcl_server.tool import main as tmcl
 from tmcl_spec.modules import MODULE_TYPES, module_type
 from tmcl_spec.pytrinamic_names import PYTRINAMIC_NAMES

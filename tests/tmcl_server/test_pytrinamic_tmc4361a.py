@@ -13,13 +13,13 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 
 import pytest
-from pytrinamic.connections import ConnectionManager
 from pytrinamic.evalboards import TMC4361_eval
 from pytrinamic.ic import TMC4361
 from pytrinamic.modules import TMCM6212, Landungsbruecke
 from pytrinamic.tmcl import TMCLReplyStatusError
 
 from tests.axes.test_tmc4361a import _s_time, _sixpoint_time
+from tests.helpers.pytrinamic_link import connect
 from tmcl_server.embed import SimulatorThread
 
 REG = TMC4361.REG
@@ -27,13 +27,6 @@ NS = 1_000_000_000
 #: How close to the formula a host polling the position sees the move end (s): the landing
 #: margin (a few clocks of 62.5 ns) and, for S-ramps, half a bow quantum (32 clocks).
 MARGIN_S = 5e-6
-
-
-def connect(sim: SimulatorThread, path: str):
-    if path == "tcp":
-        return ConnectionManager(f"--interface socket_serial_tmcl --port {sim.tcp}").connect()
-    return ConnectionManager(
-        f"--interface serial_tmcl --port {sim.pty} --data-rate 115200").connect()
 
 
 @pytest.fixture(params=["tcp", "pty"])

@@ -13,7 +13,7 @@ import pytest
 
 from tests.conftest import RawClient
 from tests.helpers.clocks import ManualClock
-from tests.tmcl_server.test_cli import ServerProcess
+from tests.helpers.processes import ServerProcess
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Request

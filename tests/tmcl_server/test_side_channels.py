@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import RawClient
+from tests.helpers.processes import wait_for_ready_file
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.sidechannel import RotatingFile, SideChannel
 from tmcl_spec.commands import Opcode
@@ -119,11 +120,7 @@ def test_a_full_file_system_under_record_and_trace_never_stops_the_server(tmp_pa
          "--trace", str(tiny_fs / "trace.txt")],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 20
-        while not ready.exists():
-            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()  # type: ignore[union-attr]
-            time.sleep(0.02)
-        host = RawClient(json.loads(ready.read_text())["tcp"][0], timeout=5)
+        host = RawClient(wait_for_ready_file(proc, ready)["tcp"][0], timeout=5)
         try:
             for motor in range(6):
                 assert host.request(1, Opcode.ROR, 0, motor, 2000).status == 100

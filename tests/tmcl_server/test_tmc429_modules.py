@@ -11,12 +11,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from pytrinamic.connections import ConnectionManager
 from pytrinamic.modules import TMCM1110, TMCM3110, TMCM6110
 from pytrinamic.tmcl import TMCLReplyStatusError
 
 from interpreter.assembler import assemble
 from tests.helpers.pytrinamic_classes import check_identity_and_parameters, names
+from tests.helpers.pytrinamic_link import connect
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.module import TMCLModule
 from tmcl_server.protocol import Request
@@ -27,12 +27,6 @@ from tmcl_spec.parameters import AP
 PYTRINAMIC = {"tmcm-1110": TMCM1110, "tmcm-3110": TMCM3110, "tmcm-6110": TMCM6110}
 VERSIONS = {"tmcm-1110": "1110V109", "tmcm-3110": "3110V114", "tmcm-6110": "6110V146"}
 MODULES = sorted(PYTRINAMIC)
-
-
-def connect(sim: SimulatorThread, path: str):
-    if path == "tcp":
-        return ConnectionManager(f"--interface socket_serial_tmcl --port {sim.tcp}").connect()
-    return ConnectionManager(f"--interface serial_tmcl --port {sim.pty} --data-rate 115200").connect()
 
 
 def simulator(tmp_path: Path, kind: str, **options) -> SimulatorThread:

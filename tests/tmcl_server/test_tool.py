@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.tmcl_server.test_cli import ServerProcess
+from tests.helpers.processes import ServerProcess
 from tmcl_server.protocol import Reply, Request
 from tmcl_server.tool import main as tmcl
 from tmcl_spec.commands import Opcode

@@ -18,7 +18,7 @@ import pytest
 from interpreter.assembler import assemble
 from interpreter.isa import Instruction, encode_program
 from tests.conftest import RawClient
-from tests.tmcl_server.test_cli import ServerProcess
+from tests.helpers.processes import ServerProcess
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.record import CSV_COLUMNS
 from tmcl_server.tool import main as tmcl

@@ -19,8 +19,8 @@ from pytrinamic.connections import ConnectionManager
 
 from tests.conftest import RawClient
 from tests.helpers.mosquitto import Broker, missing_reason
+from tests.helpers.processes import ServerProcess
 from tests.helpers.requirements import needs
-from tests.tmcl_server.test_cli import ServerProcess
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.protocol import Request, decode_can_reply
 from tmcl_server.server import ServerConfig

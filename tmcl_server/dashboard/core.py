@@ -422,7 +422,8 @@ class Dashboard:
         ``message["fault"]`` (a spec such as ``noreply:opcode=GAP,count=1``, or a table with a
         ``kind``), ``remove_fault`` takes one away by its id, ``clear_faults`` all, ``faults``
         lists them.  The one parser and injector the command line and MQTT use."""
-        from tmcl_server.faults import FaultInjector, FaultSpecError
+        from tmcl_server.fault_language import FaultSpecError
+        from tmcl_server.faults import FaultInjector
 
         injector = FaultInjector.of(self.simulation)
         answer: dict[str, Any] = {"type": "faults", "id": message.get("id")}

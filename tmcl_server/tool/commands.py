@@ -9,7 +9,7 @@ import difflib
 import json
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -83,13 +83,7 @@ def parse_type(opcode: int, text: str, motor: int, words: Vocabulary) -> int:
     stripped = text.strip()
     if stripped.lstrip("-").isdigit() or stripped.lower().startswith("0x"):
         return parse_number(stripped, "the type")
-    names = None
-    if opcode in AXIS_PARAMETER_COMMANDS:
-        names = words.axis
-    elif opcode in GLOBAL_PARAMETER_COMMANDS:
-        names = words.banks.get(motor)
-        if names is None:
-            raise UsageError(f"{words.type.name} has no global parameter bank {motor}")
+    names = _parameter_names(opcode, motor, words)
     if names is not None:
         number = names.number(stripped)
         if number is None:
@@ -102,6 +96,19 @@ def parse_type(opcode: int, text: str, motor: int, words: Vocabulary) -> int:
         return int(symbols[stripped.upper()])
     known = f"; one of {', '.join(symbols.__members__)}" if symbols is not None else ""
     raise UsageError(f"type {text!r} is not a number{known}")
+
+
+def _parameter_names(opcode: int, motor: int, words: Vocabulary) -> Any:
+    """The names a parameter command's type may be given by (axis parameters, or the bank
+    ``motor``), None for any other command."""
+    if opcode in AXIS_PARAMETER_COMMANDS:
+        return words.axis
+    if opcode in GLOBAL_PARAMETER_COMMANDS:
+        names = words.banks.get(motor)
+        if names is None:
+            raise UsageError(f"{words.type.name} has no global parameter bank {motor}")
+        return names
+    return None
 
 
 def _words(args: argparse.Namespace) -> Vocabulary:
@@ -244,19 +251,38 @@ def cmd_info(args: argparse.Namespace) -> int:
         version = conn.version_string()
         number = conn.ok(Opcode.GET_FIRMWARE_VERSION, 1) & 0xFFFF_FFFF
         kind = module_type_by_number(number >> 16)
-        # what the module's table shows (a module without CAN hides its CAN rows: None)
-        shown = None if kind is None else kind.global_parameters[0]
-        bank0: dict[int, int | None] = {
-            n: conn.ok(Opcode.GGP, n, 0) if shown is None or (n in shown and shown[n].readable)
-            else None
-            for n in (GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.HOST_ADDRESS,
-                      GP.BAUD_RATE, GP.CAN_ID, GP.CAN_REPLY_ID, GP.CAN_SECONDARY_ID,
-                      GP.CAN_BIT_RATE)}
+        bank0 = _read_addresses(conn, kind)
         status = conn.ok(Opcode.GET_APPLICATION_STATUS, 1) & 0xFFFF_FFFF
+    info = _info(version, number, kind, bank0, status)
+    if args.json:
+        _out(json.dumps(info, indent=1))
+        return 0
+    width = max(map(len, info))
+    for key, value in info.items():
+        _out(f"{key.replace('_', ' '):<{width}}  {value if value is not None else '-'}")
+    return 0
+
+
+#: The bank 0 rows ``tmcl info`` shows: how the module is addressed on each link.
+_ADDRESS_ROWS = (GP.SERIAL_ADDRESS, GP.SERIAL_SECONDARY_ADDRESS, GP.HOST_ADDRESS, GP.BAUD_RATE,
+                 GP.CAN_ID, GP.CAN_REPLY_ID, GP.CAN_SECONDARY_ID, GP.CAN_BIT_RATE)
+
+
+def _read_addresses(conn: Connection, kind: ModuleType | None) -> dict[int, int | None]:
+    """The address rows the module's table shows (a module without CAN hides its CAN rows:
+    None); all of them from a module of an unknown type."""
+    shown = None if kind is None else kind.global_parameters[0]
+    return {n: conn.ok(Opcode.GGP, n, 0) if shown is None or (n in shown and shown[n].readable)
+            else None for n in _ADDRESS_ROWS}
+
+
+def _info(version: str, number: int, kind: ModuleType | None, bank0: dict[int, int | None],
+          status: int) -> dict[str, Any]:
+    """What ``tmcl info`` prints, by name: 136's answers, the addresses, the program's state."""
     rate = bank0[GP.BAUD_RATE]
     baud = None if rate is None else (kind or module_type()).baud_rates.get(rate)
     mode = status >> 24
-    info = {
+    return {
         "version": version,
         "module": number >> 16,
         "firmware": f"{number >> 8 & 0xFF}.{number & 0xFF:02d}",
@@ -272,13 +298,6 @@ def cmd_info(args: argparse.Namespace) -> int:
         "program": "DOWNLOAD" if mode == 4 else ApplicationStatus(mode).name if mode < 4 else mode,
         "program_counter": status & 0xFFFF,
     }
-    if args.json:
-        _out(json.dumps(info, indent=1))
-        return 0
-    width = max(map(len, info))
-    for key, value in info.items():
-        _out(f"{key.replace('_', ' '):<{width}}  {value if value is not None else '-'}")
-    return 0
 
 
 # -- dump -------------------------------------------------------------------------------------
@@ -287,35 +306,54 @@ def cmd_dump(args: argparse.Namespace) -> int:
     with Connection(Where.from_args(args)) as conn:
         kind = _detect_type(conn, args.module_type)
         words = Vocabulary(kind)
-        axes = _axes(args.axes, kind)
         banks = [b for b in kind.global_parameters if args.user or b != BANK_USER_VARIABLES]
-        jobs: list[tuple[str, int, int, str]] = []  # section, number, motor/bank, name
-        for axis in axes:
-            jobs += [(f"axis {axis}", n, axis, name) for n, name in words.axis
-                     if kind.axis_parameters[n].readable]
-        for bank in banks:
-            jobs += [(f"bank {bank}", n, bank, name) for n, name in words.banks[bank]
-                     if kind.global_parameters[bank][n].readable]
-        values: dict[str, dict[str, int | None]] = {}
-        rows: list[tuple[str, int, str, int | None]] = []
-        with Progress("dump", len(jobs)) as bar:
-            for section, number, where, name in jobs:
-                opcode = Opcode.GAP if section.startswith("axis") else Opcode.GGP
-                reply = conn.request(opcode, number, where)
-                value = to_int32(reply.value) if reply.status == Status.OK else None
-                values.setdefault(section, {})[name] = value
-                rows.append((section, number, name, value))
-                bar.advance()
+        rows = _read_rows(conn, _dump_jobs(kind, words, _axes(args.axes, kind), banks))
     if args.json:
+        values: dict[str, dict[str, int | None]] = {}
+        for section, _, name, value in rows:
+            values.setdefault(section, {})[name] = value
         _out(json.dumps({"type": kind.name, "address": conn.address,
-                         "axes": {s.split()[1]: v for s, v in values.items() if s.startswith("axis")},
-                         "globals": {s.split()[1]: v for s, v in values.items() if s.startswith("bank")}},
+                         "axes": _sections(values, "axis"), "globals": _sections(values, "bank")},
                         indent=1))
         return 0
     _out(f"# {kind.name} module {conn.address} ({conn.where.describe()})")
     for section, number, name, value in rows:
         _out(f"{section:<7} {number:>3} {name:<28} {'-' if value is None else value}")
     return 0
+
+
+#: One parameter to read: section ("axis 0", "bank 2"), number, motor or bank, name.
+_Job = tuple[str, int, int, str]
+
+
+def _dump_jobs(kind: ModuleType, words: Vocabulary, axes: list[int], banks: list[int]) -> list[_Job]:
+    """Every readable row of the chosen axes, then of the chosen banks, in table order."""
+    jobs: list[_Job] = []
+    for axis in axes:
+        jobs += [(f"axis {axis}", n, axis, name) for n, name in words.axis
+                 if kind.axis_parameters[n].readable]
+    for bank in banks:
+        jobs += [(f"bank {bank}", n, bank, name) for n, name in words.banks[bank]
+                 if kind.global_parameters[bank][n].readable]
+    return jobs
+
+
+def _read_rows(conn: Connection, jobs: list[_Job]) -> list[tuple[str, int, str, int | None]]:
+    """(section, number, name, value) of each job, None where the module refused it."""
+    rows: list[tuple[str, int, str, int | None]] = []
+    with Progress("dump", len(jobs)) as bar:
+        for section, number, where, name in jobs:
+            opcode = Opcode.GAP if section.startswith("axis") else Opcode.GGP
+            reply = conn.request(opcode, number, where)
+            rows.append((section, number, name,
+                         to_int32(reply.value) if reply.status == Status.OK else None))
+            bar.advance()
+    return rows
+
+
+def _sections(values: dict[str, dict[str, int | None]], kind: str) -> dict[str, dict[str, int | None]]:
+    """The sections of one kind ("axis", "bank") by their number."""
+    return {s.split()[1]: v for s, v in values.items() if s.startswith(kind)}
 
 
 def _axes(text: str | None, kind: ModuleType) -> list[int]:
@@ -336,11 +374,7 @@ def _axes(text: str | None, kind: ModuleType) -> list[int]:
 def cmd_watch(args: argparse.Namespace) -> int:
     if args.rate <= 0:
         raise UsageError("--rate must be positive")
-    words = _words(args)
-    numbers = [parse_type(Opcode.GAP, name, 0, words) for name in args.parameters]
-    axes = _axes(args.axes, words.type)
-    columns = [(axis, number, f"{axis}.{words.axis.name(number) or number}")
-               for axis in axes for number in numbers]
+    columns = _watch_columns(args)
     live = sys.stdout.isatty() and not args.csv
     period = 1.0 / args.rate
     with Connection(Where.from_args(args)) as conn:
@@ -349,8 +383,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
             writer.writerow(["t", *(name for _, _, name in columns)])
         start = time.monotonic()
         count = 0
-        while (args.count is None or count < args.count) and (
-                args.duration is None or time.monotonic() - start <= args.duration):
+        while _watching(args, count, time.monotonic() - start):
             t = time.monotonic() - start
             row = [conn.ok(Opcode.GAP, number, axis) for axis, number, _ in columns]
             if writer is not None:
@@ -361,6 +394,21 @@ def cmd_watch(args: argparse.Namespace) -> int:
             count += 1
             time.sleep(max(0.0, start + count * period - time.monotonic()))
     return 0
+
+
+def _watch_columns(args: argparse.Namespace) -> list[tuple[int, int, str]]:
+    """(axis, parameter, column name) of each watched value, axis by axis."""
+    words = _words(args)
+    numbers = [parse_type(Opcode.GAP, name, 0, words) for name in args.parameters]
+    axes = _axes(args.axes, words.type)
+    return [(axis, number, f"{axis}.{words.axis.name(number) or number}")
+            for axis in axes for number in numbers]
+
+
+def _watching(args: argparse.Namespace, count: int, elapsed: float) -> bool:
+    """Until ``--count`` rows or ``--duration`` seconds, whichever ends first (none: for ever)."""
+    return ((args.count is None or count < args.count)
+            and (args.duration is None or elapsed <= args.duration))
 
 
 def _draw_table(columns: Sequence[tuple[int, int, str]], row: Sequence[int], t: float,
@@ -393,35 +441,54 @@ class _CountingClient:
 
 def cmd_program(args: argparse.Namespace) -> int:
     action = args.action
-    if action == "upload":
-        try:
-            instructions = load_program(args.program, args.include)
-        except AssemblyError as exc:
-            raise BadInput(str(exc)) from None
-        except (OSError, ValueError) as exc:
-            raise BadInput(f"{args.program}: {exc}") from None
+    instructions = _program_to_upload(args) if action == "upload" else []
     with Connection(Where.from_args(args)) as conn:
         if action == "upload":
             return _upload(conn, args, instructions)
-        if action == "run":
-            if args.continue_:
-                conn.ok(Opcode.RUN_APPLICATION, 0)
-            else:
-                conn.ok(Opcode.RUN_APPLICATION, 1, 0, args.address_from)
-            if args.wait:
-                try:
-                    _wait_for_program(conn, args.wait_timeout)
-                except KeyboardInterrupt:
-                    raise Interrupted("interrupted: the program still runs on the module (stop it "
-                                      "with 'tmcl program stop')") from None
-        elif action == "stop":
-            conn.ok(Opcode.STOP_APPLICATION)
-        elif action == "step":
-            for _ in range(args.steps):
-                conn.ok(Opcode.STEP_APPLICATION)
-        elif action == "read":
+        if action == "read":
             return _read_program(conn, args)
+        control = _PROGRAM_CONTROL.get(action)
+        if control is not None:
+            control(conn, args)
         return _status(conn, args)
+
+
+def _program_to_upload(args: argparse.Namespace) -> list[Instruction]:
+    """The program file assembled (or read as a binary) before the module is reached."""
+    try:
+        return load_program(args.program, args.include)
+    except AssemblyError as exc:
+        raise BadInput(str(exc)) from None
+    except (OSError, ValueError) as exc:
+        raise BadInput(f"{args.program}: {exc}") from None
+
+
+def _run_program(conn: Connection, args: argparse.Namespace) -> None:
+    """129 from the start (or ``--continue`` where it stopped); with ``--wait``, until it ends."""
+    if args.continue_:
+        conn.ok(Opcode.RUN_APPLICATION, 0)
+    else:
+        conn.ok(Opcode.RUN_APPLICATION, 1, 0, args.address_from)
+    if args.wait:
+        try:
+            _wait_for_program(conn, args.wait_timeout)
+        except KeyboardInterrupt:
+            raise Interrupted("interrupted: the program still runs on the module (stop it "
+                              "with 'tmcl program stop')") from None
+
+
+def _stop_program(conn: Connection, args: argparse.Namespace) -> None:
+    conn.ok(Opcode.STOP_APPLICATION)
+
+
+def _step_program(conn: Connection, args: argparse.Namespace) -> None:
+    for _ in range(args.steps):
+        conn.ok(Opcode.STEP_APPLICATION)
+
+
+#: ``tmcl program ACTION`` that acts on the program, then shows its status.
+_PROGRAM_CONTROL: dict[str, Callable[[Connection, argparse.Namespace], None]] = {
+    "run": _run_program, "stop": _stop_program, "step": _step_program}
 
 
 def _upload(conn: Connection, args: argparse.Namespace, instructions: list[Instruction]) -> int:
@@ -484,24 +551,9 @@ def _read_program(conn: Connection, args: argparse.Namespace) -> int:
     if protection.status == Status.OK and protection.value & CodeProtection.READ:
         raise Refused(f"module {conn.address}'s program memory is read-protected "
                       f"(GP 81 = {to_int32(protection.value)}): it reads back as empty")
-    instructions: list[Instruction] = []
-    address = args.start
-    limit = args.count if args.count is not None else 1 << 16
-    with Progress("read", args.count) as bar:
-        while len(instructions) < limit:
-            reply = conn.request(Opcode.READ_PROGRAM_MEMORY, 0, 0, address)
-            if reply.opcode == Opcode.READ_PROGRAM_MEMORY and reply.status < Status.OK:
-                break  # an ordinary error reply: past the end of program memory
-            ins = Instruction(reply.module, reply.status, reply.opcode, to_int32(reply.value))
-            if ins.opcode == 0 and args.count is None:
-                break  # empty memory: the end of the program
-            instructions.append(ins)
-            address += 1
-            bar.advance()
-    if not instructions and address == args.start and args.start > 0:
-        first = conn.request(Opcode.READ_PROGRAM_MEMORY, 0, 0, args.start)
-        if first.opcode == Opcode.READ_PROGRAM_MEMORY and first.status < Status.OK:
-            raise Refused(f"address {args.start} is outside module {conn.address}'s program memory")
+    instructions = _read_records(conn, args.start, args.count)
+    if not instructions and args.start > 0 and _outside_memory(conn, args.start):
+        raise Refused(f"address {args.start} is outside module {conn.address}'s program memory")
     text = listing(instructions, args.start) if args.listing else disassemble(instructions)
     if args.output:
         args.output.write_text(text, encoding="utf-8")
@@ -510,13 +562,43 @@ def _read_program(conn: Connection, args: argparse.Namespace) -> int:
     return 0
 
 
+def _outside_memory(conn: Connection, address: int) -> bool:
+    """134 at ``address`` is refused with an ordinary error reply: past program memory."""
+    reply = conn.request(Opcode.READ_PROGRAM_MEMORY, 0, 0, address)
+    return reply.opcode == Opcode.READ_PROGRAM_MEMORY and reply.status < Status.OK
+
+
+def _read_records(conn: Connection, start: int, count: int | None) -> list[Instruction]:
+    """``count`` records from ``start`` by 134; without a count, up to the first empty one
+    (or the end of program memory)."""
+    instructions: list[Instruction] = []
+    limit = count if count is not None else 1 << 16
+    with Progress("read", count) as bar:
+        while len(instructions) < limit:
+            reply = conn.request(Opcode.READ_PROGRAM_MEMORY, 0, 0, start + len(instructions))
+            if reply.opcode == Opcode.READ_PROGRAM_MEMORY and reply.status < Status.OK:
+                break  # an ordinary error reply: past the end of program memory
+            ins = Instruction(reply.module, reply.status, reply.opcode, to_int32(reply.value))
+            if ins.opcode == 0 and count is None:
+                break  # empty memory: the end of the program
+            instructions.append(ins)
+            bar.advance()
+    return instructions
+
+
 # -- decode -----------------------------------------------------------------------------------
 
 def cmd_decode(args: argparse.Namespace) -> int:
     """Streams: frames are printed as they are read, so a long capture needs little memory."""
     if args.file is None and not args.hex and sys.stdin.isatty():
         raise UsageError("give hex bytes, --file FILE, or pipe a dump in")
-    conversation = Conversation(_words(args), replies_only=args.replies)
+    if not _show_frames(args, Conversation(_words(args), replies_only=args.replies)):
+        raise BadInput("no TMCL frame found in the input")
+    return 0
+
+
+def _show_frames(args: argparse.Namespace, conversation: Conversation) -> int:
+    """Each frame printed as it is read (a line or JSON); how many were."""
     shown = 0
     try:
         for frame in conversation.decode(_capture_frames(args)):
@@ -528,9 +610,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
         raise
     except OSError as exc:
         raise BadInput(f"{args.file}: {exc.strerror or exc}") from None
-    if not shown:
-        raise BadInput("no TMCL frame found in the input")
-    return 0
+    return shown
 
 
 def _capture_frames(args: argparse.Namespace) -> Iterator[Frame]:

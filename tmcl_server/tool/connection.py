@@ -72,11 +72,7 @@ class Interrupted(ToolError):
 
 
 class _RawStreamClient(StreamClient):
-    """tmcl-upload's stream client, also able to read the 136 version string (no checksum)."""
-
-    def exchange(self, request: Request) -> bytes:
-        self._write(request.encode())
-        return self._read(FRAME_LENGTH)
+    """tmcl-upload's stream client, also able to send what the module does not answer."""
 
     def send_only(self, request: Request) -> None:
         self._write(request.encode())
@@ -153,7 +149,8 @@ class Connection:
         """Send one command and return the module's reply (any status)."""
         try:
             if isinstance(self.client, _RawStreamClient):
-                return decode_reply(self.client.exchange(Request(self.address, opcode, type_, motor, value)))
+                return decode_reply(self.client.exchange(
+                    Request(self.address, opcode, type_, motor, value).encode()))
             module, status, echoed, result = self.client.send(opcode, type_, motor, to_int32(value))
             return Reply(0, module, status, echoed, result)
         except TimeoutError as exc:
@@ -195,7 +192,8 @@ class Connection:
         """Command 136 type 0: e.g. ``6212V105``."""
         if isinstance(self.client, _RawStreamClient):
             try:
-                data = self.client.exchange(Request(self.address, Opcode.GET_FIRMWARE_VERSION, 0, 0, 0))
+                data = self.client.exchange(
+                    Request(self.address, Opcode.GET_FIRMWARE_VERSION, 0, 0, 0).encode())
             except (OSError, UploadError) as exc:
                 raise NoReply(self._silence(Opcode.GET_FIRMWARE_VERSION, exc)) from None
             return data[1:FRAME_LENGTH].decode("ascii", "replace")

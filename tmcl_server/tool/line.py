@@ -21,6 +21,7 @@ import difflib
 import re
 import textwrap
 from dataclasses import dataclass
+from typing import Any
 
 from interpreter.assembler import include_constants
 from interpreter.syntax import (
@@ -91,15 +92,23 @@ class _Names:
         self.opcode = opcode
         self.words = words
 
-    def __call__(self, name: str, where: Location, spec: Field, done: dict[str, int]) -> int:
-        tables = None
-        if spec.slot == "type" and self.opcode in AXIS_PARAMETER_COMMANDS:
-            tables = self.words.axis
-        elif spec.slot == "type" and self.opcode in GLOBAL_PARAMETER_COMMANDS:
+    def _parameters(self, where: Location, spec: Field, done: dict[str, int]) -> Any:
+        """The parameter names a type operand may use (axis, or the bank already given), or
+        None for any other operand."""
+        if spec.slot != "type":
+            return None
+        if self.opcode in AXIS_PARAMETER_COMMANDS:
+            return self.words.axis
+        if self.opcode in GLOBAL_PARAMETER_COMMANDS:
             bank = done.get("motor", 0)
             tables = self.words.banks.get(bank)
             if tables is None:
                 raise AssemblyError(where, f"{self.words.type.name} has no global parameter bank {bank}")
+            return tables
+        return None
+
+    def __call__(self, name: str, where: Location, spec: Field, done: dict[str, int]) -> int:
+        tables = self._parameters(where, spec, done)
         if tables is not None:
             number = tables.number(name)
             if number is not None:
@@ -110,12 +119,17 @@ class _Names:
         constant = include_constants().get(name.lower())
         if constant is not None:
             return constant
-        if tables is not None:
-            close = difflib.get_close_matches(name, [n for _, n in tables], n=3)
-            hint = f" (did you mean {', '.join(close)}?)" if close else ""
-            raise AssemblyError(where, f"unknown parameter {excerpt(name)}{hint}")
-        known = f"; one of {', '.join(symbols.__members__)}" if symbols is not None else ""
-        raise AssemblyError(where, f"unknown name {excerpt(name)}{known}")
+        raise _unknown(name, where, tables, symbols)
+
+
+def _unknown(name: str, where: Location, tables: Any, symbols: Any) -> AssemblyError:
+    """The error for a name nothing knows: the closest parameter names, or the symbols."""
+    if tables is not None:
+        close = difflib.get_close_matches(name, [n for _, n in tables], n=3)
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        return AssemblyError(where, f"unknown parameter {excerpt(name)}{hint}")
+    known = f"; one of {', '.join(symbols.__members__)}" if symbols is not None else ""
+    return AssemblyError(where, f"unknown name {excerpt(name)}{known}")
 
 
 def parse_command(text: str, words: Vocabulary) -> Command:

@@ -556,6 +556,34 @@ class _PtyWriter:
 
 
 def cmd_proxy(args: argparse.Namespace) -> int:
+    where = _check_proxy_args(args)
+    link = open_module_link(where)
+    try:
+        identity = None if args.no_identify else identify(link, where.address, where.timeout)
+        capture = _open_capture(args.capture, link, identity)
+    except BaseException:
+        link.close()
+        raise
+    proxy = Proxy(link, capture, where.timeout)
+    try:
+        endpoints = _open_endpoints(proxy, args)
+        _announce(link, identity, where.address, endpoints)
+        if args.ready_file:
+            _write_ready_file(args.ready_file, endpoints)
+        _serve(proxy)
+        saved = f", capture {args.capture}" if args.capture else ""
+        _say(f"tmcl proxy: stopped after {proxy.forwarded} requests{saved}")
+        return 0
+    finally:
+        proxy.close()
+        if args.ready_file:
+            with contextlib.suppress(OSError):
+                Path(args.ready_file).unlink()
+
+
+def _check_proxy_args(args: argparse.Namespace) -> Where:
+    """Somewhere for the hosts, a capture's directory that exists, one way to the module,
+    pseudo-terminals if asked for: all before the module is reached."""
     if not args.listen_tcp and not args.listen_pty:
         raise UsageError("give at least one --listen-tcp HOST:PORT or --listen-pty PATH for the hosts")
     if args.capture is not None and not Path(args.capture).absolute().parent.is_dir():
@@ -567,49 +595,45 @@ def cmd_proxy(args: argparse.Namespace) -> int:
             require_pseudo_terminals()
         except PlatformUnsupported as exc:
             raise UsageError(f"--listen-pty: {exc}") from None
-    link = open_module_link(where)
+    return where
+
+
+def _open_capture(path: str | None, link: ModuleLink, identity: dict[str, Any] | None
+                  ) -> CaptureWriter | None:
+    if path is None:
+        return None
     try:
-        identity = None if args.no_identify else identify(link, where.address, where.timeout)
-        capture = None
-        if args.capture is not None:
-            try:
-                capture = CaptureWriter.create(args.capture, link.description, identity)
-            except OSError as exc:
-                raise BadInput(f"--capture {args.capture}: {exc.strerror or exc}") from None
-    except BaseException:
-        link.close()
-        raise
-    proxy = Proxy(link, capture, where.timeout)
+        return CaptureWriter.create(path, link.description, identity)
+    except OSError as exc:
+        raise BadInput(f"--capture {path}: {exc.strerror or exc}") from None
+
+
+def _announce(link: ModuleLink, identity: dict[str, Any] | None, address: int,
+              endpoints: dict[str, list[str]]) -> None:
+    """Which module, over what, and every endpoint the hosts may use: one line each."""
+    who = (f"{identity['type'] or 'module ' + str(identity['module_number'])} "
+           f"({identity['version']})") if identity else f"module {address}"
+    _say(f"tmcl proxy: {who} over {link.description}")
+    for kind, names in endpoints.items():
+        for name in names:
+            _say(f"{kind} {name}")
+
+
+def _serve(proxy: Proxy) -> None:
+    """Forward until Ctrl-C or SIGTERM (every frame so far is then on disk); a module link
+    that closes is NoReply."""
+    main = threading.current_thread() is threading.main_thread()
+    previous = [(sig, signal.signal(sig, proxy.interrupt)) for sig in
+                (signal.SIGINT, signal.SIGTERM)] if main else []
     try:
-        endpoints = _open_endpoints(proxy, args)
-        who = (f"{identity['type'] or 'module ' + str(identity['module_number'])} "
-               f"({identity['version']})") if identity else f"module {where.address}"
-        _say(f"tmcl proxy: {who} over {link.description}")
-        for kind, names in endpoints.items():
-            for name in names:
-                _say(f"{kind} {name}")
-        if args.ready_file:
-            _write_ready_file(args.ready_file, endpoints)
-        main = threading.current_thread() is threading.main_thread()
-        previous = [(sig, signal.signal(sig, proxy.interrupt)) for sig in
-                    (signal.SIGINT, signal.SIGTERM)] if main else []
-        try:
-            proxy.run()
-        except KeyboardInterrupt:  # Ctrl-C or SIGTERM: every frame so far is on disk
-            pass
-        except LinkClosed as exc:
-            raise NoReply(str(exc)) from None
-        finally:
-            for sig, handler in previous:
-                signal.signal(sig, handler)
-        saved = f", capture {args.capture}" if args.capture else ""
-        _say(f"tmcl proxy: stopped after {proxy.forwarded} requests{saved}")
-        return 0
+        proxy.run()
+    except KeyboardInterrupt:
+        pass
+    except LinkClosed as exc:
+        raise NoReply(str(exc)) from None
     finally:
-        proxy.close()
-        if args.ready_file:
-            with contextlib.suppress(OSError):
-                Path(args.ready_file).unlink()
+        for sig, handler in previous:
+            signal.signal(sig, handler)
 
 
 def _open_endpoints(proxy: Proxy, args: argparse.Namespace) -> dict[str, list[str]]:

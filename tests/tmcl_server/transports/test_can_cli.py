@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import can
 
+from tests.helpers.processes import wait_for_ready_file
 from tmcl_server.cli import build_parser, config_from_args
 from tmcl_server.protocol import Request, decode_can_reply
 from tmcl_spec.commands import Opcode
@@ -36,12 +35,7 @@ def test_server_lists_the_gateways_and_serves_the_named_bus(tmp_path: Path) -> N
          "--socketcand", "127.0.0.1:0", "--slcan-pty", str(link), "--ready-file", str(ready)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + WAIT_S
-        while not ready.exists():
-            assert process.poll() is None, process.communicate()
-            assert time.monotonic() < deadline, "no ready file"
-            time.sleep(0.02)
-        endpoints = json.loads(ready.read_text())
+        endpoints = wait_for_ready_file(process, ready, WAIT_S)
         assert endpoints["slcan"] == [str(link)] and endpoints["can_bus"] == ["line2"]
         host, port = endpoints["socketcand"][0].rsplit(":", 1)
         with can.Bus(interface="socketcand", host=host, port=int(port), channel="line2") as bus:

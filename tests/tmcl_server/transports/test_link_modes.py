@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from tests.tmcl_server.test_cli import ServerProcess
+from tests.helpers.processes import ServerProcess
 from tests.tmcl_server.transports.test_wire import read_exact
 from tmcl_server.cli import main
 from tmcl_server.embed import SimulatorThread

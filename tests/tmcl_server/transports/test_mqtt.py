@@ -33,13 +33,6 @@ pytestmark = needs(missing_reason())
 
 
 @pytest.fixture
-def broker(tmp_path):
-    b = Broker(tmp_path)
-    yield b
-    b.stop()
-
-
-@pytest.fixture
 def sim(broker):
     simulator = start_sim(broker)
     yield simulator

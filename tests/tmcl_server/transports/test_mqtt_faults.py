@@ -18,13 +18,6 @@ from tmcl_spec.commands import Opcode
 pytestmark = needs(missing_reason())
 
 
-@pytest.fixture
-def broker(tmp_path):
-    b = Broker(tmp_path)
-    yield b
-    b.stop()
-
-
 def test_sim_fault_alters_and_loses_replies_and_is_listed(broker: Broker) -> None:
     sim = start_sim(broker, mqtt_faults=True)
 
@@ -89,7 +82,8 @@ def test_a_flood_of_faults_over_mqtt_is_bounded(broker: Broker) -> None:
     """The issue: 2,000 faults republished the retained list 2,000 times (341 MB sent).  Now
     at most MAX_FAULTS are installed, the rest answered on sim_error, and the retained list is
     coalesced: it is published far fewer times than faults were sent."""
-    from tmcl_server.faults import MAX_FAULTS, FaultInjector
+    from tmcl_server.fault_language import MAX_FAULTS
+    from tmcl_server.faults import FaultInjector
 
     sim = start_sim(broker, mqtt_faults=True)
     sent = MAX_FAULTS + 44

@@ -10,7 +10,6 @@ import json
 from tests.conftest import RawClient
 from tests.helpers.mosquitto import missing_reason
 from tests.helpers.requirements import needs
-from tests.tmcl_server.transports import test_mqtt
 from tests.tmcl_server.transports.test_mqtt import json_of, probing, start_sim
 from tmcl_server.protocol import Request, decode_reply
 from tmcl_server.transports.mqtt import bridge as bridge_module
@@ -18,10 +17,6 @@ from tmcl_spec.commands import Opcode
 from tmcl_spec.parameters import AP
 
 pytestmark = needs(missing_reason())
-
-#: A throwaway mosquitto per test (test_mqtt's fixture).
-broker = test_mqtt.broker
-
 
 def _bridge(sim):
     (bridge,) = [t for t in sim.server.transports if t.kind == "mqtt"]

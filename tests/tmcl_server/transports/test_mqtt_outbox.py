@@ -42,13 +42,6 @@ Tick:
 """
 
 
-@pytest.fixture
-def broker(tmp_path):
-    b = Broker(tmp_path)
-    yield b
-    b.stop()
-
-
 def message(topic: str, n: int = 0, retain: bool = False) -> _Outgoing:
     return _Outgoing(topic, str(n).encode(), retain=retain)
 

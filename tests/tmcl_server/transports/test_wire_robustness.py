@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import gc
 import importlib.util
-import json
 import logging
 import os
 import resource
@@ -25,6 +24,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import RawClient
+from tests.helpers.processes import wait_for_ready_file
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.lograte import LIBRARY_LOGGERS, REPEAT_INTERVAL_S, REPEATS, WIRE_LOGGERS, RepeatFilter
 from tmcl_server.loops import uvloop_available
@@ -427,11 +427,7 @@ def test_accept_at_the_descriptor_limit_neither_floods_the_log_nor_spins(loop, t
             stdout=subprocess.DEVNULL)
     clients: list[socket.socket] = []
     try:
-        deadline = time.monotonic() + 20
-        while not (ready.exists() and ready.read_text()):
-            assert time.monotonic() < deadline and server.poll() is None
-            time.sleep(0.02)
-        host, port = json.loads(ready.read_text())["tcp"][0].rsplit(":", 1)
+        host, port = wait_for_ready_file(server, ready)["tcp"][0].rsplit(":", 1)
         for _ in range(150):
             try:
                 clients.append(socket.create_connection((host, int(port)), timeout=0.5))

@@ -16,6 +16,7 @@ import re
 import time
 from collections import Counter
 from collections.abc import Callable
+from typing import ClassVar
 
 import can
 
@@ -160,43 +161,73 @@ class SlcanSession:
         return b""
 
     def _control(self, line: bytes) -> bytes:
-        command, argument = line[:1], line[1:]
-        if command == b"":
+        """Any command but a frame: its handler in ``_CONTROL`` checks the argument's shape
+        (ERROR when it is wrong, or for an unknown command); an empty line is OK."""
+        if not line:
             return OK
-        if command in (b"O", b"L") and not argument:
-            if self.open:
-                return ERROR
-            self._discard_output()  # whatever a previous host left unread is stale now
-            self.open, self.listen_only = True, command == b"L"
-            return OK
-        if command == b"C" and not argument:
-            self._discard_output()
-            self.open = self.listen_only = False
-            return OK
-        if command == b"S" and len(argument) == 1 and argument[0] - ord("0") in BITRATES:
-            if self.open:
-                return ERROR
-            self.bitrate = BITRATES[argument[0] - ord("0")]
-            return OK
-        if command == b"s" and re.fullmatch(rb"[0-9A-Fa-f]{4}", argument):
-            return ERROR if self.open else OK
-        if command == b"F" and not argument:
-            if not self.open:
-                return ERROR
-            status, self.status = self.status, 0
-            return f"F{status:02X}\r".encode("ascii")
-        if command == b"V" and not argument:
-            return HARDWARE_VERSION + OK
-        if command == b"N" and not argument:
-            return SERIAL_NUMBER + OK
-        if command == b"Z" and argument in (b"0", b"1"):
-            self.timestamps = argument == b"1"
-            return OK
-        if command in (b"M", b"m") and re.fullmatch(rb"[0-9A-Fa-f]{8}", argument):
-            return OK  # acceptance filters are accepted but every frame passes
-        if command in (b"X", b"Q", b"W") and len(argument) == 1 and argument in b"012":
-            return OK
-        return ERROR
+        handler = self._CONTROL.get(line[:1])
+        return handler(self, line[:1], line[1:]) if handler is not None else ERROR
+
+    def _open_channel(self, command: bytes, argument: bytes) -> bytes:
+        """``O`` (open) or ``L`` (open listening only)."""
+        if argument or self.open:
+            return ERROR
+        self._discard_output()  # whatever a previous host left unread is stale now
+        self.open, self.listen_only = True, command == b"L"
+        return OK
+
+    def _close_channel(self, command: bytes, argument: bytes) -> bytes:
+        if argument:
+            return ERROR
+        self._discard_output()
+        self.open = self.listen_only = False
+        return OK
+
+    def _set_bitrate(self, command: bytes, argument: bytes) -> bytes:
+        """``S0``..``S8``, only while closed."""
+        if len(argument) != 1 or argument[0] - ord("0") not in BITRATES or self.open:
+            return ERROR
+        self.bitrate = BITRATES[argument[0] - ord("0")]
+        return OK
+
+    def _set_btr(self, command: bytes, argument: bytes) -> bytes:
+        """``sXXYY``: a bit timing register pair, taken (and ignored) only while closed."""
+        return OK if re.fullmatch(rb"[0-9A-Fa-f]{4}", argument) and not self.open else ERROR
+
+    def _read_flags(self, command: bytes, argument: bytes) -> bytes:
+        """``F``: the status flags since the last read (open only), then cleared."""
+        if argument or not self.open:
+            return ERROR
+        status, self.status = self.status, 0
+        return f"F{status:02X}\r".encode("ascii")
+
+    def _version(self, command: bytes, argument: bytes) -> bytes:
+        return ERROR if argument else HARDWARE_VERSION + OK
+
+    def _serial_number(self, command: bytes, argument: bytes) -> bytes:
+        return ERROR if argument else SERIAL_NUMBER + OK
+
+    def _set_timestamps(self, command: bytes, argument: bytes) -> bytes:
+        if argument not in (b"0", b"1"):
+            return ERROR
+        self.timestamps = argument == b"1"
+        return OK
+
+    def _set_filter(self, command: bytes, argument: bytes) -> bytes:
+        """``M``/``m``: acceptance filters are accepted but every frame passes."""
+        return OK if re.fullmatch(rb"[0-9A-Fa-f]{8}", argument) else ERROR
+
+    def _set_mode(self, command: bytes, argument: bytes) -> bytes:
+        """``X``, ``Q``, ``W`` 0..2: auto poll, auto start, filter mode; accepted, no effect."""
+        return OK if len(argument) == 1 and argument in b"012" else ERROR
+
+    #: Command letter -> its handler (called with the session, the letter, the argument).
+    _CONTROL: ClassVar[dict[bytes, Callable[[SlcanSession, bytes, bytes], bytes]]] = {
+        b"O": _open_channel, b"L": _open_channel, b"C": _close_channel, b"S": _set_bitrate,
+        b"s": _set_btr, b"F": _read_flags, b"V": _version, b"N": _serial_number,
+        b"Z": _set_timestamps, b"M": _set_filter, b"m": _set_filter, b"X": _set_mode,
+        b"Q": _set_mode, b"W": _set_mode,
+    }
 
     # -- bus -> host --------------------------------------------------------------------------
 

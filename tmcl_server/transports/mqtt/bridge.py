@@ -41,7 +41,8 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 
 from tmcl_server.delivery import Delivery
 from tmcl_server.dispatch import Interface
-from tmcl_server.faults import FaultInjector, FaultSpecError
+from tmcl_server.fault_language import FaultSpecError
+from tmcl_server.faults import FaultInjector
 from tmcl_server.module import READ_ONLY_OPCODES, ModuleEvent, TMCLModule
 from tmcl_server.protocol import FRAME_LENGTH, ChecksumError, Reply, decode_request
 from tmcl_server.sidechannel import SideChannel

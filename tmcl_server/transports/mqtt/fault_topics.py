@@ -15,7 +15,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from tmcl_server.faults import FaultInjector, FaultSpecError, fault_from_mapping, parse_fault
+from tmcl_server.fault_language import FaultSpecError, fault_from_mapping, parse_fault
+from tmcl_server.faults import FaultInjector
 from tmcl_server.module import TMCLModule
 from tmcl_server.transports.mqtt.payload import PayloadError, decode_text, parse_json
 
