@@ -16,7 +16,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from axes.world import DEFAULT_ENCODER_COUNTS_PER_REV
 from tmcl_spec.modules import FirmwareClock
@@ -71,6 +71,19 @@ class AxisStatus:
     reference_search: int = 0
     #: Where the mechanics really are (differs from ``position`` when the motor slips).
     mechanical_position: int = 0
+
+
+class AxisSample(NamedTuple):
+    """The part of :class:`AxisStatus` a recorder samples, often (:meth:`AxisRig.sample`)."""
+
+    position: int
+    velocity: int
+    current: int
+    target: int
+    position_reached: bool
+    left_switch: bool
+    right_switch: bool
+    home_switch: bool
 
 
 class NotAvailable(ValueError):
@@ -214,6 +227,18 @@ class AxisRig(ABC):
     @abstractmethod
     def status(self) -> AxisStatus:
         """Everything telemetry shows about the axis, without side effects."""
+
+    def sample(self) -> AxisSample:
+        """What a recorder keeps of the axis at an instant (tmcl_server/record.py), without
+        side effects: a part of :meth:`status`, which a core may compute for less."""
+        s = self.status()
+        return AxisSample(s.position, s.velocity, s.current, s.target, s.position_reached,
+                          s.left_switch, s.right_switch, s.home_switch)
+
+    def resting(self) -> bool:
+        """True when :meth:`sample` answers the same until something intervenes (a command,
+        an event, a world change: what the module's epoch counts); False: no promise."""
+        return False
 
 
 class Axis(AxisControl, AxisRig):

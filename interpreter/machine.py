@@ -45,7 +45,14 @@ from interpreter.isa import (
     YIELD,
     Instruction,
 )
-from interpreter.skipping import FOREVER, LOADS_ACCUMULATOR, Call, LoopSkipper
+from interpreter.skipping import (
+    FOREVER,
+    LOADS_ACCUMULATOR,
+    Call,
+    LoopSkipper,
+    counting_handler,
+    ticks_to_skip,
+)
 from tmcl_spec.commands import (
     MOTOR_ALL,
     STATUS_OK,
@@ -170,6 +177,18 @@ class ModulePort(Protocol):
         then, or a time before which it surely does not (0: cannot tell)."""
         ...
 
+    def epoch(self) -> int:
+        """Counts what may have changed the module's answers from outside the program's loop
+        (host requests, commands that changed something, events, world changes), but not a
+        program's write of a user variable: while it holds, an analysed pass holds
+        (skipping.py I10)."""
+        ...
+
+    def user_variable(self, number: int) -> int | None:
+        """User variable ``number`` (bank 2) as GGP would read it, if it is plain RAM (None
+        otherwise): an analysed pass that read it holds while it has the same value (I10)."""
+        ...
+
 
 @dataclass(slots=True)
 class Wait:
@@ -198,6 +217,20 @@ class Context(NamedTuple):
 class _Timer:
     period_ns: int
     next_ns: int
+
+
+@dataclass(slots=True)
+class _Cycle:
+    """A timer cycle being recorded, from one dispatch of its interrupt to the next, to skip
+    the cycles after it that do exactly the same (interpreter/skipping.py I12)."""
+
+    vector: int
+    counters: dict[int, int]
+    start: int
+    registers: tuple[object, ...]
+    epoch: int
+    executed: int
+    calls: list[Call]
 
 
 class Interpreter:
@@ -242,7 +275,17 @@ class Interpreter:
         self.loops_skipped = 0
         #: While a pass is analysed, the module commands it sends (interpreter.skipping).
         self.recording: list[Call] | None = None
+        #: A kept plan's reads by PC, and the module epoch they hold under (skipping.py I13).
+        self.replay: dict[int, tuple[int, int, int]] | None = None
+        self.replay_epoch = 0
         self.skipper = LoopSkipper(self)
+        #: The timer cycle being recorded (I12), and how many dispatches to let pass before
+        #: recording one again (doubling while they cannot be skipped, as loops back off).
+        self._cycle: _Cycle | None = None
+        self._cycle_wait = 0
+        self._cycle_backoff = 1
+        #: Timer cycles skipped so far (tests, benchmarks).
+        self.ticks_skipped = 0
         self.power_up(0)
 
     def power_up(self, now_ns: int) -> None:
@@ -467,10 +510,22 @@ class Interpreter:
 
     def _advance(self, end_ns: int) -> bool:
         """Execute until ``end_ns``; True if a module command ended the batch early."""
+        try:
+            return self._run_batch(end_ns)
+        finally:
+            if self._cycle is not None:  # a cycle is recorded within one batch only (I12)
+                self._cycle = None
+                self.recording = None
+                self._give_up_cycles()  # (batches shorter than a cycle: record less often)
+
+    def _run_batch(self, end_ns: int) -> bool:
         while self.time_ns < end_ns:
             if self._timers:
                 self._fire_timers(self.time_ns)
             if self.pending and self._dispatchable():
+                if (self.skip_loops and not self.breakpoints and self._timers
+                        and not self.wake_for_timers):  # (a real clock stops at every tick)
+                    self._timer_cycle(end_ns)
                 self._dispatch()
             limit = end_ns
             if self._timers:
@@ -492,6 +547,72 @@ class Interpreter:
             if outcome == STOPPED:
                 return False
         return False
+
+    def _timer_cycle(self, end_ns: int) -> None:
+        """A timer's interrupt is about to be taken: skip the cycles that will do exactly
+        what the one recorded since its last dispatch did, and record this one (I12)."""
+        cycle = self._cycle
+        pending = self._dispatchable()
+        vector = (pending & -pending).bit_length() - 1
+        if cycle is not None:
+            self._cycle = None
+            self.recording = None
+            self._skip_cycles(cycle, vector, end_ns)
+        if self._cycle_wait > 0:
+            self._cycle_wait -= 1
+            return
+        address = self.vectors.get(vector)
+        timer = self._timers.get(vector - interrupts.TIMER_BASE)
+        counters = None if address is None else counting_handler(self.code, address)
+        if (counters is None or timer is None or len(self._timers) != 1
+                or pending != 1 << vector or self.wait is not None or self.saved is not None
+                or any(self.port.user_variable(number) is None for number in counters)):
+            self._give_up_cycles()
+            return
+        self._cycle = _Cycle(vector, counters, self.time_ns, self._cycle_state(),
+                             self.port.epoch(), self.executed, [])
+        self.recording = self._cycle.calls
+
+    def _cycle_state(self) -> tuple[object, ...]:
+        """What a timer cycle starts from besides the module (I12): the registers and the
+        interrupt set-up (a VECT, EI or DI in the cycle changes none of the module)."""
+        return (*self.registers(), self.enabled, self.globally_enabled,
+                tuple(sorted(self.vectors.items())))
+
+    def _give_up_cycles(self) -> None:
+        self._cycle_wait = self._cycle_backoff
+        self._cycle_backoff = min(self._cycle_backoff * 2, 1024)
+
+    def _skip_cycles(self, cycle: _Cycle, vector: int, end_ns: int) -> None:
+        """I12: the recorded cycle ended at this dispatch; skip the ones after it that do
+        exactly the same, up to the batch's end."""
+        timer = self._timers.get(vector - interrupts.TIMER_BASE)
+        if (timer is None or vector != cycle.vector or len(self._timers) != 1
+                or self.time_ns - cycle.start != timer.period_ns
+                or self._dispatchable() != 1 << vector or self.wait is not None
+                or self._cycle_state() != cycle.registers or self.port.epoch() != cycle.epoch):
+            self._give_up_cycles()
+            return
+        period = timer.period_ns
+        skipped = ticks_to_skip(cycle.calls, cycle.counters, cycle.start, period, end_ns)
+        if skipped <= 0:
+            if (end_ns - 1 - cycle.start) // period - 1 > 0:  # not the batch's end: backoff
+                self._give_up_cycles()
+            return
+        self._cycle_backoff = 1
+        now, port = self.time_ns, self.port
+        address = self.vectors[vector]
+        for index in range(skipped):  # each dispatch left out, at its instant
+            port.program_event(now + index * period, "interrupt_taken", vector=vector,
+                               address=address)
+        self.time_ns = now + skipped * period
+        self.executed += skipped * (self.executed - cycle.executed)
+        timer.next_ns += skipped * period
+        self.ticks_skipped += skipped
+        for number, step in cycle.counters.items():
+            value = port.user_variable(number)
+            assert value is not None
+            port.execute(self.time_ns, OP_SGP, number, 2, wrap32(value + skipped * step))
 
     def _resume_wait(self, end_ns: int) -> bool:
         """Check the WAIT in progress at ``self.time_ns``; True once it is over.
@@ -814,11 +935,18 @@ class Interpreter:
                 return YIELD if self._hold_ns else CONTINUE
             op, va = OP_SCO, self.accumulator
         calls = self.recording
-        if calls is None:
+        replay = self.replay
+        known = None if replay is None or calls is not None else replay.get(self.pc)
+        if (known is not None and t < known[2]
+                and self.port.epoch() == self.replay_epoch):  # skipping.py I13
+            status, value, replan = known[0], known[1], False
+        elif calls is None:
             status, value, replan = self.port.execute(t, op, ty, motor, va)
         else:
-            status, value, replan, steady = self.port.probe(t, op, ty, motor, va)
-            calls.append(Call(t, status, value, replan, steady, (op, ty, motor, va)))
+            status, value, changed, steady = self.port.probe(t, op, ty, motor, va)
+            calls.append(Call(t, status, value, changed, steady, (op, ty, motor, va)))
+            # a user variable's write moves no event (a timer cycle's counting, I12)
+            replan = changed and not (op == OP_SGP and motor == 2)
         if status == STATUS_OK and (  # skipping.loads_accumulator, inlined: every command runs it
                 (op in LOADS_ACCUMULATOR and not (op == OP_GCO and motor == MOTOR_ALL))
                 or (op == OP_RFS and ty == _RFS_STATUS)):
@@ -847,6 +975,12 @@ class Interpreter:
     def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
                       values: tuple[int, ...]) -> int:
         return self.port.first_time_at(time_ns, opcode, type_, motor, values)
+
+    def epoch(self) -> int:
+        return self.port.epoch()
+
+    def user_variable(self, number: int) -> int | None:
+        return self.port.user_variable(number)
 
 
 _INTERNAL: dict[int, Callable[[Interpreter, int, int, int], int]] = {

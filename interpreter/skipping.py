@@ -52,6 +52,47 @@ I8. A WAIT TICKS inside a pass lasts the same in every pass (its deadline is a f
     holds forever, I3).
 I9. A loop that touches nothing but registers (no command, no WAIT) is, by I2 with no
     answers to hold, skipped again without an analysis whenever its registers are the same.
+I10. A plan survives a batch boundary.  The module counts everything that may change a
+    pass's answers from outside the loop (``ModulePort.epoch``): every host request, every
+    command that changed something (the program's own included), every module event
+    handled, every world change, power-up.  A pass found skippable is kept (:class:`_Plan`)
+    with the epoch after it, the registers it left as it found them and the user variables
+    it read (a program's write of a plain user variable, a timer handler counting, is not
+    counted: ``ModulePort.user_variable`` is compared instead).  At a later loop head at the
+    same address, with the same epoch, registers and variables and no interrupt due, every
+    call answers as it did in the analysis: its ``steady_until`` and its flip (I3, I5) are
+    absolute instants promised "nothing intervening", which the unchanged epoch witnesses,
+    and the path is the analysed one (I2, I6).  So the passes from there are skipped by I4
+    as if the analysed pass had begun one period earlier, the last whole one still stepped
+    where I7 asks.  A batch end at which nothing intervenes (an ``advance`` returning, a
+    timer tick whose handler only counts, a recorder's sample, which reads and changes
+    nothing) costs no analysis.
+I13. A kept plan answers its reads.  While the epoch is the plan's (I10), a GAP or GIO the
+    analysed pass sent from a PC, answered OK and changing nothing, answers the same at any
+    instant before its ``steady_until`` (I3) wherever the program executes that PC: a read
+    changes nothing in the module (F6, T3), so the passes that are still stepped (the one
+    I7 keeps, the part of a pass before a batch's end) take those answers from the plan
+    instead of the module.
+I11. The millisecond tick (GGP 132) is arithmetic on the instant: it answers the same until
+    the next millisecond (I3), and it is also a moving read whose flip the module forecasts
+    exactly (``ModulePort.first_time_at``: it meets every value above the one read, one a
+    millisecond, and wraps to 0 past 2**31 - 1; only SGP 132 and a power-up move its origin,
+    and both count in the epoch).  A pass that reads it is skipped to its flip (I5) when it
+    only compares it, else to its next millisecond (I4).
+I12. A timer whose handler only counts is applied for k ticks at once.  A handler that is
+    nothing but ``GGP n, 2; CALC ADD|SUB, c; AGP n, 2`` groups (one per plain user variable)
+    and RETI leaves the registers as it found them (RETI restores PC, accumulator, X and
+    flags) and adds c to each variable n, whatever they hold.  One whole cycle, from one
+    dispatch of the timer to the next, is recorded like a pass (every command with its
+    answer, I3).  If the next dispatch finds the registers, the epoch (I10) and the period
+    as the recorded one began, no WAIT in progress and nothing else pending, every command of
+    the cycle but the handler's counting changed nothing, no other command read or wrote a
+    counted variable, and each answer is steady over the cycles to skip (I4 with the timer's
+    period for the pass's), then each of those cycles does exactly what the recorded one
+    did: the same instructions at the same offsets, the same answers, and the variables one
+    c further.  They are skipped at once (time, instruction count, the timer's next tick,
+    each dispatch's ``interrupt_taken`` event at its instant, the variables k c further),
+    ending no later than the batch (I1); the dispatch after them is executed.
 """
 
 from __future__ import annotations
@@ -77,6 +118,7 @@ from interpreter.isa import (
     Instruction,
 )
 from tmcl_spec.commands import MOTOR_ALL, STATUS_OK, CalcOp, Opcode, RfsType
+from tmcl_spec.parameters import GP
 
 #: A loop is analysed after this many backward jumps; while it cannot be skipped, the wait
 #: doubles up to LOOP_BACKOFF_MAX (docs/scheduling.md, "Loops that change nothing").
@@ -90,6 +132,10 @@ FOREVER = 1 << 62
 #: Commands that, in a program, load the value they read into the accumulator.
 LOADS_ACCUMULATOR = frozenset({Opcode.GAP.value, Opcode.GGP.value, Opcode.GIO.value, OP_GCO})
 _RFS_STATUS = RfsType.STATUS.value
+OP_GGP = Opcode.GGP.value
+OP_SGP = Opcode.SGP.value
+OP_RETI = Opcode.RETI.value
+_TICK_READ = (OP_GGP, int(GP.TICK_TIMER), 0)
 
 
 def loads_accumulator(op: int, ty: int, motor: int) -> bool:
@@ -121,6 +167,10 @@ class Program(Protocol):
     loops_skipped: int
     #: While a pass is analysed, every module command is appended here (None otherwise).
     recording: list[Call] | None
+    #: A kept plan's reads by PC, (status, value, steady until), with the epoch they hold
+    #: under (I13); None: every command goes to the module.
+    replay: dict[int, tuple[int, int, int]] | None
+    replay_epoch: int
 
     def registers(self) -> tuple[object, ...]:
         """What a pass may read of the program's state besides the module (I2)."""
@@ -144,6 +194,14 @@ class Program(Protocol):
         """The module's forecast for a moving read (``ModulePort.first_time_at``)."""
         ...
 
+    def epoch(self) -> int:
+        """What may have intervened from outside the loop, counted (``ModulePort.epoch``)."""
+        ...
+
+    def user_variable(self, number: int) -> int | None:
+        """A plain user variable's value (``ModulePort.user_variable``), or None."""
+        ...
+
 
 class LoopSkipper:
     """Decides, at a loop head, how many passes of the loop can be left out, and leaves them
@@ -157,6 +215,11 @@ class LoopSkipper:
         #: Loop head -> (registers, pass ns, pass instructions) of loops that touch nothing
         #: but registers: skipped again without an analysis (I9).
         self._idle_loops: dict[int, tuple[tuple[object, ...], int, int]] = {}
+        #: The last pass analysed that could be skipped, kept for the next batch (I10).
+        self._plan: _Plan | None = None
+        #: Passes analysed, and passes skipped again from a kept plan (tests, benchmarks).
+        self.analyses = 0
+        self.reuses = 0
 
     def at_loop_head(self, limit: int) -> int:
         """A backward jump brought the program to a loop head: skip the passes that would do
@@ -166,7 +229,37 @@ class LoopSkipper:
         if idle is not None and idle[0] == program.registers():
             self._skip(idle[1], idle[2], limit, (), program.time_ns - idle[1])  # I9
             return CONTINUE
+        plan = self._plan
+        if plan is not None and plan.head == program.pc and self._reuse(plan, limit):
+            return CONTINUE
         return self._analyse(limit)
+
+    def _reuse(self, plan: _Plan, limit: int) -> bool:
+        """I10: nothing intervened since ``plan`` was analysed and the program is where it
+        began, so its passes are skipped as the analysis would (False: analyse again)."""
+        program = self.program
+        if program.epoch() != plan.epoch or program.interrupt_due():  # I10: something intervened
+            return False
+        registers = program.registers()
+        if plan.everything is not None:  # the usual case, a pass that keeps every register
+            if registers != plan.everything:  # I2
+                return False
+        elif any(registers[index] != value for index, value in plan.registers):  # I2, I6
+            return False
+        if plan.variables and any(program.user_variable(number) != value
+                                  for number, value in plan.variables):
+            return False  # I10: a user variable it reads was written since
+        self.countdown = 1
+        program.replay, program.replay_epoch = plan.answers, plan.epoch  # I13
+        if program.time_ns + (1 + plan.real_passes) * plan.period > limit:
+            return True  # no whole pass to leave out before the batch ends: step on to it
+        # I4 counts from a pass that began a period ago, as the analysed one did; I7
+        if self._skip(plan.period, plan.length, limit, plan.horizons,
+                      program.time_ns - plan.period, plan.real_passes):
+            self.reuses += 1
+            return True
+        self._plan = program.replay = None  # its answers no longer hold
+        return False
 
     def _give_up(self) -> None:
         """This loop cannot be skipped now: analyse again later, less often each time."""
@@ -206,6 +299,8 @@ class LoopSkipper:
         if program.interrupt_due():
             self._give_up()
             return CONTINUE
+        self._plan = program.replay = None
+        self.analyses += 1
         head, start, executed = program.pc, program.time_ns, program.executed
         before = program.registers()
         calls: list[Call] = []
@@ -217,14 +312,36 @@ class LoopSkipper:
         analysed = _Pass(head, start, program.time_ns - start, program.executed - executed,
                          before, program.registers(), calls, path, ran[1])
         repeats = analysed.repeats()
-        skipped = (self._skip_repeats(analysed, limit) if repeats
-                   else self._skip_to_flip(analysed, limit))
-        if skipped:
+        if analysed.reads_clock():  # I11: to the tick's flip, else to its next millisecond
+            skipped = self._skip_to_flip(analysed, limit)
+            if skipped is None and repeats:
+                skipped = self._skip_repeats(analysed, limit)
+        else:
+            skipped = (self._skip_repeats(analysed, limit) if repeats
+                       else self._skip_to_flip(analysed, limit))
+        plan = self._plan
+        if skipped or (plan is not None and plan.start == start and  # kept for the next batch
+                       program.time_ns + (1 + plan.real_passes) * plan.period > limit):
             self._backoff = 1
             self.countdown = 1 if repeats else 2
         else:
             self._give_up()
         return CONTINUE
+
+    def _keep(self, analysed: _Pass, horizons: tuple[tuple[int, int], ...],
+              real_passes: int) -> None:
+        """Keep a pass that could be skipped for the next batch (I10): the registers it must
+        find (those the pass left as it found them: I2, I6), the user variables it read."""
+        before, after = analysed.before, analysed.after
+        registers = tuple((index, value) for index, value in enumerate(before)
+                          if after[index] == value)
+        variables = tuple((call.request[1], call.value) for call in analysed.calls
+                          if call.request[0] == OP_GGP and call.request[2] == 2)
+        everything = before if len(registers) == len(before) else None
+        self._plan = _Plan(analysed.head, analysed.start, self.program.epoch(), registers,
+                           everything, variables, analysed.period, analysed.length, horizons,
+                           real_passes, _answers(self.program.code, analysed.path,
+                                                 analysed.calls))
 
     def _skip_repeats(self, analysed: _Pass, limit: int) -> int:
         """I2: the next passes do exactly the same while every answer holds (I3, I4)."""
@@ -232,6 +349,7 @@ class LoopSkipper:
             self._idle_loops[analysed.head] = (analysed.before, analysed.period, analysed.length)
         horizons = tuple((call.time_ns - analysed.start, call.steady_until)
                          for call in analysed.calls)
+        self._keep(analysed, horizons, 0)
         return self._skip(analysed.period, analysed.length, limit, horizons, analysed.start)
 
     def _skip(self, period: int, length: int, limit: int,
@@ -251,30 +369,78 @@ class LoopSkipper:
         program.loops_skipped += passes
         return passes
 
-    def _skip_to_flip(self, analysed: _Pass, limit: int) -> int:
-        """A pass that reads moving values (positions) and only compares them: skip to the pass
-        where a comparison could flip, the first time a value reaches one of its boundaries."""
+    def _skip_to_flip(self, analysed: _Pass, limit: int) -> int | None:
+        """A pass that reads moving values (positions, the tick) and only compares them: skip
+        to the pass where a comparison could flip, the first time a value reaches one of its
+        boundaries (None: the pass is not of that shape)."""
         calls, start = analysed.calls, analysed.start
         moving = analysed.moving_reads()
         if moving is None:
-            return 0
+            return None
         found = boundaries(self.program.code, analysed.path, calls, moving, analysed.before,
                            analysed.after)
         if found is None:
-            return 0
+            return None
         horizons = []
         for index, call in enumerate(calls):
             horizon = call.steady_until
             if index in found:
                 values = found[index]
                 if call.value in values:
-                    return 0  # on a boundary now: the next pass may compare otherwise
+                    return None  # on a boundary now: the next pass may compare otherwise
                 opcode, type_, motor, _ = call.request
                 horizon = self.program.first_time_at(call.time_ns, opcode, type_, motor,
                                                      values) if values else FOREVER  # I5
             horizons.append((call.time_ns - start, horizon))
+        self._keep(analysed, tuple(horizons), 1)
         return self._skip(analysed.period, analysed.length, limit, tuple(horizons), start,
                           real_passes=1)  # I7
+
+
+@dataclass(slots=True)
+class _Plan:
+    """A pass analysed and found skippable, kept for the batches after its own (I10): where
+    and when it began, the module's epoch then, the registers (index, value; or all of them
+    as a tuple) and user variables (number, value) it needs, its period and length, each
+    call's (offset, horizon), and how many whole passes before a batch's end are stepped
+    (I7)."""
+
+    head: int
+    start: int
+    epoch: int
+    registers: tuple[tuple[int, object], ...]
+    everything: tuple[object, ...] | None  # all the registers, when it needs all of them
+    variables: tuple[tuple[int, int], ...]
+    period: int
+    length: int
+    horizons: tuple[tuple[int, int], ...]
+    real_passes: int
+    answers: dict[int, tuple[int, int, int]] | None  # its reads by PC (I13)
+
+
+def _answers(code: list[Instruction], path: list[int],
+             calls: list[Call]) -> dict[int, tuple[int, int, int]] | None:
+    """I13: the pass's GAP and GIO reads that succeeded and changed nothing, by the PC that
+    sent them: (status, value, steady until); None if a PC sent two calls (an inner loop)
+    or the path and the calls do not pair up."""
+    answers: dict[int, tuple[int, int, int]] = {}
+    pending = iter(calls)
+    for pc in path:
+        op, _, motor, _ = code[pc]
+        if op in _NO_CALL or (op in INTERNAL_OPCODES and op != OP_WAIT) or (
+                op == OP_ACO and motor == MOTOR_ALL):
+            continue  # the interpreter's own: no module command
+        call = next(pending, None)
+        if call is None or pc in answers:
+            return None
+        if op in _REPLAYED and call.status == STATUS_OK and not call.changed:
+            answers[pc] = (call.status, call.value, call.steady_until)
+    return answers if next(pending, None) is None else None
+
+
+#: What the dispatch loop keeps to itself (no call), and the reads a plan answers (I13).
+_NO_CALL = frozenset({OP_CALC, OP_COMP, OP_JC, OP_JA})
+_REPLAYED = frozenset({OP_GAP, Opcode.GIO.value})
 
 
 @dataclass(slots=True)
@@ -293,19 +459,76 @@ class _Pass:
     waited: bool
 
     def moving_reads(self) -> set[int] | None:
-        """The indices of the calls whose answers are not steady, if all of them are GAPs
-        answered (the only moving values a flip is forecast for); None otherwise."""
+        """The indices of the calls whose answers are not steady, and of the tick's reads
+        (I11), if all of them are GAPs or GGPs answered (the moving values a flip is
+        forecast for); None otherwise."""
         moving = {index for index, call in enumerate(self.calls)
-                  if call.steady_until <= call.time_ns}
-        if any(self.calls[i].status != STATUS_OK or self.calls[i].request[0] != OP_GAP
+                  if call.steady_until <= call.time_ns or _reads_clock(call)}
+        if any(self.calls[i].status != STATUS_OK or self.calls[i].request[0] not in _FORECAST
                for i in moving):
             return None
         return moving
+
+    def reads_clock(self) -> bool:
+        """I11: the pass reads the millisecond tick (GP 132)."""
+        return any(_reads_clock(call) for call in self.calls)
 
     def repeats(self) -> bool:
         """I2: every answer steady and the registers as found: the next passes do the same."""
         return self.after == self.before and all(call.steady_until > call.time_ns
                                                  for call in self.calls)
+
+
+def counting_handler(code: list[Instruction], address: int) -> dict[int, int] | None:
+    """I12: the variables a timer handler at ``address`` counts and by how much a tick, if
+    it is nothing but ``GGP n, 2; CALC ADD|SUB, c; AGP n, 2`` groups (each variable once)
+    and RETI; None otherwise."""
+    counters: dict[int, int] = {}
+    pc = address
+    while pc < len(code):
+        op, ty, motor, _ = code[pc]
+        if op == OP_RETI:
+            return counters
+        if pc + 2 >= len(code):
+            return None
+        calc, store = code[pc + 1], code[pc + 2]
+        if (op != OP_GGP or motor != 2 or ty in counters or calc.opcode != OP_CALC
+                or calc.type not in (CalcOp.ADD, CalcOp.SUB)
+                or store[:3] != (OP_AGP, ty, 2)):
+            return None
+        counters[ty] = calc.value if calc.type == CalcOp.ADD else -calc.value
+        pc += 3
+    return None
+
+
+def ticks_to_skip(calls: list[Call], counters: dict[int, int], start: int, period: int,
+                  limit: int) -> int:
+    """I12: how many timer cycles after the recorded one (``calls``, begun at ``start``) do
+    exactly what it did, ending by ``limit`` (0: none, or the cycle is not of that shape)."""
+    reads = dict.fromkeys(counters, 0)
+    writes = dict.fromkeys(counters, 0)
+    cycles = (limit - 1 - start) // period - 1  # the dispatch after them within the batch
+    for call in calls:
+        opcode, type_, motor, _ = call.request
+        if motor == 2 and type_ in counters and opcode in (OP_GGP, OP_SGP):
+            (reads if opcode == OP_GGP else writes)[type_] += 1
+            continue
+        if call.changed or call.steady_until <= call.time_ns:
+            return 0  # changed something, or no promise about the next answer
+        # I4: cycle i sends at start + i * period + offset, certain while < steady_until
+        cycles = min(cycles, -(-(call.steady_until - call.time_ns) // period) - 1)
+    if any(count != 1 for count in (*reads.values(), *writes.values())):
+        return 0  # the handler's counting, once each, and nothing else touches the counters
+    return max(cycles, 0)
+
+
+#: The reads whose flips the module forecasts: GAP (axes/forecast.py), GGP (the tick, I11).
+_FORECAST = frozenset({OP_GAP, OP_GGP})
+
+
+def _reads_clock(call: Call) -> bool:
+    """GGP 132 of bank 0 answered: the millisecond tick, which moves with time alone."""
+    return call.request[:3] == _TICK_READ and call.status == STATUS_OK
 
 
 #: Registers of the pass analysis (the indices in Program.registers()).

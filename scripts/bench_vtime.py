@@ -7,6 +7,7 @@ polled against a threshold >= 200 x; a 1 ms timer interrupt >= 100 x; six axes i
 program-driven back-and-forth moves, one simulated hour, <= 0.5 s of wall time on every core.
 
     .venv/bin/python scripts/bench_vtime.py [--seconds S] [--repeat N] [--only NAME,...]
+                                            [--code DIR]
 
 Each shape runs ``--seconds`` of simulated time (default 600, ten minutes; the six-axis shape
 one hour) with loop skipping on (the default) and, with the same program and world, in the
@@ -21,23 +22,29 @@ the wall clock also counts the others' turns; alone, the two agree.
 from __future__ import annotations
 
 import argparse
+import inspect
 import statistics
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+# ``--code DIR`` runs another checkout's simulator (a baseline, side by side in one session)
+sys.path.insert(0, next((sys.argv[i + 1] for i, arg in enumerate(sys.argv[:-1])
+                         if arg == "--code"), str(Path(__file__).resolve().parent.parent)))
 
 from interpreter.assembler import assemble
 from tmcl_server.clock import VirtualClock
+from tmcl_server.embed import SimulatorThread
 from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import Request
+from tmcl_server.record import Recorder, Sample
 from tmcl_server.simulation import Simulation
 from tmcl_spec.commands import Opcode
 
 NS = 1_000_000_000
+_CODE = sys.path[0]
 
 
 @dataclass(frozen=True)
@@ -51,6 +58,14 @@ class Shape:
     core: str | None = None
     seconds: float | None = None  # overrides --seconds (the six-axis hour)
     wall_goal: float = 0.0  # wall seconds the skipping run may take (six axes)
+    #: The test advances the clock in steps of this many seconds (None: one call).
+    step_s: float | None = None
+    #: A recorder samples every axis this often (seconds; None: no recorder).
+    record_s: float | None = None
+    #: The clock is advanced through ``SimulatorThread.advance`` (the embedding API), with
+    #: these keywords.
+    embed: bool = False
+    advance: dict[str, bool] = field(default_factory=dict)
 
 
 def _toggle_input(sim: Simulation, module: TMCLModule, second: int) -> None:
@@ -266,6 +281,55 @@ Tick:
     Shape("six-tmc429", 0, SIX_AXES_TMC429.replace("Loop:\n", "Loop:\n", 1), kind="tmcm-6110",
           seconds=3600, wall_goal=0.5),
 ]
+
+#: A poll of "position reached" over moves back and forth (the flag shape), for the rows
+#: that drive the clock or record.
+FLAG = SHAPES[0].source
+MONITOR = next(shape.source for shape in SHAPES if shape.name == "monitor")
+#: A timer interrupt over the flag poll: its handler counts in user variable 0.
+TIMER_FLAG = """
+    VECT 0, Tick
+    SGP 0, 3, {period}
+    EI 0
+    EI 255
+""" + FLAG + """
+Tick:
+    GGP 0, 2
+    CALC ADD, 1
+    AGP 0, 2
+    RETI
+"""
+# Issue 33's batch boundaries (items 2, 3, 4, 6): the clock advanced in steps, timers, the ms
+# tick and recorders over loops that skip.
+SHAPES += [
+    Shape("flag-timer1", 500, TIMER_FLAG.format(period=1)),
+    Shape("flag-timer10", 2000, TIMER_FLAG.format(period=10)),
+    Shape("flag-step100", 2000, FLAG, step_s=0.1),
+    Shape("flag-step10", 1000, FLAG, step_s=0.01),
+    Shape("flag-step1", 100, FLAG, step_s=0.001),
+    Shape("stopped-step1", 200, "STOP", step_s=0.001, embed=True),
+    Shape("stopped-owed1", 200, "STOP", step_s=0.001, embed=True, advance={"wait": False}),
+    Shape("tick-delay", 1000, """
+    // a delay loop on the ms tick: GP 132 set to 0, polled until it reaches 500; a count
+Loop:
+    SGP 132, 0, 0
+Delay:
+    GGP 132, 0
+    COMP 500
+    JC LT, Delay
+    GGP 0, 2
+    CALC ADD, 1
+    AGP 0, 2
+    JA Loop
+"""),
+    Shape("flag-record10", 1000, FLAG, record_s=0.01),
+    Shape("flag-record1", 200, FLAG, record_s=0.001),
+    # a 1 ms timer whose handler counts (GGP / CALC ADD / AGP), the main loop idle
+    Shape("timer-count", 1000, next(shape.source for shape in SHAPES if shape.name == "timer")),
+    Shape("monitor-record10", 200, MONITOR, record_s=0.01),
+    Shape("six-record10", 200, SIX_AXES, record_s=0.01, seconds=60),
+    Shape("speed-record10", 200, SHAPES[6].source, record_s=0.01),
+]
 #: TMC429 modules: the divisors that make the register values above the pps of the others.
 TMC429_SETUP = [(154, axis, 4) for axis in range(6)] + [(153, axis, 10) for axis in range(6)]
 
@@ -276,6 +340,12 @@ def build(shape: Shape, reference: bool) -> tuple[Simulation, TMCLModule, list[t
     interpreter = module.program.interpreter
     if hasattr(interpreter, "skip_loops"):
         interpreter.skip_loops = not reference
+    return (sim, *load(sim, module, shape))
+
+
+def load(sim: Simulation, module: TMCLModule,
+         shape: Shape) -> tuple[TMCLModule, list[tuple[int, str]]]:
+    """Set the module up for ``shape`` and start its program; its event list."""
     events: list[tuple[int, str]] = []
 
     def listen(event: ModuleEvent) -> None:
@@ -294,14 +364,22 @@ def build(shape: Shape, reference: bool) -> tuple[Simulation, TMCLModule, list[t
     module.execute(Request(1, Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0))
     module.execute(Request(1, Opcode.RUN_APPLICATION, 0, 0, 0))
     sim.replan(module)
-    return sim, module, events
+    return module, events
 
 
 def run(shape: Shape, seconds: float, reference: bool) -> tuple[float, tuple[object, ...]]:
     """Wall seconds for ``seconds`` simulated, and the state at the end (to compare)."""
+    if shape.embed:
+        return run_embedded(shape, seconds, reference)
     sim, module, events = build(shape, reference)
+    recorder = Recorder(sim, shape.record_s).start() if shape.record_s else None
     start = time.process_time()
-    if shape.host is None:  # nobody acts from outside: one call, as a test would make it
+    if shape.step_s:  # the test advances the clock in steps (a lockstep host's sleeps)
+        step = round(shape.step_s * NS)
+        for _ in range(round(seconds * NS) // step):
+            sim.advance_to_ns(sim.now_ns + step)
+        sim.advance_to_ns(round(seconds * NS))
+    elif shape.host is None:  # nobody acts from outside: one call, as a test would make it
         sim.advance_to_ns(round(seconds * NS))
     else:  # the host acts every simulated second
         whole = int(seconds)
@@ -311,11 +389,37 @@ def run(shape: Shape, seconds: float, reference: bool) -> tuple[float, tuple[obj
         if seconds > whole:
             sim.advance_to_ns(round(seconds * NS))
     wall = time.process_time() - start
+    samples = recorder.stop() if recorder is not None else []
+    return wall, state_of(module, events, samples)
+
+
+def state_of(module: TMCLModule, events: list[tuple[int, str]],
+             samples: list[Sample]) -> tuple[object, ...]:
+    """What both runs must end with: registers, variables, positions, events, samples."""
     interp = module.program.interpreter
     axes = tuple(module.axis(i).get_parameter(1) for i in range(len(module.axes)))
-    state = (interp.pc, interp.accumulator, interp.executed, module.globals[2][0], axes,
-             len(events), events[-1] if events else None)
-    return wall, state
+    return (interp.pc, interp.accumulator, interp.executed, module.globals[2][0], axes,
+            len(events), events[-1] if events else None, len(samples),
+            hash(tuple(samples)))
+
+
+def run_embedded(shape: Shape, seconds: float,
+                 reference: bool) -> tuple[float, tuple[object, ...]]:
+    """As :func:`run`, the clock advanced through ``SimulatorThread.advance`` from this
+    thread (CPU time of the whole process: both threads)."""
+    with SimulatorThread(clock="virtual", module_type=shape.kind, axis_core=shape.core,
+                         skip_loops=not reference) as thread:
+        sim = thread.simulation
+        module, events = thread.call(lambda: load(sim, sim.modules[0], shape))
+        step = shape.step_s or seconds
+        start = time.process_time()
+        keywords = shape.advance
+        if any(name not in inspect.signature(thread.advance).parameters for name in keywords):
+            keywords = {}  # a baseline without them: its plain advance
+        for _ in range(round(seconds / step)):
+            thread.advance(step, **keywords)
+        state = thread.call(lambda: state_of(module, events, []))
+        return time.process_time() - start, state
 
 
 def main() -> int:
@@ -328,9 +432,13 @@ def main() -> int:
                              "takes less)")
     parser.add_argument("--repeat", type=int, default=3, help="runs of each; the median counts")
     parser.add_argument("--only", default="", help="comma-separated shape names")
+    parser.add_argument("--code", default=_CODE,
+                        help="the checkout whose simulator runs (default: this one; e.g. a "
+                             "baseline worktree, run alternately with this one)")
     args = parser.parse_args()
     chosen = {n for n in args.only.split(",") if n}
     failed = False
+    print(f"code: {args.code}")
     print(f"{'shape':<14} {'skipping':>16} {'stepping':>16} {'ratio':>8}  goal      same state")
     for shape in SHAPES:
         if chosen and shape.name not in chosen:

@@ -8,6 +8,18 @@
 
 The server runs on its own event loop in a background thread; :meth:`SimulatorThread.call`
 runs a function on that loop, so the models are only ever touched from one thread.
+
+:meth:`SimulatorThread.advance` waits for that thread, as a call does (so a frame the test
+sent before it is served first, as it always was), but without ``call``'s re-planning of
+every module.  ``advance(s, wait=False)`` does not wait (issue 33, item 6: a hand-off costs
+tens of µs of CPU, so a test advancing in 1 ms steps ran at 11 x real time whatever the
+simulation had to do): it adds the time to what is owed and returns, and the loop applies
+all that is owed in one ``advance`` before anything else reaches the simulation: a
+:meth:`call`, a request on any transport (``Simulation.settle``), a recording's rows, the
+stop.  One advance of the sum ends as the steps would (virtual time is exact however it is
+cut, docs/scheduling.md), and whatever the test does next sees it applied; what it cannot
+order is a frame sent before the call that the loop has not read yet (a fire-and-forget
+frame): it may be served after the time owed.
 """
 
 from __future__ import annotations
@@ -19,6 +31,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import fields
 from typing import Any, TypeVar
 
+from tmcl_server.clock import VirtualClock, seconds_to_ns
 from tmcl_server.faults import FaultHandle, FaultInjector
 from tmcl_server.loops import new_event_loop
 from tmcl_server.module import TMCLModule
@@ -70,6 +83,12 @@ class SimulatorThread:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._ready = concurrent.futures.Future[None]()
+        #: Simulated time advance() owes, not yet applied on the loop, whether a callback
+        #: to apply it is queued, and what went wrong applying it (raised at the next call).
+        self._owed_lock = threading.Lock()
+        self._owed_ns = 0
+        self._owed_queued = False
+        self._owed_error: BaseException | None = None
 
     # -- lifecycle ----------------------------------------------------------------------------
 
@@ -90,6 +109,7 @@ class SimulatorThread:
     async def _main(self) -> None:
         try:
             self.server = Server(self.config)
+            self.server.simulation.settle = self._pay
             self.endpoints = await self.server.start()
         except BaseException as exc:
             self._ready.set_exception(exc)
@@ -128,13 +148,16 @@ class SimulatorThread:
             return fn(*args, **kwargs)
 
         async def run() -> T:
+            self._pay()
             try:
                 return fn(*args, **kwargs)
             finally:
                 if self.server is not None:
                     self.server.simulation.notify_changed()
 
-        return asyncio.run_coroutine_threadsafe(run(), self._loop).result(timeout=60)
+        result = asyncio.run_coroutine_threadsafe(run(), self._loop).result(timeout=60)
+        self._raise_owed_error()
+        return result
 
     @property
     def simulation(self) -> Simulation:
@@ -145,9 +168,63 @@ class SimulatorThread:
         """The module object itself: only touch it through :meth:`call`."""
         return self.call(self.simulation.module, address)
 
-    def advance(self, seconds: float) -> None:
-        """Move the virtual clock forward, handling every event on the way."""
-        self.call(self.simulation.advance, seconds)
+    def advance(self, seconds: float, wait: bool = True) -> None:
+        """Move the virtual clock forward, handling every event on the way.
+
+        ``wait=False`` (from the test's thread) returns at once: the time is owed, and
+        applied on the loop before anything else reaches the simulation (the module
+        docstring); a frame the test sent before the call that the loop has not read yet is
+        then served after that time, where waiting serves it first."""
+        loop = self._loop
+        assert loop is not None, "simulator not started"
+        simulation = self.simulation
+        if threading.current_thread() is self._thread:
+            simulation.advance(seconds)
+            return
+        if not isinstance(simulation.clock, VirtualClock):
+            raise RuntimeError("time can only be advanced by hand on a virtual clock")
+        step = seconds_to_ns(seconds)
+        if step < 0:
+            raise ValueError("virtual time cannot go backwards")
+        self._raise_owed_error()
+        if wait:  # (no notify_changed, as call() does: advancing changes nothing outside)
+            async def run() -> None:
+                self._pay()
+                simulation.advance_to_ns(simulation.clock.now_ns() + step)
+
+            asyncio.run_coroutine_threadsafe(run(), loop).result(timeout=60)
+            return
+        with self._owed_lock:
+            self._owed_ns += step
+            if self._owed_queued:
+                return
+            self._owed_queued = True
+        loop.call_soon_threadsafe(self._pay)
+
+    def settle(self) -> None:
+        """Wait until the time :meth:`advance` owes is applied (what reads the simulation
+        through :meth:`call` or a transport need not: they are applied first)."""
+        if self._owed_ns or self._owed_queued:
+            self.call(lambda: None)
+        self._raise_owed_error()
+
+    def _pay(self) -> None:
+        """On the loop: apply the time owed, in one advance."""
+        if not self._owed_ns and not self._owed_queued:
+            return  # (every request asks: the usual answer, without the lock)
+        with self._owed_lock:
+            owed, self._owed_ns, self._owed_queued = self._owed_ns, 0, False
+        if owed and self.server is not None:
+            simulation = self.server.simulation
+            try:
+                simulation.advance_to_ns(simulation.clock.now_ns() + owed)
+            except Exception as exc:  # the test learns it at its next call
+                self._owed_error = exc
+
+    def _raise_owed_error(self) -> None:
+        error, self._owed_error = self._owed_error, None
+        if error is not None:
+            raise error
 
     def advance_until(self, condition: Callable[[], bool], timeout: float,
                       resolution: float = 0.001) -> bool:
@@ -161,7 +238,7 @@ class SimulatorThread:
         ``rows`` fill as time passes; ``stop()`` or the end of a ``with`` block ends it.
         """
         recorder = self.call(lambda: Recorder(self.simulation, resolution, modules, axes).start())
-        return Recording(recorder, self.call)
+        return Recording(recorder, self.call, self.settle)
 
     # -- faults on purpose (tmcl_server/faults.py, docs/faults.md) ------------------------------
 

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 from tmcl_spec.numbers import NS_PER_S, seconds_to_ns
 
 if TYPE_CHECKING:
+    from axes.interface import AxisSample
     from tmcl_server.module import ModuleEvent, TMCLModule
     from tmcl_server.simulation import Simulation
 
@@ -103,6 +104,9 @@ class Recorder:
         #: Instants a real clock made the recorder skip (it could not keep up).
         self.skipped = 0
         self._last_velocity: dict[tuple[int, int], int] = {}
+        #: (module, axis) -> (the module's epoch, the sample) of an axis at rest: its samples
+        #: are the same until something intervenes (AxisRig.resting).
+        self._resting: dict[tuple[int, int], tuple[int, AxisSample]] = {}
         self._listeners: list[tuple[TMCLModule, Callable[[ModuleEvent], None]]] = []
 
     def _axes_of(self, module: TMCLModule) -> list[int]:
@@ -186,9 +190,20 @@ class Recorder:
     def _sample(self, module: TMCLModule, instant: int) -> None:
         t = instant / NS_PER_S
         dt = self.step_ns / NS_PER_S
+        epoch = module.epoch
+        resting = self._resting
         for index in self._axes_of(module):
-            status = module.axis(index).status()
             key = (module.slot, index)
+            kept = resting.get(key)
+            if kept is not None and kept[0] == epoch:
+                status = kept[1]
+            else:
+                axis = module.axis(index)
+                status = axis.sample()
+                if axis.resting():
+                    resting[key] = (epoch, status)
+                elif kept is not None:
+                    del resting[key]
             previous = self._last_velocity.get(key)
             self._last_velocity[key] = status.velocity
             sample = Sample(
@@ -209,16 +224,21 @@ class Recording:
     ``with`` block) records up to the present and detaches.
     """
 
-    def __init__(self, recorder: Recorder, call: Callable[..., Any]) -> None:
+    def __init__(self, recorder: Recorder, call: Callable[..., Any],
+                 settle: Callable[[], None] = lambda: None) -> None:
         self._recorder = recorder
         self._call = call
+        #: Applies the time the test's thread advanced (SimulatorThread.settle).
+        self._settle = settle
 
     @property
     def rows(self) -> list[Sample]:
+        self._settle()
         return self._recorder.rows
 
     @property
     def marks(self) -> list[Mark]:
+        self._settle()
         return self._recorder.marks
 
     def stop(self) -> list[Sample]:

@@ -146,6 +146,9 @@ class Simulation:
         self._behind = [False] * len(self.modules)
         #: A lockstep clock's time per request (0 for the others): see _execute.
         self._request_ns = clock.request_ns
+        #: Called before a request runs and before the clock moves: applies the time another
+        #: thread advanced the clock by (tmcl_server/embed.py, ``SimulatorThread.advance``).
+        self.settle: Callable[[], None] | None = None
         for module in self.modules:
             module.on_address_change = self._forget_addresses
             if clock.virtual:  # nothing lags a virtual clock: a busy program runs in long turns
@@ -194,6 +197,8 @@ class Simulation:
         several calls; 0: not at all, only the lag bound applies).  Returns True if a module
         is still behind ``t_ns``.
         """
+        if self.settle is not None and t_ns is None:
+            self.settle()
         t = self.clock.now_ns() if t_ns is None else t_ns
         recording = self.recorder is not None and chunk_ns is not None
         if self.recorder is not None:  # it steps its modules to each sample instant up to t
@@ -400,6 +405,8 @@ class Simulation:
 
     def _execute(self, targets: list[TMCLModule], request: Request, interface: Interface,
                  sink: ReplySink | None) -> list[Routed]:
+        if self.settle is not None:
+            self.settle()
         self.requests += 1
         if self._request_ns:  # a lockstep clock: the telegram's time on the wire passes first
             self.advance_to_ns(self.clock.now_ns() + self._request_ns)

@@ -53,6 +53,12 @@ class FakePort:
     def program_event(self, time_ns: int, kind: str, **data: int) -> None:
         self.events.append((time_ns, kind, data))
 
+    def epoch(self) -> int:
+        return len(self.commands)  # every command counts as something intervening
+
+    def user_variable(self, number: int) -> int | None:
+        return None
+
 
 def machine(source: str) -> tuple[Interpreter, FakePort]:
     port = FakePort()

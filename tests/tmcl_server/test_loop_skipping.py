@@ -18,7 +18,13 @@ TMCM-1111's own S-shaped ramps):
 
 * coolStep and stallGuard set up by the program over load zones of the world: they run on
   the firmware's own clock (axes/tasks.py T1-T3), never at a read, so a skipped read changes
-  nothing (issue 33's D1, issue 34).
+  nothing (issue 33's D1, issue 34);
+* delay loops on the millisecond tick, across its wrap (I11), and timers whose handlers count
+  (I12).
+
+The skipping run's clock moves in one call or in 1 ms, 0.37 ms or mixed steps, so the plans
+kept across batch ends (I10) are reused at odd instants, with hosts and world changes
+arriving mid-plan.
 """
 
 from __future__ import annotations
@@ -249,6 +255,28 @@ def s_ramp_programs(draw: st.DrawFn) -> str:
     return "\n".join(lines)
 
 
+@st.composite
+def tick_programs(draw: st.DrawFn) -> str:
+    """Delay loops on the millisecond tick (GP 132, I11): set, then polled against values
+    around it, also across its 31-bit wrap, with more commands in the pass and a timer."""
+    start = draw(st.sampled_from([0, 0, 5, 2**31 - 40, 2**31 - 1]))
+    near = [start + d for d in (-1, 0, 1, 2, 7, 30, 45, 200)] + [0, 1, 2**31 - 1, -1]
+    lines = ["SAP 4, 0, 100000", f"MVP ABS, 0, {draw(st.integers(-60000, 60000))}"]
+    if draw(st.booleans()):
+        lines += ["VECT 0, Tick", f"SGP 0, 3, {draw(st.integers(1, 12))}", "EI 0", "EI 255"]
+    lines += [f"SGP 132, 0, {start}", "Loop:", "GGP 132, 0",
+              f"COMP {draw(st.sampled_from(near))}",
+              f"JC {draw(st.sampled_from(CONDITIONS))}, Out",
+              *draw(st.lists(st.sampled_from(["GAP 8, 0", "GGP 0, 2", "WAIT TICKS, 0, 1",
+                                              "GGP 132, 0", "CALC ADD, 1", "GAP 1, 0"]),
+                             max_size=2)),
+              "JA Loop", "Out:", "GGP 132, 0", "AGP 9, 2", "Again:", "GGP 132, 0",
+              f"COMP {draw(st.sampled_from(near))}",
+              f"JC {draw(st.sampled_from(CONDITIONS))}, Again", "GGP 132, 0", "AGP 10, 2",
+              "STOP", "Tick:", "GGP 3, 2", "CALC ADD, 1", "AGP 3, 2", "RETI"]
+    return "\n".join(lines)
+
+
 #: Program shapes, and the modules each runs on.
 SHAPES = {
     "poll": (programs, MODULES),
@@ -256,6 +284,7 @@ SHAPES = {
     "monitor": (monitor_programs, MODULES),
     "wait": (wait_programs, MODULES),
     "s-ramp": (s_ramp_programs, [("tmcm-1111", None)]),
+    "tick": (tick_programs, MODULES),
 }
 
 
@@ -268,7 +297,7 @@ def scenarios(shape: str) -> st.SearchStrategy[tuple[str, World]]:
 def run(source: str, world: World, skip: bool) -> list[object]:
     """Run ``source`` in ``world``: with skipping and the world's steps, or stepping every
     instruction in one ``advance`` call a stretch; what was seen, and at the end the number
-    of skipped passes (the only entry allowed to differ)."""
+    of skipped and of analysed passes (the only entry allowed to differ)."""
     module = (TMCLModule(kind=world.kind, chip_core=world.core) if world.core
               else TMCLModule(kind=world.kind))
     sim = Simulation([module], VirtualClock())
@@ -332,7 +361,9 @@ def run(source: str, world: World, skip: bool) -> list[object]:
     seen.append(("end", *registers(module)))
     if recorder is not None:
         seen.append(("recorded", recorder.stop(), recorder.marks))
-    seen.append(("skipped", module.program.interpreter.loops_skipped) if skip else ("skipped", 0))
+    interp = module.program.interpreter
+    seen.append(("skipped", interp.loops_skipped, interp.skipper.analyses) if skip
+                else ("skipped", 0, 0))
     return seen
 
 
@@ -463,6 +494,82 @@ def test_skipping_s_ramp_speed_polls_is_exactly_as_stepping(scenario: tuple[str,
     same(*scenario)
 
 
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios("tick"))
+def test_skipping_delay_loops_on_the_tick_is_exactly_as_stepping(
+        scenario: tuple[str, World]) -> None:
+    same(*scenario)
+
+
+def test_a_delay_loop_on_the_tick_is_skipped_to_its_end() -> None:
+    """I11: a loop polling GP 132 against a value 400 ms on is skipped to the millisecond the
+    tick meets it (it was analysed again every millisecond), and leaves as stepping does;
+    likewise across the tick's wrap from 2**31 - 1 to 0."""
+    for start, limit, condition in ((0, 400, "LT"), (2**31 - 200, 1000, "GT")):
+        source = (f"SGP 132, 0, {start}\nLoop:\nGGP 132, 0\nCOMP {limit}\nJC {condition}, Loop\n"
+                  "GGP 132, 0\nAGP 9, 2\nSTOP")
+        for steps in ((), (1000,), (370,)):
+            world = World(None, [], 600, steps_us=steps)
+            fast, slow = run(source, world, True), run(source, world, False)
+            assert fast[:-1] == slow[:-1]
+            (stopped,) = _stopped_at(fast)
+            assert 190 * MS < stopped < 410 * MS
+            if not steps:  # skipped to the end, not analysed a millisecond at a time
+                assert fast[-1][1] > 5_000 and fast[-1][2] < 30, fast[-1]  # (the power-up
+                # passes of the six axes switch their currents, events: 66 ms of them)
+
+
+#: I12: a 1 ms timer counting in user variable 3 over a poll of "position reached"; the main
+#: loop leaves when the count reaches {limit} (it reads the counter: nothing is skipped then)
+#: or, with limit 0, when the move ends.
+TIMER_OVER_POLL = ("VECT 0, Tick\nSGP 0, 3, {period}\nEI 0\nEI 255\nSAP 4, 0, 20000\n"
+                   "MVP ABS, 0, 4000\nWait:\nGAP 8, 0\nCOMP 1\nJC EQ, Out\n{read}JA Wait\n"
+                   "Out:\nGGP 3, 2\nAGP 9, 2\nSTOP\nTick:\nGGP 3, 2\nCALC ADD, {step}\n"
+                   "AGP 3, 2\nRETI")
+
+
+def test_a_timer_whose_handler_counts_is_applied_for_many_ticks_at_once() -> None:
+    """I12: the cycles of a 1 ms (3 ms) timer whose handler only counts, over a poll that
+    changes nothing, are skipped many at once, each dispatch's event still at its instant;
+    the same with the clock advanced in 1 ms and 0.37 ms steps.  A main loop that reads the
+    counter is stepped (the count decides when it leaves), and ends as stepping does."""
+    for period, step in ((1, 1), (3, -7)):
+        source = TIMER_OVER_POLL.format(period=period, step=step, read="")
+        for steps in ((), (1000,), (370,)):
+            world = World(None, [(50, "gap", 0)], 400, steps_us=steps)
+            fast, slow = run(source, world, True), run(source, world, False)
+            assert fast[:-1] == slow[:-1], (period, steps)
+            assert len([e for e in fast if e[1:2] == ("interrupt_taken",)]) > 100
+    counting = TIMER_OVER_POLL.format(period=1, step=1,
+                                      read="GGP 3, 2\nCOMP 120\nJC GE, Out\n")
+    world = World(None, [], 400)
+    fast, slow = run(counting, world, True), run(counting, world, False)
+    assert fast[:-1] == slow[:-1]
+    (stopped,) = _stopped_at(fast)
+    assert 119 * MS < stopped < 125 * MS
+
+
+def test_timer_cycles_are_skipped_not_stepped() -> None:
+    """I12: over a long move, almost every tick of a counting 1 ms timer is skipped."""
+    sim, module = _running(TIMER_OVER_POLL.format(period=1, step=1, read="")
+                           .replace("4000", "400000"))
+    sim.advance(10.0)
+    interp = module.program.interpreter
+    assert module.globals[2][3] == 9_999  # a tick a millisecond, the first at 1 ms
+    assert interp.ticks_skipped > 9_000
+
+
+def _running(source: str) -> tuple[Simulation, TMCLModule]:
+    """A TMCM-6212 on a virtual clock running ``source`` (skipping on)."""
+    module = TMCLModule(kind="tmcm-6212")
+    sim = Simulation([module], VirtualClock())
+    for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
+                (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
+        module.execute(Request(1, *ins))
+    sim.replan(module)
+    return sim, module
+
+
 def _stopped_at(seen: list[object]) -> list[int]:
     return [entry[0] for entry in seen if isinstance(entry, tuple) and len(entry) == 4
             and entry[1] == "program_stopped"]
@@ -537,12 +644,7 @@ def test_an_s_shaped_rotation_asked_for_another_speed_first_turns_away() -> None
 def test_a_polling_loop_is_skipped_not_stepped() -> None:
     """The skipping actually happens: a poll of "position reached" over a long move executes
     a few hundred instructions, not one per 10 us of the move."""
-    module = TMCLModule(kind="tmcm-6212")
-    sim = Simulation([module], VirtualClock())
-    for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(POLL_TARGET).instructions,
-                (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
-        module.execute(Request(1, *ins))
-    sim.replan(module)
+    sim, module = _running(POLL_TARGET)
     sim.advance(10.0)
     interp = module.program.interpreter
     # the first read at or below 0 ends the second poll: a step or three past it at 100 kpps
@@ -559,3 +661,27 @@ def test_the_server_option_steps_every_instruction() -> None:
     skipping = build_simulation(ServerConfig(endpoints={}, clock="virtual"))
     assert not stepping.modules[0].program.skip_loops
     assert skipping.modules[0].program.skip_loops
+
+
+def _flag_poll(steps_ms: float, seconds: float, record_s: float | None = None) -> TMCLModule:
+    """POLL_TARGET's first loop over a long move, the clock advanced in ``steps_ms`` steps."""
+    sim, module = _running(
+        "SAP 4, 0, 2000\nMVP ABS, 0, 100000\nWait:\nGAP 8, 0\nCOMP 1\nJC NE, Wait\nSTOP")
+    if record_s is not None:
+        Recorder(sim, record_s).start()
+    step = round(steps_ms * MS)
+    for _ in range(round(seconds * 1000 * MS) // step):
+        sim.advance_to_ns(sim.now_ns + step)
+    return module
+
+
+def test_a_plan_survives_a_batch_boundary() -> None:
+    """I10: the clock advanced in 1 ms steps (a lockstep host), or a recorder sampling every
+    millisecond, ends a batch every millisecond; nothing intervenes, so the pass analysed in
+    the first is skipped again in the others, not analysed in each (it was, 1,000 times a
+    second)."""
+    for module in (_flag_poll(1, 1.0), _flag_poll(0.37, 1.0), _flag_poll(10, 1.0, 0.001)):
+        skipper = module.program.interpreter.skipper
+        assert module.program.interpreter.pc in (2, 3, 4)  # still polling: the move takes 50 s
+        assert skipper.analyses <= 20 and skipper.reuses >= 900, (skipper.analyses,
+                                                                  skipper.reuses)

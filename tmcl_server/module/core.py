@@ -43,6 +43,8 @@ _OK = int(Status.OK)
 _REFUSALS = frozenset({int(Status.INVALID_COMMAND), int(Status.WRONG_TYPE),
                        int(Status.INVALID_VALUE)})
 _GAP, _GGP = int(Opcode.GAP), int(Opcode.GGP)
+#: GP 132, the tick timer, is 31 bits wide (read_global).
+_TICK_MASK = 0x7FFF_FFFF
 _INVALID_COMMAND = int(Status.INVALID_COMMAND)
 
 #: The heartbeat period (GP 68 / GP 82, ms) watching each kind of interface.
@@ -122,6 +124,12 @@ class ModuleCore:
         #: Whether the command last performed changed anything (a refusal, a read and a write
         #: of what already is do not): a program loop that changes nothing may be skipped.
         self.changed = False
+        #: Counts what may change a program's view of the module from outside its loop: host
+        #: requests, a command that changed something, module events, world changes, power-up.
+        #: A loop's pass analysed under one value is reused while it holds
+        #: (interpreter/skipping.py I10); a program's write of a user variable does not count
+        #: (the plan checks the variables it reads).
+        self.epoch = 0
         #: Standalone mode: program memory, the interpreter, control commands 128-135.
         self.program = ProgramSupport(self, self.type.program_memory, self.type.number_of_axes,
                                       self.type.digital_inputs)
@@ -140,6 +148,7 @@ class ModuleCore:
 
     def power_up(self) -> None:
         """Reset RAM state and reload what the EEPROM holds, as after switching on."""
+        self.epoch += 1
         ee = self.eeprom
         self.globals: dict[int, dict[int, int]] = {
             bank: {n: spec.default for n, spec in table.items()}
@@ -287,6 +296,7 @@ class ModuleCore:
                 sink: ReplySink | None = None) -> AnyReply | None:
         """Run one direct-mode command and build its reply (None: no reply is sent)."""
         opcode = request.opcode
+        self.epoch += 1  # a host request: whatever it does, a loop's plan is analysed again
         self._last_command_ns[interface] = self.now_ns
         self._heartbeat_tripped[interface] = False
         if self.program.downloading and opcode < Opcode.STOP_APPLICATION:
@@ -325,6 +335,8 @@ class ModuleCore:
             self.last_error = int(Status.EEPROM_LOCKED)
             return Status.EEPROM_LOCKED, request.value
         finally:
+            if self.changed:
+                self.epoch += 1
             if self.changed and self.may_reschedule(opcode, request.motor):
                 self._stale_axes |= touched  # the command may start, stop or move an event
                 self._due_stale = True
@@ -351,11 +363,29 @@ class ModuleCore:
 
     def first_time_at(self, opcode: int, type_: int, motor: int, values: tuple[int, ...],
                       read_ns: int) -> int:
-        """For GAP of a moving value read at ``read_ns``: when it first compares otherwise
-        with one of ``values`` (0: unknown)."""
+        """For GAP of a moving value, or GGP of the tick timer, read at ``read_ns``: when it
+        first compares otherwise with one of ``values`` (0: unknown)."""
+        if opcode == _GGP:
+            row = self.type.global_parameters.get(motor, {}).get(type_)
+            if row is None or row.motion is not Motion.TIME:
+                return 0
+            return self._tick_first_time_at(values, read_ns)
         if opcode != _GAP or not 0 <= motor < len(self.axes):
             return 0
         return self.axes[motor].first_time_at(type_, values, read_ns)
+
+    def _tick_first_time_at(self, values: tuple[int, ...], read_ns: int) -> int:
+        """GP 132 counts whole milliseconds from its origin, 31 bits wide (read_global): it
+        meets every value above the one read, one a millisecond, and wraps to 0 past the top
+        (a comparison flips there without meeting its boundary, as AP 1's at its wrap).  Only
+        a command (SGP 132) or a power-up moves its origin, and both count in the epoch."""
+        read_ms = read_ns // NS_PER_MS
+        tick = (read_ms - self._tick_origin_ms) & _TICK_MASK
+        first = read_ms + _TICK_MASK - tick + 1  # the wrap to 0
+        for value in values:
+            if tick < value <= _TICK_MASK:
+                first = min(first, read_ms + value - tick)
+        return first * NS_PER_MS
 
     @staticmethod
     def may_reschedule(opcode: int, bank: int) -> bool:
@@ -419,6 +449,7 @@ class ModuleCore:
         """Forget the cached next-event times (the world changed from outside)."""
         self._stale_axes.update(range(len(self.axes)))
         self._due_stale = True
+        self.epoch += 1
 
     def snapshot(self) -> dict[str, Any]:
         """A JSON-ready picture of the module for telemetry (docs/mqtt.md names the fields)."""
@@ -456,6 +487,7 @@ class ModuleCore:
         """Make ``t_ns`` the present and handle every event due at it (none may lie before)."""
         self.now_ns = t_ns
         self._due_stale = True
+        self.epoch += 1  # events are handled here: what a loop reads may change
         for index, due in enumerate(self._axis_due):
             if (due is not None and due <= t_ns) or index in self._stale_axes:
                 self._stale_axes.add(index)
@@ -518,6 +550,7 @@ class ModuleCore:
         if not 0 <= port < self.type.analog_inputs or not 0 <= value <= self.type.analog_full_scale:
             raise ValueError(f"input {port} value {value} out of range")
         before = self.digital_input(port)
+        self.epoch += 1
         self.analog_inputs[port] = value
         if self.digital_input(port) != before:
             self.emit("input_changed", None, port=port, level=int(not before))
@@ -538,6 +571,7 @@ class ModuleCore:
     def set_supply_voltage(self, volts: float) -> None:
         """Change the supply (V) at run time, e.g. to test a host's under-voltage check."""
         self.world.supply_voltage = check_supply_voltage(volts)
+        self.epoch += 1
         self.emit("supply_changed", None, volts=self.world.supply_voltage)
 
     def supply_voltage_reading(self) -> int:
@@ -563,6 +597,7 @@ class ModuleCore:
         axis = self.axis(index)
         self._stale_axes.add(index)  # switches and load zones decide when the next event is
         self._due_stale = True
+        self.epoch += 1
         return axis
 
     def set_switch(self, axis: int, name: str, position: int | None, width: int | None = None,
@@ -651,7 +686,7 @@ class ModuleCore:
             if mirrored is not None:
                 return mirrored
             if number == GP.TICK_TIMER:
-                return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & 0x7FFF_FFFF
+                return (self.now_ns // NS_PER_MS - self._tick_origin_ms) & _TICK_MASK
             if number == GP.RANDOM_NUMBER:
                 return self._random.randrange(2**31)
             if number == GP.LAST_TMCL_ERROR:

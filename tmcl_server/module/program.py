@@ -63,6 +63,9 @@ class StandaloneHost(Protocol):
     type: ModuleType
     #: Whether the command last performed changed anything (see ModulePort.probe).
     changed: bool
+    #: Counts what may have intervened from outside a program's loop (interpreter/skipping.py
+    #: I10).
+    epoch: int
     #: bank -> number -> value, as stored in RAM (GP 77, GP 81, bank 3 timers and triggers).
     globals: dict[int, dict[int, int]]
 
@@ -186,6 +189,12 @@ class ProgramSupport:
 
     def program_event(self, time_ns: int, kind: str, **data: int) -> None:
         self.module.emit(kind, None, time_ns=time_ns, **data)
+
+    def epoch(self) -> int:
+        return self.module.epoch
+
+    def user_variable(self, number: int) -> int | None:
+        return self.module.globals[2][number] if number in self._plain_variables else None
 
     # == time ==================================================================================
 
