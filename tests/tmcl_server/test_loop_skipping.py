@@ -36,7 +36,7 @@ from tmcl_server.protocol import Reply, Request
 from tmcl_server.record import Recorder
 from tmcl_server.simulation import Simulation
 from tmcl_spec.commands import Opcode
-from tmcl_spec.numbers import INT32_MAX, INT32_MIN
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN, to_int32
 
 MS = 1_000_000
 
@@ -64,9 +64,9 @@ STALLGUARD_SETUPS = [
     ["SAP 174, 1, 1", "SAP 181, 1, 20000", "SAP 172, 1, 3", "SAP 182, 1, 0"],
 ]
 CONDITIONS = ["EQ", "NE", "GT", "GE", "LT", "LE", "ZE", "NZ"]
-#: Arithmetic, also on a moving value just read (stepped, never forecast).
-CALCS = ["CALC ADD, 1", "CALC LOAD, 5", "CALC MUL, 2", "CALC SUB, 3", "CALCX LOAD",
-         "CALCX SUB", "CALCX ADD", "CALCX SWAP"]
+#: Arithmetic, also on a moving value just read (forecast where it stays invertible, I10).
+CALCS = ["CALC ADD, 1", "CALC LOAD, 5", "CALC MUL, 2", "CALC SUB, 3", "CALCX LOAD", "CALC NOT, 0",
+         "CALCX SUB", "CALCX ADD", "CALCX SWAP", "CALCX NOT", "CALC MUL, -1"]
 WAIT_CONDITIONS = ["TICKS", "POS", "REFSW", "LIMSW", "RFS"]
 
 
@@ -249,6 +249,47 @@ def s_ramp_programs(draw: st.DrawFn) -> str:
     return "\n".join(lines)
 
 
+#: What a loop does with a moving value before comparing it (I10): functions the analysis
+#: inverts (offsets, a distance from a start in X, negations) and some it must step.
+CALC_CHAINS = [
+    [], ["CALCX SUB"], ["CALCX SUB"], ["CALC ADD, {k}"], ["CALC SUB, {k}"], ["CALC NOT, 0"],
+    ["CALC MUL, -1"], ["CALCX SWAP", "CALCX SUB"], ["CALCX ADD", "CALC ADD, {k}"],
+    ["CALCX NOT", "CALCX SUB"], ["CALCX LOAD", "CALCX SUB"], ["CALC MUL, 2"], ["CALC MUL, 0"],
+    ["CALCX SWAP"], ["CALC DIV, 3"], ["CALC ADD, {k}", "CALCX SWAP", "CALCX SUB"],
+]
+
+
+@st.composite
+def calc_programs(draw: st.DrawFn) -> str:
+    """A rotation or a move polled through CALC/CALCX (I10): the position or the speed, as an
+    offset from a start kept in X ("distance since the start of the move"), plus or minus a
+    constant chosen so that the function wraps (2**31 - 1 -> -2**31) within the run, or
+    negated, compared with values near the wrap of the function and of the read."""
+    read = draw(st.sampled_from(["GAP 1, 0", "GAP 1, 0", "GAP 3, 0"]))
+    speed = draw(st.sampled_from([20000, 100000, 200000])) * draw(st.sampled_from([1, -1]))
+    start = draw(st.sampled_from([0, INT32_MAX - 30000, INT32_MIN + 30000, -5000]))
+    offset = draw(st.sampled_from([0, 1000, -1000, INT32_MAX - start - 20000,
+                                   INT32_MIN - start + 20000, INT32_MAX, INT32_MIN]))
+    k = draw(st.sampled_from([to_int32(offset), 5, -5, 20000, INT32_MAX, INT32_MIN]))
+    lines = ["SAP 4, 0, 300000", f"SAP 5, 0, {draw(st.sampled_from([100000, 2000000]))}",
+             f"SAP 1, 0, {start}", draw(st.sampled_from(["GAP 1, 0", read, "CALC LOAD, "
+                                                         f"{to_int32(offset)}"])),
+             "CALCX LOAD"]
+    if draw(st.booleans()):
+        lines.append(f"ROR 0, {speed}")
+    else:
+        lines.append(f"MVP REL, 0, {draw(st.sampled_from([40000, -40000, 20000]))}")
+    chain = [op.format(k=k) for op in draw(st.sampled_from(CALC_CHAINS))]
+    values = [0, 1, -1, INT32_MAX, INT32_MIN, 10000, -10000, to_int32(offset + 10000),
+              to_int32(-offset), speed // 2]
+    lines += ["Loop:", read, *chain, f"COMP {draw(st.sampled_from(values))}",
+              f"JC {draw(st.sampled_from(CONDITIONS))}, Out", *_same_axis_commands(draw),
+              "JA Loop", "Out:", read, "AGP 9, 2", "Out2:", read, *chain,
+              f"COMP {draw(st.sampled_from(values))}",
+              f"JC {draw(st.sampled_from(CONDITIONS))}, Out2", "GAP 1, 0", "AGP 10, 2", "STOP"]
+    return "\n".join(lines)
+
+
 #: Program shapes, and the modules each runs on.
 SHAPES = {
     "poll": (programs, MODULES),
@@ -256,6 +297,7 @@ SHAPES = {
     "monitor": (monitor_programs, MODULES),
     "wait": (wait_programs, MODULES),
     "s-ramp": (s_ramp_programs, [("tmcm-1111", None)]),
+    "calc": (calc_programs, MODULES),
 }
 
 
@@ -290,7 +332,7 @@ def run(source: str, world: World, skip: bool) -> list[object]:
     module.listeners.append(listen)
     if world.switch_at is not None:
         module.set_switch(0, "right", world.switch_at)
-    for axis in (0, 1):
+    for axis in range(min(2, len(module.axes))):  # (the TMCM-1111 has one axis)
         zones = [(start, end, load) for on, start, end, load in world.loads if on == axis]
         if zones:
             module.set_load(axis, zones)
@@ -463,6 +505,13 @@ def test_skipping_s_ramp_speed_polls_is_exactly_as_stepping(scenario: tuple[str,
     same(*scenario)
 
 
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios("calc"))
+def test_skipping_moving_reads_through_calc_is_exactly_as_stepping(
+        scenario: tuple[str, World]) -> None:
+    same(*scenario)
+
+
 def _stopped_at(seen: list[object]) -> list[int]:
     return [entry[0] for entry in seen if isinstance(entry, tuple) and len(entry) == 4
             and entry[1] == "program_stopped"]
@@ -495,6 +544,36 @@ def test_a_crossing_between_the_read_and_a_later_command_to_the_same_axis_is_fou
         fast, slow = run(source, world, True), run(source, world, False)
         assert fast[:-1] == slow[:-1], (kind, core, source)
         assert len(_stopped_at(fast)) == 1, (kind, core, source)
+
+
+#: Distance since the start of a rotation (GAP 1, CALCX SUB), plus a constant that makes the
+#: function wrap (2**31 - 1 -> -2**31) 30,000 steps in: ``COMP 0; JC GT`` flips there, never
+#: by passing 0; the position itself crosses its own wrap on the way (I10).
+DISTANCE = "SAP 4, 0, {speed}\nSAP 5, 0, 2000000\nSAP 1, 0, {start}\nGAP 1, 0\nCALCX LOAD\n" \
+           "ROR 0, {speed}\nW:\nGAP 1, 0\nCALCX SUB\nCALC ADD, {offset}\nCOMP 0\nJC GT, W\n" \
+           "GAP 1, 0\nAGP 9, 2\nFar:\nGAP 1, 0\nCALCX SUB\nCOMP 60000\nJC LT, Far\nGAP 1, 0\n" \
+           "AGP 10, 2\nSTOP"
+
+
+def test_a_distance_through_calcx_is_forecast_across_both_wraps() -> None:
+    """I10: the distance since the start (GAP 1; CALCX SUB) plus a constant compares with 0
+    otherwise where the sum wraps, 30,000 steps in, and the second loop leaves at 60,000
+    steps, past the wrap of AP 1 itself: skipping leaves both loops where stepping does, and
+    skips the passes in between (before, any CALC/CALCX on a moving read was stepped)."""
+    cases = [("tmcm-6212", "tmc4210", INT32_MAX - 40000, 200000),
+             ("tmcm-6212", "tmc4361a", INT32_MAX - 40000, 200000),
+             ("tmcm-6110", None, (1 << 23) - 80000, 2047),  # (24 bits: AP 1 would wrap, X not)
+             ("tmcm-1111", None, INT32_MAX - 40000, 200000)]
+    for kind, core, start, speed in cases:
+        source = DISTANCE.format(start=start, offset=INT32_MAX - 30000, speed=speed)
+        world = World(None, [], 700, core, kind)
+        fast, slow = run(source, world, True), run(source, world, False)
+        assert fast[:-1] == slow[:-1], (kind, core)
+        assert len(_stopped_at(fast)) == 1, (kind, core)
+        (end,) = [entry for entry in fast if entry[0] == "end"]
+        moved = [to_int32(end[10][n] - start) for n in (9, 10)]  # (a pass and a read: 20 steps)
+        assert 30000 <= moved[0] <= 30020 and 60000 <= moved[1] <= 60020, (kind, core, moved)
+        assert fast[-1][1] > 2_000, (kind, core, fast[-1])  # skipped, not stepped
 
 
 def test_a_wait_whose_condition_holds_is_part_of_the_pass_it_falls_through() -> None:
