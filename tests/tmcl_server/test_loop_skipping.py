@@ -6,8 +6,8 @@ mixed), and in the stepping reference (``Interpreter.skip_loops = False``, every
 executed, one ``advance`` call per stretch), with the same program, world, host and recorder.
 Both must see the same events at the same instants, the same replies to host requests made
 mid-loop, the same recorded samples, and end in the same state.  Hypothesis makes random
-programs and worlds aimed at the edges the analysis relies on (interpreter/skipping.py I1-I9,
-axes/forecast.py F1-F7), on every module type and core (TMC4210, TMC4361A, TMC429, the
+programs and worlds aimed at the edges the analysis relies on (interpreter/skipping.py I1-I10,
+axes/forecast.py F1-F8), on every module type and core (TMC4210, TMC4361A, TMC429, the
 TMCM-1111's own S-shaped ramps):
 
 * polling loops of GAP/GIO/GGP/COMP/JC/CALC/CALCX/ROR/SAP/AAP/SIO/WAIT, timer interrupts;
@@ -290,6 +290,33 @@ def calc_programs(draw: st.DrawFn) -> str:
     return "\n".join(lines)
 
 
+@st.composite
+def positioning_speed_programs(draw: st.DrawFn) -> str:
+    """Positioning moves, re-issued, whose speed (AP 3) is polled while it ramps (F8): against
+    fractions of the top speed on the way up and down, zero, and values it never reaches; the
+    TMC42x's soft mode (AP 138), the TMCM-1111's S-shaped ramps (AP 14 = 1), moves that stop
+    short of their top speed and moves re-issued mid-ramp."""
+    top = draw(st.sampled_from([2000, 20000, 100000, 300000]))
+    lines = [f"SAP 4, 0, {top}", f"SAP 5, 0, {draw(st.sampled_from([1000, 50000, 400000]))}"]
+    if draw(st.booleans()):
+        lines.append(f"SAP 138, 0, {draw(st.sampled_from([0, 1]))}")
+    if draw(st.booleans()):
+        lines += ["SAP 14, 0, 1", *(f"SAP {22 + i}, 0, {draw(st.sampled_from([20000, 2000000]))}"
+                                    for i in range(4))]
+    values = [0, 1, -1, top // 2, -top // 2, top, -top, top - 1, top // 10, top * 2]
+    reads = ["GAP 3, 0"] * 3 + ["GAP 3, 0\nCALC ADD, 100", "GAP 3, 0\nCALC NOT, 0"]
+    lines += ["Loop:", f"MVP {draw(st.sampled_from(['ABS', 'REL']))}, 0, "
+              f"{draw(st.integers(-80000, 80000))}"]
+    for label in ("A", "B"):
+        lines += [f"{label}:", draw(st.sampled_from(reads)),
+                  f"COMP {draw(st.sampled_from(values))}",
+                  f"JC {draw(st.sampled_from(CONDITIONS))}, {label}",
+                  *draw(st.lists(st.sampled_from(["GAP 1, 0", "GAP 8, 0", "WAIT TICKS, 0, 1"]),
+                                 max_size=1))]
+    lines += ["GAP 1, 0", "AGP 9, 2", "GGP 0, 2", "CALC ADD, 1", "AGP 0, 2", "JA Loop"]
+    return "\n".join(lines)
+
+
 #: Program shapes, and the modules each runs on.
 SHAPES = {
     "poll": (programs, MODULES),
@@ -298,6 +325,7 @@ SHAPES = {
     "wait": (wait_programs, MODULES),
     "s-ramp": (s_ramp_programs, [("tmcm-1111", None)]),
     "calc": (calc_programs, MODULES),
+    "positioning-speed": (positioning_speed_programs, MODULES),
 }
 
 
@@ -512,6 +540,13 @@ def test_skipping_moving_reads_through_calc_is_exactly_as_stepping(
     same(*scenario)
 
 
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios("positioning-speed"))
+def test_skipping_a_positioning_moves_speed_polls_is_exactly_as_stepping(
+        scenario: tuple[str, World]) -> None:
+    same(*scenario)
+
+
 def _stopped_at(seen: list[object]) -> list[int]:
     return [entry[0] for entry in seen if isinstance(entry, tuple) and len(entry) == 4
             and entry[1] == "program_stopped"]
@@ -574,6 +609,28 @@ def test_a_distance_through_calcx_is_forecast_across_both_wraps() -> None:
         moved = [to_int32(end[10][n] - start) for n in (9, 10)]  # (a pass and a read: 20 steps)
         assert 30000 <= moved[0] <= 30020 and 60000 <= moved[1] <= 60020, (kind, core, moved)
         assert fast[-1][1] > 2_000, (kind, core, fast[-1])  # skipped, not stepped
+
+
+#: A positioning move's speed polled while it ramps up (to half its top speed), down (to
+#: rest), and for the start of the move back, re-issued each time (F8).
+POSITIONING_SPEED = "SAP 4, 0, {top}\nSAP 5, 0, {acceleration}\nLoop:\nMVP ABS, 0, 300000\n" \
+                    "Up:\nGAP 3, 0\nCOMP {half}\nJC LT, Up\nGAP 1, 0\nAGP 9, 2\nDown:\n" \
+                    "GAP 3, 0\nCOMP 0\nJC NE, Down\nGAP 1, 0\nAGP 10, 2\nMVP ABS, 0, 0\n" \
+                    "Start:\nGAP 3, 0\nCOMP 0\nJC EQ, Start\nBack:\nGAP 3, 0\nCOMP -{half}\n" \
+                    "JC LE, Out\nJA Back\nOut:\nWAIT POS, 0, 0\nJA Loop"
+
+
+def test_a_positioning_moves_speed_is_forecast_between_its_turns() -> None:
+    """F8: a TMC42x move's speed rises to the curve, then falls to the target; polled, it is
+    skipped up to each crossing (it was stepped: the speed rises and falls) and leaves each
+    loop where stepping does."""
+    for kind, core, top, acceleration in (("tmcm-6212", "tmc4210", 100000, 50000),
+                                          ("tmcm-6110", None, 1500, 100)):
+        source = POSITIONING_SPEED.format(top=top, acceleration=acceleration, half=top // 2)
+        world = World(None, [], 5000, core, kind)
+        fast, slow = run(source, world, True), run(source, world, False)
+        assert fast[:-1] == slow[:-1], (kind, core)
+        assert fast[-1][1] > 100_000, (kind, core, fast[-1])  # nearly every pass skipped
 
 
 def test_a_wait_whose_condition_holds_is_part_of_the_pass_it_falls_through() -> None:
