@@ -40,7 +40,9 @@ F4. A rotation's speed is monotonic only as far as its driver says
 F5. A crossing found is kept while the look-ahead it was found for is the current one (its
     identity): a new look-ahead is made after every change (F1).  A crossing found from an
     earlier instant of the same look-ahead is still the first one after any later instant
-    it does not precede (and one it precedes promises nothing).
+    it does not precede (and one it precedes promises nothing).  So is a speed's answer
+    (F4, F8): up to it the speed compared alike and did not turn, so from a later read
+    before it, nothing changes before it either.
 F6. What the firmware's periodic pass keeps for reads (AP 180, a modelled driver's AP
     206/208) changes only at that pass (axes/tasks.py, T3): it holds until the next pass that
     may change it.  No read changes anything a later read sees, so a read left out (skipped,
@@ -151,6 +153,12 @@ class AxisForecast:
         self._crossing: tuple[Lookahead, tuple[int, ...], int, int] | None = None
         #: The last moving reads loop skipping asked about, oldest first (F7).
         self._readings: list[Reading] = []
+        #: The last target meeting found for a positioning move's speed: (the look-ahead, the
+        #: motor position marked, the read it was searched from, (instant, chip)) (F5, F8).
+        self._met: tuple[Lookahead, int, int, tuple[int, ChipModel]] | None = None
+        #: The last speed crossing found: (the look-ahead, values, the read's instant, time):
+        #: the same answer for a later read it does not precede (F5).
+        self._speed_crossing: tuple[Lookahead, tuple[int, ...], int, int] | None = None
 
     def invalidate(self) -> None:
         """Something changed the chip or what it runs into (F1): look again when asked."""
@@ -240,6 +248,17 @@ class AxisForecast:
                                                 reading)  # F3
         if number != AP.ACTUAL_SPEED:
             return 0
+        cached = self._speed_crossing
+        if (cached is not None and cached[0] is ahead and cached[1] == values
+                and cached[2] <= read_ns < cached[3]):
+            return cached[3]  # F5: it compares alike from the earlier read up to then
+        result = self._first_time_speed_changes(values, reading, ahead)
+        self._speed_crossing = (ahead, values, read_ns, result)
+        return result
+
+    def _first_time_speed_changes(self, values: tuple[int, ...], reading: Reading,
+                                  ahead: Lookahead) -> int:
+        """:meth:`first_time_at` for AP 3: a rotation's (F4), a positioning move's (F8)."""
         driver = self._axis.driver
         if self._axis.in_velocity_mode():
             return self._first_time_speed_crosses(values, reading.chip,
@@ -253,8 +272,8 @@ class AxisForecast:
         if not start.steps_reach_motor():
             return 0  # the target's meeting cannot be marked
         # F8: monotonic between the turns the driver's test finds, up to the target's meeting
-        met = self._run_to_marks(start, [start.motor_position + steps], ahead)
-        return self._first_time_speed_crosses(values, start, turns, met)
+        return self._first_time_speed_crosses(values, start, turns,
+                                              self._meeting(start, steps, reading, ahead))
 
     def short_of_target(self) -> bool:
         """AP 8 reads 0 now for certain, without bringing the chip up to now: the position
@@ -296,7 +315,13 @@ class AxisForecast:
         end_ns, end_chip = end
         if not compares_otherwise(end_chip):
             return end_ns
-        low, high = start.clone(), end_chip.t
+        high = end_chip.t
+        if high - start.t > 2:  # the end itself often flips (a speed polled to 0 at arrival)
+            before = start.clone()
+            before.run(high - 1, LOOKAHEAD_BUDGET)
+            if before.t == high - 1 and not compares_otherwise(before):
+                return before.ns_at(high)  # both tests are false, then true: the end flips
+        low = start.clone()
         while high - low.t > 1:
             middle = (low.t + high) // 2
             probe = low.clone()
@@ -340,6 +365,21 @@ class AxisForecast:
         result = self._run_to_marks(start, marks, ahead)[0]
         self._crossing = (ahead, values, since, result)
         return result
+
+    def _meeting(self, start: ChipModel, steps: int, reading: Reading,
+                 ahead: Lookahead) -> tuple[int, ChipModel]:
+        """Where the motor, at ``start`` (a copy at ``reading``), first meets the motor
+        position ``steps`` further (F8's end of a stretch), and a copy of the chip there;
+        kept for the later reads of the same look-ahead it does not precede (F5), as a move
+        polled through its look-ahead asks once per flip."""
+        mark = start.motor_position + steps
+        cached = self._met
+        if (cached is not None and cached[0] is ahead and cached[1] == mark
+                and cached[2] <= reading.time_ns and start.t <= cached[3][1].t):
+            return cached[3]
+        met = self._run_to_marks(start, [mark], ahead)
+        self._met = (ahead, mark, reading.time_ns, met)
+        return met
 
     def _run_to_marks(self, start: ChipModel, marks: list[int],
                       ahead: Lookahead) -> tuple[int, ChipModel]:
