@@ -62,8 +62,12 @@ F8. A positioning move's speed rises and falls, but its driver may say over whic
     stop switch in play the speed is below the positioning curve's target (towards the
     target's side) and a ramp tick only raises it, until it reaches the curve; from then on
     it only falls, for the curve falls with the distance (shared/spec/tmc4210.md §4.8,
-    ``MotorLaw.ramp_tick``): one bisection for the rise, then one for the fall.  A driver
-    that says nothing (the TMC4361A's ramps, S-shaped or not) makes no promise: stepped.
+    ``MotorLaw.ramp_tick``): one bisection for the rise, then one for the fall.  On a
+    TMC4361A trapezoid move towards its target the speed heads for VMAX and falls once the
+    final approach begins (``TMC4361A.positioning_turns``; a rest, where a move may start
+    again at VSTART, is a STOPPED instant, which ends every run).  A driver that says
+    nothing (S-shaped ramps, which may first take back their acceleration) makes no
+    promise: stepped.
 """
 
 from __future__ import annotations

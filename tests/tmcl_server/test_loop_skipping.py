@@ -294,12 +294,17 @@ def calc_programs(draw: st.DrawFn) -> str:
 def positioning_speed_programs(draw: st.DrawFn) -> str:
     """Positioning moves, re-issued, whose speed (AP 3) is polled while it ramps (F8): against
     fractions of the top speed on the way up and down, zero, and values it never reaches; the
-    TMC42x's soft mode (AP 138), the TMCM-1111's S-shaped ramps (AP 14 = 1), moves that stop
-    short of their top speed and moves re-issued mid-ramp."""
+    TMC42x's soft mode (AP 138), the TMC4361A's start, stop and break speeds, the TMCM-1111's
+    S-shaped ramps (AP 14 = 1), moves that stop short of their top speed and moves re-issued
+    mid-ramp."""
     top = draw(st.sampled_from([2000, 20000, 100000, 300000]))
     lines = [f"SAP 4, 0, {top}", f"SAP 5, 0, {draw(st.sampled_from([1000, 50000, 400000]))}"]
     if draw(st.booleans()):
         lines.append(f"SAP 138, 0, {draw(st.sampled_from([0, 1]))}")
+    if draw(st.booleans()):  # the TMC4361A's own VSTART, VSTOP, A1/V1/D1 (numbers differ)
+        lines += draw(st.lists(st.sampled_from(
+            ["SAP 19, 0, 3000", "SAP 20, 0, 2000", "SAP 15, 0, 200000", "SAP 16, 0, 30000",
+             "SAP 18, 0, 300000", "SAP 17, 0, 80000", "SAP 19, 0, 0"]), max_size=3))
     if draw(st.booleans()):
         lines += ["SAP 14, 0, 1", *(f"SAP {22 + i}, 0, {draw(st.sampled_from([20000, 2000000]))}"
                                     for i in range(4))]
@@ -621,10 +626,12 @@ POSITIONING_SPEED = "SAP 4, 0, {top}\nSAP 5, 0, {acceleration}\nLoop:\nMVP ABS, 
 
 
 def test_a_positioning_moves_speed_is_forecast_between_its_turns() -> None:
-    """F8: a TMC42x move's speed rises to the curve, then falls to the target; polled, it is
-    skipped up to each crossing (it was stepped: the speed rises and falls) and leaves each
-    loop where stepping does."""
+    """F8: a TMC42x move's speed rises to the curve, then falls to the target, a TMC4361A's
+    trapezoid rises to VMAX and falls on the final approach; polled, it is skipped up to each
+    crossing (it was stepped: the speed rises and falls) and leaves each loop where stepping
+    does."""
     for kind, core, top, acceleration in (("tmcm-6212", "tmc4210", 100000, 50000),
+                                          ("tmcm-6212", "tmc4361a", 100000, 50000),
                                           ("tmcm-6110", None, 1500, 100)):
         source = POSITIONING_SPEED.format(top=top, acceleration=acceleration, half=top // 2)
         world = World(None, [], 5000, core, kind)
