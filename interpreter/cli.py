@@ -5,7 +5,8 @@
     tmcl-asm list prog.tmc
 
 Every error of a source is printed, one ``file:line:column: message`` line each, in source
-order; the exit status is then 1.
+order; the exit status is then 4, as ``tmcl`` ends for a file it cannot read, assemble or
+decode (the exit codes are the client tools' shared ones: tmcl_spec.package.EXIT_CODES).
 """
 
 from __future__ import annotations
@@ -18,19 +19,32 @@ from typing import NoReturn
 from interpreter.assembler import AssemblyError, assemble_file
 from interpreter.disassembler import disassemble, listing
 from interpreter.isa import decode_program
-from tmcl_spec.package import add_version_option, safe_console
+from tmcl_spec.package import (
+    EXIT_BAD_INPUT,
+    EXIT_CODES,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_USAGE,
+    add_version_option,
+    safe_console,
+    with_suggestion,
+)
 
 
 class _OneLineParser(argparse.ArgumentParser):
     """Usage errors in one line, not the usage block."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+        self.exit(EXIT_USAGE, f"{self.prog}: {with_suggestion(self, message)} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _OneLineParser(prog="tmcl-asm", description="TMCL assembler and disassembler "
-                                     "for the TMCM-6212 (TMCL-IDE source and binary formats).")
+                                     "for the TMCM-6212 (TMCL-IDE source and binary formats).",
+                            epilog="exit codes:\n" + "\n".join(
+                                f"  {code:<4} {meaning}" for code, meaning in EXIT_CODES
+                                if code in (EXIT_OK, EXIT_USAGE, EXIT_BAD_INPUT, EXIT_INTERRUPTED)),
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
     add_version_option(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     asm = sub.add_parser("assemble", help="source to an 8-byte-per-command binary")
@@ -56,6 +70,14 @@ def main(argv: list[str] | None = None) -> int:
     safe_console()
     args = build_parser().parse_args(argv)
     try:
+        return _run(args)
+    except KeyboardInterrupt:
+        print("tmcl-asm: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _run(args: argparse.Namespace) -> int:
+    try:
         if args.command == "disassemble":
             instructions = decode_program(args.binary.read_bytes())
             text = listing(instructions) if args.listing else disassemble(instructions)
@@ -68,13 +90,13 @@ def main(argv: list[str] | None = None) -> int:
                                 append_stop=getattr(args, "append_stop", False))
     except AssemblyError as exc:
         print(exc, file=sys.stderr)
-        return 1
+        return EXIT_BAD_INPUT
     except (OSError, ValueError) as exc:
         print(f"tmcl-asm: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_BAD_INPUT
     if args.command == "list":
         sys.stdout.write(program.listing())
-        return 0
+        return EXIT_OK
     output = args.output or args.source.with_suffix(".bin")
     try:  # an output that is a directory, or cannot be written: one line (N9)
         output.write_bytes(program.binary())
@@ -83,9 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         print(f"tmcl-asm: cannot write {exc.filename or output}: {exc.strerror or exc}",
               file=sys.stderr)
-        return 1
+        return EXIT_BAD_INPUT
     print(f"{args.source}: {len(program.instructions)} commands -> {output}")
-    return 0
+    return EXIT_OK
 
 
 if __name__ == "__main__":

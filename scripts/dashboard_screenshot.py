@@ -7,7 +7,7 @@ like the TMCL-IDE does it, while a pytrinamic host drives axes 3..5 (a rotation 
 round, a reference search against the left switch of docs/examples/dashboard-world.toml, steps
 over a home switch) and polls the positions, so the Wire section fills.  The page gets a
 breakpoint on a line the program never reaches, by a click, and the screenshot is taken after
-``--seconds``.  Needs the test extra and Debian's chromium + chromium-driver (scripts/test.sh).
+``--seconds``.  Needs the test extra and Debian's chromium + chromium-driver (scripts/test.py).
 
     .venv/bin/python scripts/dashboard_screenshot.py [-o docs/dashboard.png] [--seconds 9]
 """

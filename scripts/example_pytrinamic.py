@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Drive a simulated TMCM-6212 with the unchanged pytrinamic client.
 
-Start the simulator first (``./scripts/serve.sh``), then:
+Start the simulator first (``python3 scripts/serve.py``), then:
 
     .venv/bin/python scripts/example_pytrinamic.py --tcp 127.0.0.1:2323
     .venv/bin/python scripts/example_pytrinamic.py --pty /tmp/ttyTMCL0
@@ -20,7 +20,7 @@ try:
     from pytrinamic.connections import ConnectionManager
     from pytrinamic.modules import TMCM6212
 except ImportError:  # the server alone does not need it
-    sys.exit("this example needs pytrinamic: ./scripts/serve.sh installs it, or run "
+    sys.exit("this example needs pytrinamic: python3 scripts/serve.py installs it, or run "
              ".venv/bin/pip install -e '.[examples]'")
 
 

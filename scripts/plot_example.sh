@@ -1,10 +1,18 @@
 #!/bin/sh
-# Make docs/plot-example.png with the tools themselves: a recording simulator, a program
-# uploaded and run with `tmcl`, then `tmcl plot`.  Usage: ./scripts/plot_example.sh [OUT.png]
+# Make the README's plot (docs/plot-example.png) with the tools themselves: a recording
+# simulator, a program uploaded and run with `tmcl`, then `tmcl plot`.
+# Usage: ./scripts/plot_example.sh [OUT.png]
+#   Without OUT the picture goes to a new temporary folder (its path is printed): the tracked
+#   docs/plot-example.png changes only when asked for, ./scripts/plot_example.sh docs/plot-example.png.
+#   OUT is the caller's path (relative to the directory the script was started in).
 set -eu
+case ${1:-} in
+    "") OUT=$(mktemp -d)/plot-example.png ;;
+    /*) OUT=$1 ;;
+    *) OUT=$(pwd)/$1 ;;
+esac
 cd "$(dirname "$0")/.."
 BIN=${BIN:-.venv/bin}
-OUT=${1:-docs/plot-example.png}
 TMP=$(mktemp -d)
 trap 'kill "$SERVER" 2>/dev/null || true; rm -rf "$TMP"' EXIT
 

@@ -8,7 +8,7 @@ temporary folder outside the checkout, ``pip install tmcl_sim-*.whl[http] pytest
 * the pytest plugin's ``tmcl_sim`` fixture works in a test of the stranger's own,
 * ``--version`` says pyproject.toml's version, and every page ``--help`` names exists.
 
-Usage: .venv/bin/python scripts/wheel_smoke.py [--keep]     (scripts/test.sh runs it)
+Usage: .venv/bin/python scripts/wheel_smoke.py [--keep]     (scripts/test.py runs it)
 Exit status 0 when all hold; the first that does not is printed as one line, status 1.
 """
 

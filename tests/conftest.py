@@ -8,6 +8,7 @@ import socket
 from collections.abc import Iterator
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from tests.helpers.requirements import MISSING_MARK
 from tmcl_server.clock import VirtualClock
@@ -15,6 +16,14 @@ from tmcl_server.eeprom import Eeprom
 from tmcl_server.module import TMCM6212
 from tmcl_server.protocol import Reply, Request, decode_reply
 from tmcl_server.simulation import Simulation
+
+#: The suite's one hypothesis profile: no deadline and no "too slow" health check, so that a
+#: loaded machine (other engineers' runs, a CPU hog) cannot fail a test that a quiet one
+#: passes; a test that must be fast is a benchmark (scripts/bench*.py), not a timed test.
+#: A test's own @settings (max_examples, ...) override only what they name.
+settings.register_profile("tmcl-sim", deadline=None, suppress_health_check=[HealthCheck.too_slow],
+                          print_blob=True)
+settings.load_profile("tmcl-sim")
 
 
 class Collector:

@@ -216,3 +216,13 @@ def test_posix_only_calls_stay_behind_the_platform_seam() -> None:
             if bad:
                 offenders.append(f"{path.relative_to(ROOT)}: {sorted(bad)}")
     assert not offenders, offenders
+
+
+def test_the_pytest_plugin_loads_nothing_of_the_simulator_until_a_fixture_is_used() -> None:
+    """pip installs the plugin into every pytest run of the environment (issue 37, item 11):
+    importing it must cost next to nothing (scripts/bench_startup.py --plugin measures it:
+    about 1 ms, 180 ms when it imported the server).  The fixtures import the simulator."""
+    loaded = _modules_loaded_after("import pytest\nimport tmcl_server.pytest_plugin")
+    ours = {m for m in loaded if m.split(".")[0] in ("tmcl_server", "interpreter", "axes", "tmcl_spec")}
+    assert ours == {"tmcl_server", "tmcl_server.pytest_plugin"}, sorted(ours)
+    assert "asyncio" not in loaded

@@ -19,7 +19,7 @@ from tmcl_server.server import Server, ServerConfig
 from tmcl_server.transports.can import DEFAULT_BUS_NAME, DEFAULT_SOCKETCAND_PORT, check_bus_name
 from tmcl_server.transports.tcp import DEFAULT_TCP
 from tmcl_spec.modules import DEFAULT_MODULE_TYPE, MODULE_TYPES, module_type
-from tmcl_spec.package import add_version_option, doc, docs_location, safe_console
+from tmcl_spec.package import add_version_option, doc, docs_location, safe_console, with_suggestion
 
 log = logging.getLogger("tmcl_server")
 
@@ -54,8 +54,9 @@ class _HelpFormatter(argparse.HelpFormatter):
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
-        """One line, not the usage block: the line names the option and what is wrong."""
-        raise UsageError(f"{message} (tmcl-server --help lists the options)")
+        """One line, not the usage block: the line names the option and what is wrong, with
+        a did-you-mean for a misspelt option or choice."""
+        raise UsageError(f"{with_suggestion(self, message)} (tmcl-server --help lists the options)")
 
 
 def _number(text: str) -> float:
@@ -169,14 +170,14 @@ def build_parser() -> argparse.ArgumentParser:
                              "same results, slower)")
     parser.add_argument("--ready-file", metavar="PATH",
                         help="write the endpoints as JSON to PATH once all accept traffic")
-    parser.add_argument("--loop", choices=LOOPS, default="auto",
+    parser.add_argument("--loop", type=str.lower, choices=LOOPS, default="auto",
                         help="event loop: uvloop (the fast extra) or asyncio's; default auto: "
                              "uvloop if installed")
     watch = parser.add_argument_group(f"watching (see {doc('observe.md')})")
     watch.add_argument("--trace", nargs="?", const="-", metavar="FILE",
                        help="log every request, reply, event and dropped frame, decoded "
                             "(to stderr, or to FILE)")
-    watch.add_argument("--trace-format", choices=["text", "jsonl"], default="text",
+    watch.add_argument("--trace-format", type=str.lower, choices=["text", "jsonl"], default="text",
                        help="trace lines as text (default) or one JSON object each")
     watch.add_argument("--trace-max", type=size, default=DEFAULT_TRACE_MAX, metavar="SIZE",
                        help="past this size the trace file becomes FILE.1 and a new one starts "
@@ -212,13 +213,13 @@ def build_parser() -> argparse.ArgumentParser:
     faults.add_argument("--processing-time", type=non_negative, default=0.0002, metavar="SECONDS",
                         help="with --wire-timing: the module's time between a request's last byte "
                              "and its reply's first (default 0.0002)")
-    parser.add_argument("--clock", choices=["real", "lockstep"], default="real",
+    parser.add_argument("--clock", type=str.lower, choices=["real", "lockstep"], default="real",
                         help="real: simulated time follows the wall clock (x --speed); "
                              "lockstep: it moves only by --request-time per request")
     parser.add_argument("--request-time", type=non_negative, default=0.001, metavar="SECONDS",
                         help="with --clock lockstep: simulated time each request takes "
                              "(default 0.001)")
-    parser.add_argument("--log-level", default="WARNING",
+    parser.add_argument("--log-level", default="WARNING", type=str.upper,
                         choices=["DEBUG", "INFO", "WARNING", "ERROR"],
                         help="what the server logs to standard error: WARNING (default) "
                              "problems such as dropped replies, INFO also reconnections (MQTT), "
@@ -235,9 +236,10 @@ def add_model_options(parser: argparse.ArgumentParser,
     parser.add_argument("--state-dir", metavar="DIR",
                         help="keep each module's EEPROM in DIR/module-<address>/ "
                              "(default: nothing persists)")
-    parser.add_argument("--module-type", default=default_type, choices=sorted(MODULE_TYPES),
+    parser.add_argument("--module-type", default=default_type, type=str.lower,
+                        choices=sorted(MODULE_TYPES),
                         help=f"which module every address holds ({default_said})")
-    parser.add_argument("--axis-core", choices=sorted(CHIP_CORES),
+    parser.add_argument("--axis-core", type=str.lower, choices=sorted(CHIP_CORES),
                         help="the motion-controller chip the axes run on (default: the module "
                              "type's own)")
     parser.add_argument("--world", metavar="FILE",
@@ -400,8 +402,10 @@ def config_from_args(args: argparse.Namespace) -> ServerConfig:
 
 
 #: Errors at start that say the surroundings refused (exit status 1), not that a value given
-#: on the command line is wrong (exit status 2): a port or pty link in use, no permission.
-_REFUSED = frozenset({errno.EADDRINUSE, errno.EBUSY, errno.EACCES, errno.EPERM})
+#: on the command line is wrong (exit status 2): a port or pty link in use, no permission, no
+#: such device or protocol here (SocketCAN on a system without it).
+_REFUSED = frozenset({errno.EADDRINUSE, errno.EBUSY, errno.EACCES, errno.EPERM, errno.ENODEV,
+                      errno.EAFNOSUPPORT, errno.EPROTONOSUPPORT})
 
 
 class StartError(Exception):

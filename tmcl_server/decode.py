@@ -28,7 +28,7 @@ from tmcl_spec.commands import (
     Status,
 )
 from tmcl_spec.modules import MODULE_TYPES, ModuleType, module_type
-from tmcl_spec.names import ParameterNames, names_of
+from tmcl_spec.names import ParameterNames, module_names
 from tmcl_spec.numbers import to_int32
 
 #: Commands whose request value is written (shown as ``= value``).
@@ -56,9 +56,9 @@ class Vocabulary:
     def __init__(self, kind: ModuleType | str | None = None) -> None:
         self.type = module_type() if kind is None else (
             module_type(kind) if isinstance(kind, str) else kind)
-        self.axis: ParameterNames = names_of(self.type.axis_parameters)
-        self.banks: dict[int, ParameterNames] = {
-            bank: names_of(table) for bank, table in self.type.global_parameters.items()}
+        self.axis: ParameterNames
+        self.banks: dict[int, ParameterNames]
+        self.axis, self.banks = module_names(self.type)
 
     def parameter_name(self, opcode: int, number: int, bank: int) -> str | None:
         if opcode in AXIS_PARAMETER_COMMANDS:
@@ -216,12 +216,27 @@ def is_version_string(data: bytes) -> bool:
 
 @dataclass
 class Frame:
-    """Bytes as captured: a serial stream chunk, or one CAN frame (``can_id`` set)."""
+    """Bytes as captured: a serial stream chunk, or one CAN frame (``can_id`` set), with the
+    capture's timestamp as it writes it (``1700000000.000100``, ``12:00:01.5``) if it has one."""
 
     data: bytes
     can_id: int | None = None
-    #: When it was captured (seconds, the log's own time base), where the capture says.
-    time: float | None = None
+    #: The capture's timestamp of the frame, as it writes it (shown by ``tmcl decode``).
+    timestamp: str | None = None
+
+    @property
+    def time(self) -> float | None:
+        """When it was captured, in seconds of the log's own time base (``tmcl replay``):
+        the timestamp read as seconds or as ``[[h:]m:]s``; None where there is none."""
+        if self.timestamp is None:
+            return None
+        seconds = 0.0
+        try:
+            for part in self.timestamp.split(":"):
+                seconds = seconds * 60 + float(part)
+        except ValueError:
+            return None
+        return seconds
 
 
 @dataclass
@@ -233,13 +248,18 @@ class Decoded:
     text: str
     can_id: int | None = None
     fields: dict[str, Any] = field(default_factory=dict)
+    #: The capture's timestamp of the frame (its first byte's line), as the capture writes it.
+    timestamp: str | None = None
 
     def line(self) -> str:
+        when = f"{self.timestamp}  " if self.timestamp is not None else ""
         where = f"id {self.can_id:03x}  " if self.can_id is not None else ""
-        return f"{where}{self.data.hex(' '):<26}  {self.kind:<8} {self.text}"
+        return f"{when}{where}{self.data.hex(' '):<26}  {self.kind:<8} {self.text}"
 
     def as_json(self) -> str:
         body: dict[str, Any] = {"kind": self.kind, "bytes": self.data.hex(), "text": self.text}
+        if self.timestamp is not None:
+            body["timestamp"] = self.timestamp
         if self.can_id is not None:
             body["can_id"] = self.can_id
         body.update(self.fields)
@@ -267,6 +287,11 @@ _XXD = re.compile(r"^([0-9A-Fa-f]{6,16}):\s(.*)$")
 _WORDS = re.compile(r"^([0-9A-Fa-f]{6,16})((?:\s+[0-9A-Fa-f]{4}){1,16})\s*$")
 _OFFSET_ONLY = re.compile(r"^([0-9A-Fa-f]{6,16})\s*$")
 _XXD_I_LENGTH = re.compile(r"^\s*unsigned\s+int\s+\w+\s*=\s*\d+\s*;")
+#: A CAN log line's timestamp: candump's ``(1700000000.000100)``, the Printer's ``Timestamp: T``.
+_CAN_TIMESTAMP = re.compile(r"^\s*(?:\((\d+(?:\.\d+)?)\)|Timestamp:\s*(\S+))")
+#: A hex line's leading timestamp (a hand-made or a serial monitor's log): ``12:00:01.5``,
+#: ``[12.345]``, ``(1700000000.0001)``; a dot or colon tells it from the hex bytes.
+_LINE_TIMESTAMP = re.compile(r"^\s*[(\[]?(\d{1,2}:\d{2}:\d{2}(?:[.,]\d+)?|\d+\.\d+)[)\]]?(?=[\s:])")
 _HEX_PAIR = re.compile(r"[0-9A-Fa-f]{2}")
 _HEX_RUN = re.compile(r"(?:[0-9A-Fa-f]{2})+")
 #: A ``*`` line (a dump's repeated lines left out) may stand for at most this many bytes.
@@ -291,22 +316,24 @@ def _hex_words(line: str) -> bytes:
 
 def _can_line(line: str) -> tuple[bool, Frame | None]:
     """Whether the line is a CAN log line, and its frame (None: a remote or error frame)."""
+    stamp = _CAN_TIMESTAMP.match(line)
+    when = (stamp.group(1) or stamp.group(2)) if stamp else None
     match = _CANDUMP.match(line)
     if match:
         return True, Frame(bytes.fromhex("".join(match.group(3).split()))[:int(match.group(2))],
-                           int(match.group(1), 16))
+                           int(match.group(1), 16), when)
     match = _PRINTER.match(line)
     if match:
         flags = match.group(2).split()
         if "R" in flags or "E" in flags:
             return True, None
         return True, Frame(bytes.fromhex("".join(match.group(4).split()))[:int(match.group(3))],
-                           int(match.group(1), 16))
+                           int(match.group(1), 16), when)
     match = _CANDUMP_LOG.search(line)
     if match:
         if match.group(2) == "R":
             return True, None
-        return True, Frame(bytes.fromhex(match.group(3)), int(match.group(1), 16))
+        return True, Frame(bytes.fromhex(match.group(3)), int(match.group(1), 16), when)
     return False, None
 
 
@@ -350,6 +377,10 @@ class CaptureReader:
         self._squeezed = False
         self._base: int | None = None
         self._in_dump = False
+        #: Bytes taken out of the stream so far, and (stream offset, timestamp) of the lines
+        #: with a timestamp whose bytes are still in it: a frame gets its first byte's.
+        self._taken = 0
+        self._stamps: list[tuple[int, str]] = []
 
     def feed(self, line: str) -> Iterator[Frame]:
         self.line_number += 1
@@ -377,6 +408,10 @@ class CaptureReader:
                 self._dump_end(end.group(1))
             elif not _XXD_I_LENGTH.match(line):
                 self._release()
+                stamp = _LINE_TIMESTAMP.match(line)
+                if stamp is not None:
+                    self._stamps.append((self._taken + len(self._stream), stamp.group(1)))
+                    line = line[stamp.end():]
                 self._stream += _hex_words(line.split("//")[0].split("#")[0])
         yield from self._frames()
 
@@ -385,14 +420,26 @@ class CaptureReader:
         self._release()
         yield from self._frames()
         if self._stream:
-            yield Frame(bytes(self._stream))
-            self._stream.clear()
+            yield self._take(len(self._stream))
 
     def _frames(self) -> Iterator[Frame]:
-        stream = self._stream
-        while len(stream) >= FRAME_LENGTH:
-            yield Frame(bytes(stream[:FRAME_LENGTH]))
-            del stream[:FRAME_LENGTH]
+        while len(self._stream) >= FRAME_LENGTH:
+            yield self._take(FRAME_LENGTH)
+
+    def _take(self, size: int) -> Frame:
+        """The next ``size`` bytes of the stream, with the timestamp of the line they began on."""
+        stamps, start = self._stamps, self._taken
+        when = None
+        while stamps and stamps[0][0] <= start:
+            when = stamps[0][1]
+            if len(stamps) > 1 and stamps[1][0] <= start:
+                stamps.pop(0)
+            else:
+                break
+        frame = Frame(bytes(self._stream[:size]), timestamp=when)
+        del self._stream[:size]
+        self._taken += size
+        return frame
 
     def _release(self) -> None:
         if self._held is not None:
@@ -519,7 +566,7 @@ def read_can_log(path: str | Path) -> Iterator[Frame]:
                 count += 1
                 if message.is_error_frame or message.is_remote_frame:
                     continue
-                yield Frame(bytes(message.data), message.arbitration_id, message.timestamp)
+                yield Frame(bytes(message.data), message.arbitration_id, f"{message.timestamp:.6f}")
     except CaptureError:
         raise
     except Exception as exc:  # the readers raise what their parsers raise
@@ -545,9 +592,13 @@ class Conversation:
     def decode(self, frames: Iterable[Frame]) -> Iterator[Decoded]:
         for frame in frames:
             if frame.can_id is None:
-                yield from self._serial(frame.data)
+                for decoded in self._serial(frame.data):
+                    decoded.timestamp = frame.timestamp
+                    yield decoded
             else:
-                yield self._can(frame.can_id, frame.data)
+                decoded = self._can(frame.can_id, frame.data)
+                decoded.timestamp = frame.timestamp
+                yield decoded
 
     # -- serial ------------------------------------------------------------------------------
 

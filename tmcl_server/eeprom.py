@@ -22,6 +22,7 @@ import json
 import logging
 import os
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -412,7 +413,6 @@ class Eeprom:
     def _hand_off(self) -> None:
         """The loop's timer: give the snapshot thread the image as it is now, and make the
         other journal active (the thread empties this one once the snapshot is in place)."""
-        import time
 
         self._snapshot_armed = False
         journal = self._journal

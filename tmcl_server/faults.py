@@ -46,7 +46,7 @@ from tmcl_server.dispatch import Interface, ReplySink
 from tmcl_server.protocol import Reply, Request
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.modules import module_type
-from tmcl_spec.names import names_of
+from tmcl_spec.names import module_names
 from tmcl_spec.parameters import SWITCH_NAMES
 
 if TYPE_CHECKING:
@@ -140,8 +140,8 @@ def _opcodes(text: str) -> frozenset[int]:
 
 def _types(text: str) -> frozenset[int]:
     """Type numbers, or parameter names (``ActualPosition``) of the default module type."""
-    kind = module_type()
-    tables = [names_of(kind.axis_parameters), *(names_of(t) for t in kind.global_parameters.values())]
+    axis, banks = module_names(module_type())
+    tables = [axis, *banks.values()]
     found = set()
     for part in _alternatives(text):
         number = next((n for n in (t.number(part) for t in tables) if n is not None), None)

@@ -24,6 +24,11 @@ every simulator the test makes; ``faults=["noreply:opcode=GAP"]`` injects faults
 ``tmcl_replay("captures/homing.jsonl")`` turns a capture of a real module (``tmcl proxy
 --capture``) into a test: it replays it against a fresh simulator and fails with the list of
 replies the simulator gives otherwise (docs/capture.md, "Captures as tests").
+
+The package installs this plugin into every pytest run of its environment, also of projects
+that never use a fixture: importing it loads nothing of the simulator (the fixtures import
+it when a test asks for one), so it adds about a millisecond to pytest's start
+(``scripts/bench_startup.py --plugin``).
 """
 
 from __future__ import annotations
@@ -32,11 +37,12 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
-from tmcl_server.embed import SimulatorThread
+if TYPE_CHECKING:
+    from tmcl_server.embed import SimulatorThread
 
 CLOCKS = ("virtual", "lockstep", "real")
 INI_CLOCK = "tmcl_sim_clock"
@@ -96,6 +102,8 @@ def tmcl_sim_factory(request: pytest.FixtureRequest,
     sleeper: _SleepAdvancesTime | None = None
 
     def make(**kwargs: Any) -> SimulatorThread:
+        from tmcl_server.embed import SimulatorThread
+
         nonlocal sleeper
         for key, value in defaults.items():
             kwargs.setdefault(key, value)

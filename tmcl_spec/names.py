@@ -15,8 +15,12 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING
 
 from tmcl_spec.parameters import ParamSpec
+
+if TYPE_CHECKING:
+    from tmcl_spec.modules import ModuleType
 
 _ABBREVIATIONS = {"maximum": "Max", "minimum": "Min"}
 _ASIDE = re.compile(r"\([^)]*\)")
@@ -34,13 +38,21 @@ def compact_name(text: str) -> str:
 
 
 class ParameterNames:
-    """Both directions for one table: number -> compact name, and any spelling -> number."""
+    """Both directions for one table: number -> compact name, and any spelling -> number.
+
+    ``aliases`` (number -> names: pytrinamic's, :mod:`tmcl_spec.pytrinamic_names`) are read
+    too, for the numbers the table has; the table's own names win where a spelling is both,
+    and names are only ever printed in the table's spelling."""
 
     __slots__ = ("_lookup", "by_number")
 
-    def __init__(self, table: Mapping[int, ParamSpec]) -> None:
+    def __init__(self, table: Mapping[int, ParamSpec],
+                 aliases: Mapping[int, tuple[str, ...]] | None = None) -> None:
         self.by_number: dict[int, str] = {n: compact_name(s.name) for n, s in table.items()}
         self._lookup: dict[str, int] = {}
+        for number, names in (aliases or {}).items():
+            if number in table:
+                self._lookup.update(dict.fromkeys((name.lower() for name in names), number))
         for number, spec in table.items():
             self._lookup[self.by_number[number].lower()] = number
             self._lookup[spec.name.lower()] = number
@@ -59,12 +71,26 @@ class ParameterNames:
         return iter(self.by_number.items())
 
 
-_CACHE: dict[int, tuple[Mapping[int, ParamSpec], ParameterNames]] = {}
+_CACHE: dict[tuple[int, int], tuple[Mapping[int, ParamSpec], object, ParameterNames]] = {}
 
 
-def names_of(table: Mapping[int, ParamSpec]) -> ParameterNames:
-    """The (cached) names of a table; tables are module-level constants, so cache by identity."""
-    cached = _CACHE.get(id(table))
-    if cached is None or cached[0] is not table:
-        cached = _CACHE[id(table)] = (table, ParameterNames(table))
-    return cached[1]
+def names_of(table: Mapping[int, ParamSpec],
+             aliases: Mapping[int, tuple[str, ...]] | None = None) -> ParameterNames:
+    """The (cached) names of a table, with ``aliases``; tables and alias tables are
+    module-level constants, so cache by identity."""
+    key = (id(table), id(aliases))
+    cached = _CACHE.get(key)
+    if cached is None or cached[0] is not table or cached[1] is not aliases:
+        cached = _CACHE[key] = (table, aliases, ParameterNames(table, aliases))
+    return cached[2]
+
+
+def module_names(kind: ModuleType) -> tuple[ParameterNames, dict[int, ParameterNames]]:
+    """What a module type's parameters are called: its axis parameters, and its global ones by
+    bank; pytrinamic's names are read too (``MaxVelocity`` for ``MaxPositioningSpeed``)."""
+    from tmcl_spec.pytrinamic_names import pytrinamic_names
+
+    theirs = pytrinamic_names(kind.key)
+    return (names_of(kind.axis_parameters, theirs.axis),
+            {bank: names_of(table, theirs.banks.get(bank))
+             for bank, table in kind.global_parameters.items()})

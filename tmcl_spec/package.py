@@ -93,3 +93,65 @@ def add_version_option(parser: argparse.ArgumentParser, detail: str = "") -> Non
 
     parser.add_argument("--version", nargs=0, action=_Version,
                         help="show the program's version and exit")
+
+
+# -- the command-line tools' shared conventions ------------------------------------------------
+
+#: Exit codes of the client tools (``tmcl``, ``tmcl-upload``, ``tmcl-asm``), one meaning each,
+#: for scripts: the same kind of error ends each tool with the same code.
+EXIT_OK = 0
+EXIT_REFUSED = 1
+EXIT_USAGE = 2
+EXIT_NO_REPLY = 3
+EXIT_BAD_INPUT = 4
+EXIT_GAVE_UP = 5
+EXIT_INTERRUPTED = 130
+EXIT_CODES = (
+    (EXIT_OK, "success"),
+    (EXIT_REFUSED, "the module refused the command (error status) or a verify found a difference"),
+    (EXIT_USAGE, "usage: bad arguments, unknown mnemonic or parameter name"),
+    (EXIT_NO_REPLY, "no connection, or no reply in time"),
+    (EXIT_BAD_INPUT, "a file cannot be read, written, assembled or decoded"),
+    (EXIT_GAVE_UP, "a --wait gave up before its condition held"),
+    (EXIT_INTERRUPTED, "interrupted (Ctrl-C)"),
+)
+
+
+def _option_strings(parser: argparse.ArgumentParser) -> list[str]:
+    """Every long option of a parser and of its subcommands' parsers."""
+    found: list[str] = []
+    for action in parser._actions:
+        found += [o for o in action.option_strings if o.startswith("--")]
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                found += _option_strings(sub)
+    return sorted(set(found))
+
+
+def with_suggestion(parser: argparse.ArgumentParser, message: str) -> str:
+    """An argparse error with a did-you-mean for a misspelt option, command or choice, and a
+    word for an argument PowerShell split at an unquoted comma (``mode=rs485`` alone)."""
+    import difflib
+    import re
+
+    unknown = re.fullmatch(r"unrecognized arguments: (.*)", message)
+    if unknown:
+        options = _option_strings(parser)
+        hints = []
+        for word in unknown.group(1).split():
+            name = word.split("=", 1)[0]
+            close = difflib.get_close_matches(name, options, n=1) if word.startswith("--") else []
+            if close:
+                hints.append(f"did you mean {close[0]} for {name}?")
+            elif re.fullmatch(r"[a-z_]+=\S*", word):
+                hints.append(f"{word} looks like part of an argument split at a comma: PowerShell "
+                             "splits unquoted commas, quote the argument (--serial "
+                             "'COM11,mode=rs485'; docs/windows.md)")
+        return message + "".join(f"; {hint}" for hint in hints)
+    choice = re.fullmatch(r"(argument .*?: )?invalid choice: '?(.*?)'? \(choose from (.*)\)", message)
+    if choice:
+        choices = [c.strip(" '\"") for c in choice.group(3).split(",")]
+        close = difflib.get_close_matches(choice.group(2).lower(), [c.lower() for c in choices], n=1)
+        if close:
+            return f"{message}; did you mean {choices[[c.lower() for c in choices].index(close[0])]}?"
+    return message

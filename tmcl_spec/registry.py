@@ -12,10 +12,15 @@ from typing import Any
 
 
 def resolve(table: Mapping[str, str], name: str, what: str) -> Any:
-    """The object ``table`` names ``name``; ValueError listing the known names if none."""
+    """The object ``table`` names ``name`` (in any case); ValueError with the closest known
+    name and the list if none."""
     try:
         where = table[name.lower()]
     except KeyError:
-        raise ValueError(f"unknown {what} {name!r} (known: {', '.join(table)})") from None
+        import difflib
+
+        close = difflib.get_close_matches(name.lower(), list(table), n=1)
+        hint = f"did you mean {close[0]}? " if close else ""
+        raise ValueError(f"unknown {what} {name!r} ({hint}known: {', '.join(table)})") from None
     module_name, _, attribute = where.partition(":")
     return getattr(importlib.import_module(module_name), attribute)

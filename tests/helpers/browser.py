@@ -1,5 +1,5 @@
 """A headless Chromium for end-to-end tests of the dashboard (Debian's chromium and
-chromium-driver, driven by selenium; scripts/test.sh installs them).  Nothing is downloaded:
+chromium-driver, driven by selenium; scripts/test.py installs them).  Nothing is downloaded:
 the browser and its driver are the system's, or the tests are skipped."""
 
 from __future__ import annotations

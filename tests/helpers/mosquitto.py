@@ -20,7 +20,7 @@ MOSQUITTO = shutil.which("mosquitto") or ("/usr/sbin/mosquitto"
 def missing_reason() -> str | None:
     """Why MQTT tests cannot run here (None: they can); see tests/helpers/requirements.py."""
     if MOSQUITTO is None:
-        return "mosquitto is not installed (apt-get install mosquitto; scripts/test.sh says so)"
+        return "mosquitto is not installed (apt-get install mosquitto; scripts/test.py says so)"
     return None
 
 

@@ -1,5 +1,5 @@
 """Tests that need a program from the distribution (mosquitto, Chromium): skipped where it is
-missing, so that ``./scripts/test.sh`` on a laptop runs the rest; failed instead when
+missing, so that ``python3 scripts/test.py`` on a laptop runs the rest; failed instead when
 ``TMCL_SIM_REQUIRE_ALL=1`` (``.ci/run`` installs them and sets it: CI must not pass by
 skipping what it was meant to run).
 

@@ -268,7 +268,7 @@ def test_tmcl_asm_assemble_list_disassemble(tmp_path: Path, capsys: pytest.Captu
 def test_tmcl_asm_reports_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     source = tmp_path / "bad.tmc"
     source.write_text("STOP\n  JA Missing\n")
-    assert tmcl_asm(["assemble", str(source)]) == 1
+    assert tmcl_asm(["assemble", str(source)]) == 4  # as tmcl for a file it cannot assemble
     assert f"{source}:2:6: undefined symbol 'Missing'" in capsys.readouterr().err
 
 
@@ -293,7 +293,7 @@ def test_every_error_of_a_source_in_one_run_in_line_order(tmp_path: Path,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
     source = tmp_path / "several.tmc"
     source.write_text(SEVERAL_ERRORS)
-    assert tmcl_asm(["assemble", str(source)]) == 1
+    assert tmcl_asm(["assemble", str(source)]) == 4  # as tmcl for a file it cannot assemble
     lines = capsys.readouterr().err.splitlines()
     assert lines == [
         f"{source}:3:3: unknown mnemonic 'FLY'",
@@ -381,6 +381,6 @@ def test_hostile_sources_end_in_one_clear_line(tmp_path: Path) -> None:
         result = subprocess.run([sys.executable, "-m", "interpreter.cli", "assemble", str(source)],
                                 capture_output=True, text=True, timeout=60)
         lines = result.stderr.splitlines()
-        assert result.returncode == 1 and len(lines) == 1, (name, result.stderr[-2000:])
+        assert result.returncode == 4 and len(lines) == 1, (name, result.stderr[-2000:])
         assert re.match(rf"{re.escape(str(source.parent))}/\S+:\d+:\d+: \S", lines[0]), (name, lines)
         assert "Traceback" not in result.stderr and "Error:" not in lines[0], (name, lines)

@@ -270,5 +270,6 @@ def test_the_two_frames_over_tcp_leave_the_server_responsive(frames: list[str]) 
         finally:
             client.close()
     latencies.sort()
-    assert latencies[len(latencies) // 2] < 0.005 and latencies[-1] < 0.25, (
+    # the defect stalled 3.3 s of every 4 s; a machine at load 10 stalls a reply up to 0.6 s
+    assert latencies[len(latencies) // 2] < 0.005 and latencies[-1] < 1.5, (
         f"median {latencies[len(latencies) // 2] * 1e3:.1f} ms, max {latencies[-1] * 1e3:.1f} ms")

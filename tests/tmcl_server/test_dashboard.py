@@ -91,7 +91,8 @@ def test_a_command_from_the_page_is_validated_answered_and_traced_like_a_hosts()
     answer = dashboard.act({"op": "command", "id": 7, "cmd": "SAP", "type": 4, "motor": 0,
                             "value": 1000}, viewer)
     assert answer == {"type": "reply", "id": 7, "module": 1, "status": 100, "value": 1000,
-                      "text": "SAP 4 MaxPositioningSpeed m0 = 1000 → 100 OK"}
+                      "text": "SAP 4 MaxPositioningSpeed m0 = 1000 → 100 OK",
+                      "request": "SAP 4 MaxPositioningSpeed m0 = 1000", "status_name": "OK"}
     assert simulation.modules[0].axis(0).get_parameter(AP.MAX_SPEED) == 1000
     refused = dashboard.act({"op": "command", "cmd": 5, "type": 6, "motor": 0, "value": 300}, viewer)
     assert refused["status"] == 4 and refused["text"].endswith("→ 4 INVALID_VALUE")
@@ -243,7 +244,8 @@ def test_the_update_protocol_over_a_real_websocket() -> None:
                     await ws.send_json({"op": "command", "id": 1, "cmd": "GAP", "type": 4, "motor": 0})
                     reply = await ws.receive_json(timeout=5)
                     assert reply == {"type": "reply", "id": 1, "module": 1, "status": 100,
-                                     "value": 51200, "text": "GAP 4 MaxPositioningSpeed m0 → 100 OK = 51200"}
+                                     "value": 51200, "text": "GAP 4 MaxPositioningSpeed m0 → 100 OK = 51200",
+                                     "request": "GAP 4 MaxPositioningSpeed m0", "status_name": "OK"}
                     await ws.send_json({"op": "switch", "axis": 9, "name": "left", "id": 2})
                     error = await ws.receive_json(timeout=5)
                     assert error["type"] == "error" and "axis must be 0..5" in error["message"]

@@ -1,6 +1,6 @@
 """The dashboard end to end: a real headless Chromium on the page, a pytrinamic host on TCP,
 the simulator on a virtual clock that the test moves.  Skipped when Chromium, chromedriver or
-selenium are missing (scripts/test.sh installs them)."""
+selenium are missing (scripts/test.py installs them)."""
 
 from __future__ import annotations
 

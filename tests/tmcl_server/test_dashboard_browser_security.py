@@ -53,14 +53,14 @@ fetch("http://" + target + "/api/frame")
 class _ForeignSite:
     """Another origin: a plain HTTP server on its own port that serves the attacking page."""
 
-    def __init__(self) -> None:
+    def __init__(self, attack: str = ATTACK) -> None:
         #: The dashboard the page attacks (set once it runs).
         self.dashboard_port = 0
         site = self
 
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:
-                page = (ATTACK % {"port": site.dashboard_port}).encode()
+                page = (attack % {"port": site.dashboard_port}).encode()
                 self.send_response(200)
                 self.send_header("Content-Type", "text/html")
                 self.send_header("Content-Length", str(len(page)))

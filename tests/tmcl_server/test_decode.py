@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import inspect
+import itertools
+import json
 import shutil
 import signal
 import subprocess
@@ -214,7 +216,17 @@ def test_can_logs_written_by_python_can(bench: Bench, tmp_path: Path, suffix: st
         for message in _can_conversation(bench):
             writer.on_message_received(message)
     assert tmcl(["decode", "--file", str(log)]) == 0
-    assert capsys.readouterr().out.splitlines() == EXPECTED_CAN
+    stamps, lines = _stamped(capsys.readouterr().out)
+    assert lines == EXPECTED_CAN
+    # each frame keeps the log's time (.asc counts from its start, the others are absolute)
+    assert [round(b - a, 6) for a, b in itertools.pairwise(stamps)] == [0.001] * 5
+    assert stamps[0] in (0.0, 1_700_000_000.001)
+
+
+def _stamped(out: str) -> tuple[list[float], list[str]]:
+    """The timestamps ``tmcl decode`` put before each line, and the lines without them."""
+    pairs = [line.split("  ", 1) for line in out.splitlines()]
+    return [float(stamp) for stamp, _ in pairs], [rest for _, rest in pairs]
 
 
 def test_what_python_can_logger_prints_live(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -244,7 +256,32 @@ def test_what_python_can_logger_prints_live(tmp_path: Path, capsys: pytest.Captu
     capture = tmp_path / "logger.txt"
     capture.write_text("".join(lines))
     assert tmcl(["decode", "--file", str(capture)]) == 0
-    assert capsys.readouterr().out.splitlines() == EXPECTED_CAN[:4]
+    stamps, decoded = _stamped(capsys.readouterr().out)
+    assert decoded == EXPECTED_CAN[:4]
+    assert stamps == sorted(stamps) and stamps[0] > 1_700_000_000  # the logger's, kept
+
+
+def test_decode_keeps_the_captures_timestamps_in_text_and_json(capsys: pytest.CaptureFixture[str],
+                                                              tmp_path: Path) -> None:
+    """Issue 37, item 8: candump's, and a serial log's leading times (a frame has its first
+    byte's line's), in the text and in --json."""
+    capture = tmp_path / "capture.txt"
+    capture.write_text("(1700000000.000100) can0 001#0604000000000000\n"
+                       "(1700000000.000200) can0 002#0164060000c800\n"
+                       "12:00:01.5 TX: 01 06 04 00 00\n"
+                       "12:00:01.6 TX: 00 00 00 0b\n"
+                       "[12.750] 02 01 64 06 00 00 c8 00 35\n")
+    assert tmcl(["decode", "--file", str(capture)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert [line.split("  ")[0] for line in out] == [
+        "1700000000.000100", "1700000000.000200", "12:00:01.5", "12.750"]
+    assert out[2] == ("12:00:01.5  01 06 04 00 00 00 00 00 0b  request  to 1: GAP 4 "
+                      "MaxPositioningSpeed m0")
+    assert tmcl(["decode", "--json", "--file", str(capture)]) == 0
+    decoded = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [d["timestamp"] for d in decoded] == ["1700000000.000100", "1700000000.000200",
+                                                 "12:00:01.5", "12.750"]
+    assert decoded[3]["kind"] == "reply" and decoded[3]["value"] == 51200
 
 
 def test_decode_streams_a_long_capture(tmp_path: Path) -> None:

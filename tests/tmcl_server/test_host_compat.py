@@ -137,3 +137,24 @@ def test_pytrinamic_reads_the_supply_voltage_and_reports_unknown_commands(sim):
         assert error.value.status_code == 8
         with pytest.raises(KeyError):  # pytrinamic's message table has 9 but not 8
             error.value.error_description  # noqa: B018
+
+
+def test_pytrinamics_tmclinfo_fails_faithfully_and_tmcl_info_answers(sim) -> None:
+    """pytrinamic's own ``tmclinfo`` asks for command 157 (GetInfo), which firmware 1.05 lacks
+    (status 2, as the real module answers): it ends in a traceback.  docs/compatibility.md
+    says so and names ``tmcl info`` instead, which reads the same module (issue 37, item 10)."""
+    import subprocess
+    import sys
+
+    tmclinfo = Path(sys.executable).parent / "tmclinfo"
+    if not tmclinfo.exists():
+        pytest.skip("pytrinamic's tmclinfo is not installed")
+    done = subprocess.run([str(tmclinfo), "--interface", "serial_tmcl", "--port", sim.pty],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode != 0 and "GetInfoRequestError" in done.stderr, done.stderr[-500:]
+    assert "Invalid Command" in done.stderr
+    done = subprocess.run([str(Path(sys.executable).parent / "tmcl"), "--serial", sim.pty, "info"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "version                   6212V105" in done.stdout
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "compatibility.md").read_text()
+    assert "tmclinfo" in doc and "tmcl info" in doc

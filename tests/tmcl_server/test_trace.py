@@ -35,6 +35,14 @@ def _lines(path: Path, marker: str) -> list[str]:
     return [line for line in path.read_text().splitlines() if marker in line]
 
 
+def _wait_for(trace: Path, text: str, timeout: float = 60.0) -> None:
+    """Until the trace file (flushed within FLUSH_DELAY_S) has a line with ``text``."""
+    deadline = time.monotonic() + timeout
+    while not (trace.exists() and text in trace.read_text(encoding="utf-8")):
+        assert time.monotonic() < deadline, f"no {text!r} in the trace"
+        time.sleep(0.01)
+
+
 def test_trace_of_pytrinamic_over_tcp_and_pty_and_of_frames_nobody_answers(tmp_path: Path) -> None:
     trace = tmp_path / "trace.txt"
     link = tmp_path / "ttyTMCL0"
@@ -53,6 +61,9 @@ def test_trace_of_pytrinamic_over_tcp_and_pty_and_of_frames_nobody_answers(tmp_p
         raw.send_raw(Request(7, Opcode.GAP, 1, 0, 0).encode())  # nobody has address 7
         raw.send_raw(Request(1, Opcode.GAP, 1, 0, 0).encode()[:5])  # half a frame ...
         time.sleep(0.02)  # ... a pause longer than 5 ms (the stimulus, not a wait for a result)
+        # a loaded server may read the half frame only now; the next frame waits until it has
+        # seen the pause, or it would continue the half frame (the 5 ms count from its read)
+        _wait_for(trace, "torn frame: 5 of 9 bytes")
         assert raw.request(1, Opcode.GAP, AP.ACTUAL_POSITION, 0).status == Status.OK
         bad = bytearray(Request(1, Opcode.GAP, 1, 0, 0).encode())
         bad[8] ^= 0xFF

@@ -141,7 +141,7 @@ def test_serves_tcp_and_keeps_eeprom_stores_across_a_restart(tmp_path: Path, var
 
 
 def test_pty_says_in_one_line_that_it_needs_posix(tmp_path: Path, variant: str) -> None:
-    done = subprocess.run([sys.executable, "-m", "tmcl_server", "--pty", str(tmp_path / "tty")],
+    done = subprocess.run([sys.executable, "-m", "tmcl_server", "--no-tcp", "--pty", str(tmp_path / "tty")],
                           capture_output=True, env=emulated_env(variant), timeout=WAIT_S)
     err = done.stderr.decode("cp1252")
     assert done.returncode == 2, err

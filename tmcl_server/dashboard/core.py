@@ -27,7 +27,7 @@ from axes.reference_search import reference_plan
 from axes.world import INFINITY, LOAD_MAX, Switch
 from interpreter.disassembler import labelled
 from interpreter.interrupts import vector_table
-from tmcl_server.decode import describe_outcome, describe_request, vocabulary
+from tmcl_server.decode import describe_outcome, describe_request, status_name, vocabulary
 from tmcl_server.dispatch import Interface
 from tmcl_server.protocol import RawReply, Reply
 from tmcl_server.sidechannel import SideChannel
@@ -385,6 +385,8 @@ class Dashboard:
             viewer.show(self.module(message.get("module", viewer.slot)).slot)
             viewer.parameters = bool(message.get("parameters", viewer.parameters))
             return None
+        if op in ("fault", "remove_fault", "clear_faults", "faults"):
+            return self.faults(op, message)
         module = self.module(message.get("module", viewer.slot))
         if op == "command":
             return self.command(module, message, viewer.endpoint)
@@ -414,6 +416,34 @@ class Dashboard:
             raise ActionError(f"unknown op {op!r}")
         self.simulation.notify_changed()  # the world changed: events may have moved
         return None
+
+    def faults(self, op: str, message: dict[str, Any]) -> dict[str, Any]:
+        """Faults on purpose, in the fault language (docs/faults.md): ``fault`` installs
+        ``message["fault"]`` (a spec such as ``noreply:opcode=GAP,count=1``, or a table with a
+        ``kind``), ``remove_fault`` takes one away by its id, ``clear_faults`` all, ``faults``
+        lists them.  The one parser and injector the command line and MQTT use."""
+        from tmcl_server.faults import FaultInjector, FaultSpecError
+
+        injector = FaultInjector.of(self.simulation)
+        answer: dict[str, Any] = {"type": "faults", "id": message.get("id")}
+        try:
+            if op == "fault":
+                fault = message.get("fault")
+                if not isinstance(fault, (str, dict)):
+                    raise ActionError('"fault" must be a fault spec (a string) or a table with a "kind"')
+                answer["installed"] = injector.add(fault).describe()
+            elif op == "remove_fault":
+                number = message.get("fault")
+                if isinstance(number, bool) or not isinstance(number, int) or number not in injector.faults:
+                    raise ActionError(f"no fault {number!r} installed "
+                                      f"(ids: {', '.join(map(str, injector.faults)) or 'none'})")
+                injector.remove(number)
+            elif op == "clear_faults":
+                injector.clear()
+        except FaultSpecError as exc:
+            raise ActionError(str(exc)) from None
+        answer["faults"] = injector.describe()
+        return answer
 
     @staticmethod
     def _index(message: dict[str, Any], key: str, count: int) -> int:
@@ -465,14 +495,16 @@ class Dashboard:
         routed = self.simulation.execute_on([module], request, Interface.SERIAL, _PageSink(endpoint))
         words = vocabulary(module.type)
         text = describe_request(request.opcode, request.type, request.motor, request.value, words)
-        answer: dict[str, Any] = {"type": "reply", "id": message.get("id"), "module": module.slot}
+        answer: dict[str, Any] = {"type": "reply", "id": message.get("id"), "module": module.slot,
+                                  "request": text}
         if not routed:
             answer.update(status=None, text=f"{text}: no reply")
             return answer
         (_, reply), = routed
         if isinstance(reply, RawReply):
-            answer.update(status=100, text=f"{text} → {reply.data.hex(' ')}")
+            answer.update(status=100, status_name="OK", text=f"{text} → {reply.data.hex(' ')}")
             return answer
         outcome = describe_outcome(reply.status, reply.opcode, request.type, reply.value)
-        answer.update(status=reply.status, value=to_int32(reply.value), text=f"{text} {outcome}")
+        answer.update(status=reply.status, status_name=status_name(reply.status),
+                      value=to_int32(reply.value), text=f"{text} {outcome}")
         return answer

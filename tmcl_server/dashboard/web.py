@@ -1,7 +1,8 @@
 """The dashboard's web server (aiohttp, on the server's own event loop): ``--http [HOST:]PORT``.
 
 Routes: ``/`` the page, ``/static/...`` its files (no CDN: it works offline), ``/ws`` one
-WebSocket per open page, ``/api/hello`` and ``/api/frame?module=A`` the same JSON for scripts.
+WebSocket per open page, ``/api/hello`` and ``/api/frame?module=A`` the same JSON for scripts,
+and the REST face ``/api/command``, ``/api/fault`` (:mod:`.api`).
 
 Update protocol (docs/dashboard.md): the server sends ``hello`` once, then ``frame`` messages,
 each after the page acknowledged the previous one (``{"op": "ack"}``, sent when the page has
@@ -31,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 from aiohttp import WSMsgType, web
 from aiohttp.http_exceptions import HttpProcessingError
 
+from tmcl_server.dashboard.api import add_routes as add_rest_routes
 from tmcl_server.dashboard.core import ActionError, Dashboard, Viewer
 from tmcl_server.dashboard.guard import TOKEN_ENV, AccessPolicy
 from tmcl_server.dashboard.limits import ConnectionGate, Pace
@@ -146,6 +148,7 @@ class DashboardTransport(Transport):
         app.router.add_get("/ws", self._websocket)
         app.router.add_get("/api/hello", self._api_hello)
         app.router.add_get("/api/frame", self._api_frame)
+        add_rest_routes(app, self.dashboard)  # /api/command, /api/fault (api.py)
         app.router.add_static("/static/", STATIC, follow_symlinks=False)
         self._runner = web.AppRunner(app, access_log=None, handle_signals=False,
                                      keepalive_timeout=HTTP_IDLE_S)

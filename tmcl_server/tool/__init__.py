@@ -24,8 +24,16 @@ import sys
 from pathlib import Path
 from typing import NoReturn
 
-from tmcl_server.tool.connection import EXIT_CODES, ToolError
-from tmcl_spec.package import add_version_option, doc, safe_console, version_text
+from tmcl_server.tool.connection import ToolError
+from tmcl_spec.package import (
+    EXIT_CODES,
+    EXIT_USAGE,
+    add_version_option,
+    doc,
+    safe_console,
+    version_text,
+    with_suggestion,
+)
 
 _EPILOG = """examples:
   tmcl send SAP 4, 0, 51200                     set AP 4 of motor 0, as a TMCL program writes it
@@ -49,7 +57,7 @@ class OneLineParser(argparse.ArgumentParser):
     """Usage errors in one line (the message and where help is), not the usage block."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+        self.exit(EXIT_USAGE, f"{self.prog}: {with_suggestion(self, message)} (see {self.prog} --help)\n")
 
 
 def positive(text: str) -> float:

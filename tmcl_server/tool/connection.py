@@ -17,62 +17,58 @@ from tmcl_server.protocol import FRAME_LENGTH, Reply, Request, decode_reply
 from tmcl_server.upload import PytrinamicClient, StreamClient, UploadError
 from tmcl_spec.commands import Opcode, Status
 from tmcl_spec.numbers import to_int32
+from tmcl_spec.package import (
+    EXIT_BAD_INPUT,
+    EXIT_GAVE_UP,
+    EXIT_INTERRUPTED,
+    EXIT_NO_REPLY,
+    EXIT_REFUSED,
+    EXIT_USAGE,
+)
 
 DEFAULT_TCP = "127.0.0.1:2323"
 
 
 class ToolError(Exception):
-    """A failure with the exit code the tool documents for it."""
+    """A failure with the exit code the tool documents for it (tmcl_spec.package.EXIT_CODES)."""
 
-    exit_code = 1
+    exit_code = EXIT_REFUSED
 
 
 class Refused(ToolError):
     """The module answered with an error status (or did something else than asked)."""
 
-    exit_code = 1
+    exit_code = EXIT_REFUSED
 
 
 class UsageError(ToolError):
     """Arguments that make no sense (unknown mnemonic, parameter name, ...)."""
 
-    exit_code = 2
+    exit_code = EXIT_USAGE
 
 
 class NoReply(ToolError):
     """No connection, or no reply in time."""
 
-    exit_code = 3
+    exit_code = EXIT_NO_REPLY
 
 
 class BadInput(ToolError):
     """A file that cannot be read, assembled or decoded."""
 
-    exit_code = 4
+    exit_code = EXIT_BAD_INPUT
 
 
 class GaveUp(ToolError):
     """A wait (``--wait``) ended before its condition held."""
 
-    exit_code = 5
+    exit_code = EXIT_GAVE_UP
 
 
 class Interrupted(ToolError):
     """Ctrl-C: what was left running (or stopped) is in the message."""
 
-    exit_code = 130
-
-
-#: Exit codes, for ``--help`` and the README.
-EXIT_CODES = (
-    (0, "success"),
-    (1, "the module refused the command (error status) or a verify found a difference"),
-    (2, "usage: bad arguments, unknown mnemonic or parameter name"),
-    (3, "no connection, or no reply in time"),
-    (4, "a file cannot be read, assembled or decoded"),
-    (5, "a --wait gave up before its condition held"),
-    (130, "interrupted (Ctrl-C)"),
-)
+    exit_code = EXIT_INTERRUPTED
 
 
 class _RawStreamClient(StreamClient):

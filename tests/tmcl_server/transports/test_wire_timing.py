@@ -1,9 +1,13 @@
 """``--wire-timing``: the pty (and serial ports) at the baud rate, CAN frames at the bit rate.
 
 Round trips are measured with pyserial exactly as a host sees them; the figure is the median
-of many requests, and of up to three rounds the best one (other work on a loaded machine only
-ever makes a round trip longer, never shorter than the line allows).  The two that hold the
-figures to the issue's tolerances run while no other test of the run does (``exclusive``).
+of many requests, and of up to three rounds the best one.  Other work on a loaded machine
+(other engineers', other test runs) only ever makes a round trip longer, never shorter than
+the line allows: on the wall clock the tests hold the lower bound (the line time is never
+skipped), which any load keeps.  That no more than the line's time is added is held where
+load cannot reach it: on the schedule itself, with the session's clock in the test's hand
+(``test_a_round_trip_is_scheduled_to_take_exactly_what_the_line_takes``); the figures of an
+unloaded machine are ``scripts/bench_wire.py --wire-timing``'s.
 """
 
 from __future__ import annotations
@@ -68,12 +72,6 @@ def round_trip(path: str, samples: int, rounds: int = 6, tolerance: float = 0.0,
     return best
 
 
-#: What a loaded machine may add to a round trip in wall time (waking the server and the
-#: test's own thread).  The test checks that the line time is applied, at least and not much
-#: more; the precise goals (within 10 % and 20 %) are bench_wire.py --wire-timing's.
-SCHEDULING_ALLOWANCE_S = 0.001
-
-
 @pytest.mark.exclusive
 @pytest.mark.parametrize(("baud", "samples", "tolerance"), [(9600, 25, 0.10), (115200, 101, 0.20)])
 def test_a_gap_round_trip_on_the_pty_takes_what_the_line_takes(
@@ -83,19 +81,22 @@ def test_a_gap_round_trip_on_the_pty_takes_what_the_line_takes(
     computed = serial_round_trip_s(baud)
     measured = round_trip(sim.pty, samples, tolerance=tolerance, computed=computed)
     assert computed * 0.98 <= measured, (measured, computed)  # the line time is never skipped
-    assert measured <= computed * (1 + tolerance) + SCHEDULING_ALLOWANCE_S, (measured, computed)
 
 
 def test_the_uart_rate_is_gp65_from_the_last_power_up(tmcl_sim_factory: Callable[..., SimulatorThread],
                                                       tmp_path) -> None:
     sim = tmcl_sim_factory(pty=[f"{tmp_path}/ttyWIRE"], wire_timing=True)
+    assert sim.server is not None
+    (pty,) = [t for t in sim.server.transports if t.kind == "pty"]
+    byte_s = lambda: sim.call(lambda: pty._session.byte_ns) / 1e9  # type: ignore[attr-defined]  # noqa: E731
     with serial.Serial(sim.pty, 115200, timeout=2) as port:
         port.write(Request(1, Opcode.SGP, GP.BAUD_RATE, 0, 7).encode())  # 115200, stored ...
         assert decode_reply(port.read(9)).status == 100
-    slow = round_trip(sim.pty, 3, rounds=1)
+    assert byte_s() == pytest.approx(10 / 9600, abs=1e-9)  # ... not in effect yet
+    assert round_trip(sim.pty, 3, rounds=1) >= serial_round_trip_s(9600) * 0.98
     sim.power_cycle()  # ... and in effect after the restart
-    fast = round_trip(sim.pty, 3, rounds=1)
-    assert slow >= serial_round_trip_s(9600) * 0.98 and fast < serial_round_trip_s(9600) / 2
+    assert byte_s() == pytest.approx(10 / 115200, abs=1e-9)
+    assert round_trip(sim.pty, 3, rounds=1) >= serial_round_trip_s(115200) * 0.98
 
 
 class Scheduled:
@@ -106,6 +107,11 @@ class Scheduled:
 
     def at(self, when_ns: int, action: Callable[..., object], *args: object, direct: bool = False) -> None:
         self.calls.append((when_ns, action.__name__, args))
+        self.due.append((when_ns, action, args))
+
+    @property
+    def due(self) -> list[tuple[int, Callable[..., object], tuple]]:
+        return self.__dict__.setdefault("_due", [])
 
     def close(self) -> None:
         pass
@@ -131,6 +137,30 @@ def test_bytes_arrive_one_byte_time_apart_so_a_host_pause_shrinks_on_the_line(mo
     assert action == "_execute" and frame == GAP and when == arrived == 9 * byte_ns  # busy line
 
 
+@pytest.mark.parametrize("baud", [9600, 115200])
+def test_a_round_trip_is_scheduled_to_take_exactly_what_the_line_takes(monkeypatch, baud: int) -> None:
+    """A GAP written at 0: the module runs it when its ninth byte is in, and the reply's last
+    byte is due at the computed round trip (18 bytes and the processing time), not later."""
+    now = [0]
+    monkeypatch.setattr(wire.time, "monotonic_ns", lambda: now[0])
+    monkeypatch.setattr(wire, "WireScheduler", Scheduled)
+    simulation = Simulation([TMCM6212()], VirtualClock())
+    session = PacedStreamSession(simulation, lambda data: None, None, LinkMode.USB, "pty test",  # type: ignore[arg-type]
+                                 baud=LineRate.uart(None, baud), timing=WireTiming(DEFAULT_PROCESSING_S))
+    scheduler = session._scheduler
+    session.feed(GAP)
+    ((arrived, execute, args),) = scheduler.due
+    now[0] = arrived
+    execute(*args)
+    writes = scheduler.due[1:]
+    reply = decode_reply(b"".join(args[0] for _, _, args in writes))
+    assert (reply.opcode, reply.status) == (Opcode.GAP, 100)
+    byte_ns = round(10 / baud * 1e9)
+    assert [when for when, _, _ in writes] == [
+        9 * byte_ns + round(DEFAULT_PROCESSING_S * 1e9) + n * byte_ns for n in range(1, 10)]
+    assert writes[-1][0] / 1e9 == pytest.approx(serial_round_trip_s(baud), abs=1e-6)
+
+
 def test_can_frames_take_their_time_at_gp69s_bit_rate(
         tmcl_sim_factory: Callable[..., SimulatorThread]) -> None:
     sim = tmcl_sim_factory(socketcand=["127.0.0.1:0"], wire_timing=True)
@@ -150,8 +180,7 @@ def test_can_frames_take_their_time_at_gp69s_bit_rate(
         sim.power_cycle()
         assert sim.call(lambda: sim.server.can_bus().timing.rate.bits_per_s) == 20_000
         times = [ask(Opcode.GAP, AP.ACTUAL_POSITION)[0] for _ in range(8)]
-        computed = can_round_trip_s(20_000)
-        assert computed * 0.98 <= statistics.median(times) <= computed * 1.3
+        assert min(times) >= can_round_trip_s(20_000) * 0.98  # never faster than the bus
     finally:
         bus.shutdown()
 
@@ -178,8 +207,7 @@ def test_a_serial_port_is_paced_at_its_own_baud_rate_and_meets_faults_too() -> N
                 os.write(master, GAP)
                 assert decode_reply(read_reply(master, 2.0)).status == 100
                 times.append(time.perf_counter() - start)
-            computed = serial_round_trip_s(19200)
-            assert computed * 0.98 <= statistics.median(times) <= computed * 1.5
+            assert min(times) >= serial_round_trip_s(19200) * 0.98  # never faster than the line
             with sim.fault("noreply", count=1):
                 os.write(master, GAP)
                 assert read_reply(master, 0.1) == b""

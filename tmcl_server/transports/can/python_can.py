@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
 from collections import Counter
 from typing import Any
@@ -36,6 +37,37 @@ def parse_can_spec(text: str) -> tuple[str, str, int | None]:
     return interface, rest, None
 
 
+#: What to do when SocketCAN is missing: the ways onto the simulated bus that need no kernel.
+_WITHOUT_KERNEL_CAN = "--can virtual:NAME, --socketcand or --slcan-pty need none (docs/can.md)"
+
+
+class CanUnavailableError(OSError):
+    """A python-can bus that cannot be opened here, said in one line: for SocketCAN, whether
+    the system has none (Errno 97: no CAN sockets, or not Linux) or lacks the interface."""
+
+    def __init__(self, interface: str, channel: str, cause: Exception) -> None:
+        number = cause.errno if isinstance(cause, OSError) else None
+        super().__init__(number, str(cause))
+        self.text = self._explain(interface, channel, number, cause)
+
+    @staticmethod
+    def _explain(interface: str, channel: str, number: int | None, cause: Exception) -> str:
+        if interface == "socketcan":
+            if number in (errno.EAFNOSUPPORT, errno.EPROTONOSUPPORT) or isinstance(
+                    cause, can.CanInterfaceNotImplementedError):
+                return ("this system has no SocketCAN (the kernel's CAN sockets: Linux with the "
+                        f"can and can_raw modules); {_WITHOUT_KERNEL_CAN}")
+            if number == errno.ENODEV:
+                return (f"no CAN interface {channel!r} here (`ip link` lists them; a virtual "
+                        f"one: sudo ip link add dev {channel} type vcan && sudo ip link set "
+                        f"{channel} up)")
+        reason = getattr(cause, "strerror", None) or str(cause) or type(cause).__name__
+        return f"python-can cannot open {interface} channel {channel!r}: {reason}"
+
+    def __str__(self) -> str:
+        return self.text
+
+
 class PythonCanTransport(Transport):
     kind = "can"
 
@@ -53,8 +85,11 @@ class PythonCanTransport(Transport):
 
     async def start(self) -> list[str]:
         options: dict[str, Any] = {} if self.bitrate is None else {"bitrate": self.bitrate}
-        self._can = bus = await asyncio.to_thread(
-            can.Bus, interface=self.interface, channel=self.channel, **options)
+        try:
+            self._can = bus = await asyncio.to_thread(
+                can.Bus, interface=self.interface, channel=self.channel, **options)
+        except (OSError, can.CanError) as exc:
+            raise CanUnavailableError(self.interface, self.channel, exc) from exc
         self._notifier = can.Notifier(bus, [self._from_outside], timeout=READ_TIMEOUT_S,
                                       loop=asyncio.get_running_loop())
         self.bus.attach(self)
