@@ -460,6 +460,10 @@ def main() -> int:
     parser.add_argument("--compare", metavar="DIR", default="",
                         help="also run each shape's skipping run on another checkout's code "
                              "(a child process, alternating with this one's runs)")
+    parser.add_argument("--compare-cpu", type=float, default=20.0,
+                        help="CPU seconds a compared run may take (default 20): where the "
+                             "compared code would take longer over the shape's span (it "
+                             "steps what this code skips), it runs a shorter span")
     parser.add_argument("--code", metavar="DIR", default="",
                         help="(internal) run on this checkout's code: --compare's child")
     parser.add_argument("--child", action="store_true",
@@ -479,10 +483,15 @@ def main() -> int:
             continue
         seconds = shape.seconds or args.seconds
         fast, compared = [], []
+        compared_seconds = seconds
+        if args.compare:  # a short run first: how long the whole span would take it
+            short = min(seconds, args.reference_seconds)
+            rate_there = short / _compared_run(args.compare, shape.name, short)
+            compared_seconds = min(seconds, max(short, round(args.compare_cpu * rate_there)))
         for _ in range(args.repeat):  # alternating with the compared code's runs
             fast.append(run(shape, seconds, False))
             if args.compare:
-                compared.append(_compared_run(args.compare, shape.name, seconds))
+                compared.append(_compared_run(args.compare, shape.name, compared_seconds))
         wall = statistics.median(w for w, _ in fast)
         ref_seconds = min(seconds, args.reference_seconds)
         slow = [run(shape, ref_seconds, True) for _ in range(args.repeat)]
@@ -507,10 +516,12 @@ def main() -> int:
         print(f"{shape.name:<14} {shown:>16} {ref_shown:>16} {rate / ref_rate:>7.1f}x  "
               f"{goal:<9} {'met' if met else 'NOT MET'}; {same}")
         if compared:
-            base = statistics.median(compared)
+            base = statistics.median(compared) * seconds / compared_seconds
             base_shown = (f"{base:.3f} s/{seconds / 3600:.0f} h" if shape.wall_goal
                           else f"{seconds / base:,.0f} x")
-            print(f"{'':<14} {base_shown:>16}  (skipping, {args.compare}, the same runs)")
+            span = "" if compared_seconds == seconds else f", over {compared_seconds:g} s"
+            print(f"{'':<14} {base_shown:>16}  (skipping, {args.compare}, the same "
+                  f"runs{span})")
     return 1 if failed else 0
 
 
