@@ -330,8 +330,10 @@ class AxisForecast:
             middle = (low.t + high) // 2
             probe = low.clone()
             probe.run(middle, LOOKAHEAD_BUDGET)
-            if probe.t < middle:  # stopped short (its work budget): no promise beyond here
-                return probe.ns_at(probe.t)
+            if probe.t < middle:  # stopped short (its work budget): judged where it stopped
+                if probe.t <= low.t:
+                    return low.ns_at(low.t + 1)  # no further promise than the tick after low
+                middle = probe.t  # (returning its instant unjudged could be late)
             if compares_otherwise(probe):
                 high = middle
             else:

@@ -26,9 +26,11 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, field
 
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from axes import forecast
 from interpreter.assembler import assemble
 from tmcl_server.clock import VirtualClock
 from tmcl_server.module import ModuleEvent, TMCLModule
@@ -638,6 +640,22 @@ def test_a_positioning_moves_speed_is_forecast_between_its_turns() -> None:
         fast, slow = run(source, world, True), run(source, world, False)
         assert fast[:-1] == slow[:-1], (kind, core)
         assert fast[-1][1] > 100_000, (kind, core, fast[-1])  # nearly every pass skipped
+
+
+def test_a_bisection_cut_short_by_its_work_budget_judges_where_it_stopped(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """F4, F8: a probe of the speed's bisection that runs out of work short of its middle is
+    judged where it stopped; its instant was taken as the answer unjudged, which could lie
+    past the crossing (a rotation polled against 6,000 pps left its loop late with a tiny
+    budget)."""
+    monkeypatch.setattr(forecast, "LOOKAHEAD_BUDGET", 1)
+    cases = [(POLL_SPEED, "tmcm-6212", "tmc4210"),
+             (POSITIONING_SPEED.format(top=1500, acceleration=100, half=750), "tmcm-6110", None),
+             (POSITIONING_SPEED.format(top=100000, acceleration=50000, half=50000), "tmcm-6212",
+              "tmc4210")]
+    for source, kind, core in cases:
+        world = World(None, [], 2500, core, kind)
+        assert run(source, world, True)[:-1] == run(source, world, False)[:-1], (kind, core)
 
 
 def test_a_wait_whose_condition_holds_is_part_of_the_pass_it_falls_through() -> None:
