@@ -30,7 +30,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 # The code that runs: this checkout's, or with ``--code DIR`` another's (``--compare``'s child
@@ -155,26 +155,9 @@ SIX_ROUND_ROBIN = "\n".join(
     + [f"Turn{axis}:\nGAP 0, {axis}\nCALC MUL, -1\nAAP 0, {axis}\nJA Back{axis}"
        for axis in range(6)])
 
-#: Issue 33's axis-side shapes (forecasts: CALC/CALCX, a positioning move's speed, stallGuard
-#: over a load zone, six axes in turn, a joystick over analogue inputs).
+#: Issue 33's axis-side shapes (forecasts: CALC/CALCX, a positioning move's speed, six axes
+#: in turn, a joystick over analogue inputs; and stall-zone below).
 AXIS_SHAPES = [
-    Shape("stall-zone", 1000, """
-    // poll "position reached" with stop-on-stall armed, over a light-load zone
-    SAP 174, 0, 5
-    SAP 181, 0, 10000
-Loop:
-    MVP ABS, 0, 1000000
-Wait1:
-    GAP 8, 0
-    COMP 1
-    JC NE, Wait1
-    MVP ABS, 0, 0
-Wait2:
-    GAP 8, 0
-    COMP 1
-    JC NE, Wait2
-    JA Loop
-""", world=_light_load),
     Shape("pos-speed", 1000, """
     // a positioning move's speed polled while it ramps, moves re-issued
     SAP 4, 0, 100000
@@ -384,6 +367,12 @@ Tick:
           seconds=3600, wall_goal=0.5),
     *AXIS_SHAPES,
 ]
+#: Issue 33: the "flag" poll with stop-on-stall armed (AP 181 above 10,000 pps, stallGuard
+#: threshold 5), over a light-load zone.
+SHAPES.insert(SHAPES.index(AXIS_SHAPES[0]), replace(
+    next(shape for shape in SHAPES if shape.name == "flag"), name="stall-zone",
+    source="\n    SAP 174, 0, 5\n    SAP 181, 0, 10000" + next(
+        shape for shape in SHAPES if shape.name == "flag").source, world=_light_load))
 #: TMC429 modules: the divisors that make the register values above the pps of the others.
 TMC429_SETUP = [(154, axis, 4) for axis in range(6)] + [(153, axis, 10) for axis in range(6)]
 
