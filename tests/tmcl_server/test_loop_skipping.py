@@ -14,7 +14,9 @@ TMCM-1111's own S-shaped ramps):
 * positions and comparisons across the 32-bit wrap (F3);
 * monitor loops sending several commands to the axis they compare (F7);
 * WAITs for a position, a switch or a reference search that fall through or go on (I3);
-* rotations on S-shaped ramps asked for another speed mid-ramp, whose speed turns (F4).
+* rotations on S-shaped ramps asked for another speed mid-ramp, whose speed turns (F4);
+* moving reads through CALC/CALCX, across the wrap of the read and of the function (I10);
+* positioning moves' speeds polled while they ramp, moves re-issued (F8).
 
 * coolStep and stallGuard set up by the program over load zones of the world: they run on
   the firmware's own clock (axes/tasks.py T1-T3), never at a read, so a skipped read changes
