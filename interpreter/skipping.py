@@ -34,7 +34,7 @@ I5. Flips are found on time.  A pass that reads moving values (a position, a spe
     uses them only through COMP and JC (:func:`boundaries`), directly or through CALC/CALCX
     that keep them exactly invertible (I10), takes a path that is a function of how each
     value compares with each boundary (<, =, >).  The axis answers when
-    it first compares otherwise with one of them (``first_time_at``, axes/forecast.py F3-F4):
+    it first compares otherwise with one of them (``first_time_at``, axes/forecast.py F3-F8):
     where the value meets a boundary, or, for AP 1, where it wraps (2**31 - 1 -> -2**31: the
     comparison flips there without meeting its boundary, F3), counted from the read's own
     instant (a later command of the pass to the same axis has brought the axis further,
