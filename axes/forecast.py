@@ -320,7 +320,9 @@ class AxisForecast:
         if not compares_otherwise(end_chip):
             return end_ns
         high = end_chip.t
-        if high - start.t > 2:  # the end itself often flips (a speed polled to 0 at arrival)
+        # the end itself often flips (a speed polled to 0 at arrival); where it has turned by
+        # then, the turn is usually earlier (the top speed reached): no use looking there
+        if high - start.t > 2 and (turns is None or not turns(end_chip)):
             before = start.clone()
             before.run(high - 1, LOOKAHEAD_BUDGET)
             if before.t == high - 1 and not compares_otherwise(before):
