@@ -271,6 +271,16 @@ class ChipDriver(ABC):
         (S-shaped) says where they may."""
         return None
 
+    def positioning_speed(self, start: ChipModel) -> tuple[Callable[[ChipModel], bool],
+                                                           int] | None:
+        """How far a positioning move's AP 3 moves one way from ``start`` (a look-ahead copy
+        of its own chip in positioning mode, nothing intervening): (a test of a later copy of
+        ``start`` as :meth:`speed_turns` gives, false, then true once the speed may have
+        turned; the motor steps from ``start`` to where the chip's target is first met, up to
+        which that test holds, loop skipping's end of the stretch: axes/forecast.py F8).
+        None, the default: no promise (the speed rises and falls; it is stepped)."""
+        return None
+
     @abstractmethod
     def levels(self) -> tuple[bool, bool, bool]:
         """Logical (left, right, home) switch levels as the chip reports them."""

@@ -40,7 +40,9 @@ F4. A rotation's speed is monotonic only as far as its driver says
 F5. A crossing found is kept while the look-ahead it was found for is the current one (its
     identity): a new look-ahead is made after every change (F1).  A crossing found from an
     earlier instant of the same look-ahead is still the first one after any later instant
-    it does not precede (and one it precedes promises nothing).
+    it does not precede (and one it precedes promises nothing).  So is a speed's answer
+    (F4, F8): up to it the speed compared alike and did not turn, so from a later read
+    before it, nothing changes before it either.
 F6. What the firmware's periodic pass keeps for reads (AP 180, a modelled driver's AP
     206/208) changes only at that pass (axes/tasks.py, T3): it holds until the next pass that
     may change it.  No read changes anything a later read sees, so a read left out (skipped,
@@ -52,10 +54,25 @@ F7. A crossing is searched from the read's own instant.  Loop skipping asks
     would be missed and the axis overshoot.  So a moving read keeps a copy of the chip at
     its instant (:class:`Reading`), under the look-ahead it was made in, and the search
     starts from that copy; without one (or under another look-ahead) there is no promise.
+F8. A positioning move's speed rises and falls, but its driver may say over which stretches
+    it moves one way (:meth:`axes.core.ChipDriver.positioning_speed`): a test as F4's (false,
+    then true once the speed may have turned) that holds up to where the position first
+    meets the chip's target (a copy of the chip with a mark there, F3, ends the stretch;
+    past it the move may overshoot and come back).  On a TMC42x ramp or soft move with no
+    stop switch in play the speed is below the positioning curve's target (towards the
+    target's side) and a ramp tick only raises it, until it reaches the curve; from then on
+    it only falls, for the curve falls with the distance (shared/spec/tmc4210.md §4.8,
+    ``MotorLaw.ramp_tick``): one bisection for the rise, then one for the fall.  On a
+    TMC4361A trapezoid move towards its target the speed heads for VMAX and falls once the
+    final approach begins (``TMC4361A.positioning_turns``; a rest, where a move may start
+    again at VSTART, is a STOPPED instant, which ends every run).  A driver that says
+    nothing (S-shaped ramps, which may first take back their acceleration) makes no
+    promise: stepped.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -125,7 +142,7 @@ class ForecastedAxis(Protocol):
 
 
 class AxisForecast:
-    """The look-ahead of one axis, and the forecasts loop skipping asks for (F1-F7)."""
+    """The look-ahead of one axis, and the forecasts loop skipping asks for (F1-F8)."""
 
     def __init__(self, axis: ForecastedAxis, motions: dict[int, Motion]) -> None:
         self._axis = axis
@@ -140,6 +157,12 @@ class AxisForecast:
         self._crossing: tuple[Lookahead, tuple[int, ...], int, int] | None = None
         #: The last moving reads loop skipping asked about, oldest first (F7).
         self._readings: list[Reading] = []
+        #: The last target meeting found for a positioning move's speed: (the look-ahead, the
+        #: motor position marked, the read it was searched from, (instant, chip)) (F5, F8).
+        self._met: tuple[Lookahead, int, int, tuple[int, ChipModel]] | None = None
+        #: The last speed crossing found: (the look-ahead, values, the read's instant, time):
+        #: the same answer for a later read it does not precede (F5).
+        self._speed_crossing: tuple[Lookahead, tuple[int, ...], int, int] | None = None
 
     def invalidate(self) -> None:
         """Something changed the chip or what it runs into (F1): look again when asked."""
@@ -190,8 +213,8 @@ class AxisForecast:
                 if turns is None or not turns(ahead.chip):
                     return ahead.time_ns
             self._keep_reading(number, ahead)
-        elif number == AP.ACTUAL_POSITION:
-            self._keep_reading(number, ahead)
+        elif number == AP.ACTUAL_POSITION or number == AP.ACTUAL_SPEED:
+            self._keep_reading(number, ahead)  # (a positioning move's speed: F8)
         return 0  # a moving quantity
 
     def _keep_reading(self, number: int, ahead: Lookahead) -> None:
@@ -227,9 +250,34 @@ class AxisForecast:
             half = 1 << (self._axis.driver.position_bits - 1)
             return self._first_time_at_position((*values, -half, half - 1), ahead,
                                                 reading)  # F3
-        if number == AP.ACTUAL_SPEED and self._axis.in_velocity_mode():
-            return self._first_time_speed_crosses(values, ahead, reading.chip)
-        return 0
+        if number != AP.ACTUAL_SPEED:
+            return 0
+        cached = self._speed_crossing
+        if (cached is not None and cached[0] is ahead and cached[1] == values
+                and cached[2] <= read_ns < cached[3]):
+            return cached[3]  # F5: it compares alike from the earlier read up to then
+        result = self._first_time_speed_changes(values, reading, ahead)
+        self._speed_crossing = (ahead, values, read_ns, result)
+        return result
+
+    def _first_time_speed_changes(self, values: tuple[int, ...], reading: Reading,
+                                  ahead: Lookahead) -> int:
+        """:meth:`first_time_at` for AP 3: a rotation's (F4), a positioning move's (F8)."""
+        driver = self._axis.driver
+        if self._axis.in_velocity_mode():
+            return self._first_time_speed_crosses(values, reading.chip,
+                                                  driver.speed_turns(reading.chip),
+                                                  (ahead.time_ns, ahead.chip))  # F4
+        plan = driver.positioning_speed(reading.chip)
+        if plan is None:
+            return 0
+        turns, steps = plan
+        start = reading.chip
+        if not start.steps_reach_motor():
+            return 0  # the target's meeting cannot be marked
+        # F8: monotonic between the turns the driver's test finds, up to the target's meeting
+        return self._first_time_speed_crosses(values, start, turns,
+                                              self._meeting(start, steps, reading, ahead))
 
     def short_of_target(self) -> bool:
         """AP 8 reads 0 now for certain, without bringing the chip up to now: the position
@@ -243,19 +291,21 @@ class AxisForecast:
         return axis.present_ns() < self._first_time_at_position((axis.target_position(),),
                                                                 ahead)
 
-    def _first_time_speed_crosses(self, values: tuple[int, ...], ahead: Lookahead,
-                                  start: ChipModel) -> int:
+    def _first_time_speed_crosses(self, values: tuple[int, ...], start: ChipModel,
+                                  turns: Callable[[ChipModel], bool] | None,
+                                  end: tuple[int, ChipModel]) -> int:
         """The first time AP 3 compares otherwise with one of ``values`` than on ``start`` (a
         copy of the chip at the read: reaches one, or passes it), or where the speed may
-        turn (F4), or the next notable instant: over a stretch where it is monotonic, a copy
-        of the chip is bisected over the clock ticks (one bisection finds whichever comes
-        first: both tests are false, then true)."""
+        turn (``turns``, the driver's test: F4, F8), or ``end`` (an instant and a copy of the
+        chip there, which the speed is monotonic up to if it does not turn before: the next
+        notable instant, or a positioning move's meeting with its target): over a stretch
+        where it is monotonic, a copy of the chip is bisected over the clock ticks (one
+        bisection finds whichever comes first: both tests are false, then true)."""
         driver = self._axis.driver
         speed = driver.speed_on(start.clone())
         if speed in values:
             return 0
         above = [speed > value for value in values]
-        turns = driver.speed_turns(start)
         if turns is not None and turns(start):
             return 0  # no promise at all (a positioning ramp, a start from rest)
 
@@ -266,15 +316,26 @@ class AxisForecast:
             return any(now == value or (now > value) != side
                        for value, side in zip(values, above, strict=True))
 
-        if not compares_otherwise(ahead.chip):
-            return ahead.time_ns
-        low, high = start.clone(), ahead.chip.t
+        end_ns, end_chip = end
+        if not compares_otherwise(end_chip):
+            return end_ns
+        high = end_chip.t
+        # the end itself often flips (a speed polled to 0 at arrival); where it has turned by
+        # then, the turn is usually earlier (the top speed reached): no use looking there
+        if high - start.t > 2 and (turns is None or not turns(end_chip)):
+            before = start.clone()
+            before.run(high - 1, LOOKAHEAD_BUDGET)
+            if before.t == high - 1 and not compares_otherwise(before):
+                return before.ns_at(high)  # both tests are false, then true: the end flips
+        low = start.clone()
         while high - low.t > 1:
             middle = (low.t + high) // 2
             probe = low.clone()
             probe.run(middle, LOOKAHEAD_BUDGET)
-            if probe.t < middle:  # stopped short (its work budget): no promise beyond here
-                return probe.ns_at(probe.t)
+            if probe.t < middle:  # stopped short (its work budget): judged where it stopped
+                if probe.t <= low.t:
+                    return low.ns_at(low.t + 1)  # no further promise than the tick after low
+                middle = probe.t  # (returning its instant unjudged could be late)
             if compares_otherwise(probe):
                 high = middle
             else:
@@ -309,8 +370,32 @@ class AxisForecast:
                  if -half <= value < half]
         if motor in marks:
             return 0
+        result = self._run_to_marks(start, marks, ahead)[0]
+        self._crossing = (ahead, values, since, result)
+        return result
+
+    def _meeting(self, start: ChipModel, steps: int, reading: Reading,
+                 ahead: Lookahead) -> tuple[int, ChipModel]:
+        """Where the motor, at ``start`` (a copy at ``reading``), first meets the motor
+        position ``steps`` further (F8's end of a stretch), and a copy of the chip there;
+        kept for the later reads of the same look-ahead it does not precede (F5), as a move
+        polled through its look-ahead asks once per flip."""
+        mark = start.motor_position + steps
+        cached = self._met
+        if (cached is not None and cached[0] is ahead and cached[1] == mark
+                and cached[2] <= reading.time_ns and start.t <= cached[3][1].t):
+            return cached[3]
+        met = self._run_to_marks(start, [mark], ahead)
+        self._met = (ahead, mark, reading.time_ns, met)
+        return met
+
+    def _run_to_marks(self, start: ChipModel, marks: list[int],
+                      ahead: Lookahead) -> tuple[int, ChipModel]:
+        """A copy of ``start`` run with a mark at each of the motor positions ``marks`` up to
+        the look-ahead's end: (the instant it stopped, at the first step that reached one or
+        conservatively at anything else, or the look-ahead's end; the copy there)."""
         twin = start.clone()
-        board = axis.board
+        board = self._axis.board
         saved = board.firmware_marks
         board.firmware_marks = saved + marks
         until = twin.ticks_at(ahead.time_ns)
@@ -318,6 +403,4 @@ class AxisForecast:
             twin.run(until, LOOKAHEAD_BUDGET)
         finally:
             board.firmware_marks = saved
-        result = twin.ns_at(twin.t) if twin.t < until else ahead.time_ns
-        self._crossing = (ahead, values, since, result)
-        return result
+        return (twin.ns_at(twin.t) if twin.t < until else ahead.time_ns), twin

@@ -30,10 +30,11 @@ I4. The ceiling.  Pass k >= 1 after the analysed pass (which began at ``start``)
     command at offset o at ``start + k * period + o``; its answer is certain (I3) while that
     is < ``steady_until``, i.e. for k <= ceil((steady_until - start - o) / period) - 1.  The
     pass must also end by the batch's ``limit``: k <= (limit - start) // period - 1.
-I5. Flips are found on time.  A pass that reads moving values (a position, a rotation's
-    speed) and uses them only through COMP and JC (:func:`boundaries`) takes a path that is a
-    function of how each value compares with each boundary (<, =, >).  The axis answers when
-    it first compares otherwise with one of them (``first_time_at``, axes/forecast.py F3-F4):
+I5. Flips are found on time.  A pass that reads moving values (a position, a speed) and
+    uses them only through COMP and JC (:func:`boundaries`), directly or through CALC/CALCX
+    that keep them exactly invertible (I14), takes a path that is a function of how each
+    value compares with each boundary (<, =, >).  The axis answers when
+    it first compares otherwise with one of them (``first_time_at``, axes/forecast.py F3-F8):
     where the value meets a boundary, or, for AP 1, where it wraps (2**31 - 1 -> -2**31: the
     comparison flips there without meeting its boundary, F3), counted from the read's own
     instant (a later command of the pass to the same axis has brought the axis further,
@@ -93,12 +94,22 @@ I12. A timer whose handler only counts is applied for k ticks at once.  A handle
     c further.  They are skipped at once (time, instruction count, the timer's next tick,
     each dispatch's ``interrupt_taken`` event at its instant, the variables k c further),
     ending no later than the batch (I1); the dispatch after them is executed.
+I14. A moving read through CALC/CALCX compares as the read does with its own boundaries.
+    A register follows the read r as ``int32(s * r + o)`` (s = +-1, o known exactly: CALC
+    ADD/SUB/NOT/MUL by +-1 and CALCX ADD/SUB with a register whose value is known in every
+    pass: the pass's start value, which I6 keeps, or one it loaded from a steady read or a
+    constant; CALCX LOAD/SWAP/NOT move it).  Modulo 2**32 each value c has exactly one
+    r with ``s * r + o = c``, so between the r at which it meets the COMP's value and the
+    two on either side of its own wrap (2**31 - 1 -> -2**31: ``GAP 1; CALC ADD 1000;
+    COMP 0`` turns from greater to less there) it compares alike, and those r are the
+    read's boundaries (``Affine.flips``).  Anything else a moving read goes through
+    (MUL, DIV, MOD, AND, OR, XOR, a second moving read, a value not known) is stepped.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from interpreter.isa import (
     CONTINUE,
@@ -107,6 +118,7 @@ from interpreter.isa import (
     OP_ACO,
     OP_AGP,
     OP_CALC,
+    OP_CALCX,
     OP_COMP,
     OP_GAP,
     OP_GCO,
@@ -118,6 +130,7 @@ from interpreter.isa import (
     Instruction,
 )
 from tmcl_spec.commands import MOTOR_ALL, STATUS_OK, CalcOp, Opcode, RfsType
+from tmcl_spec.numbers import to_int32
 from tmcl_spec.parameters import GP
 
 #: A loop is analysed after this many backward jumps; while it cannot be skipped, the wait
@@ -533,18 +546,47 @@ def _reads_clock(call: Call) -> bool:
 
 #: Registers of the pass analysis (the indices in Program.registers()).
 _ACC, _X, _ZERO, _CMP, _ERRORS, _STACK = 1, 2, 3, 4, 5, 6
+_HALF = 1 << 31
+#: CALCX operations of plain arithmetic that keep a moving read's function invertible.
+_PLAIN = (CalcOp.ADD, CalcOp.SUB)
+
+
+class Affine(NamedTuple):
+    """A register that holds ``to_int32(sign * r + offset) - compared``, r the value of moving
+    read ``read`` (an index of the pass's calls; ``sign`` +1 or -1, ``offset`` a 32-bit value,
+    ``compared`` a COMP's value, 0 for the accumulator and X): a function of the read that
+    CALC ADD/SUB/NOT/MUL by +-1 and CALCX ADD/SUB/LOAD/SWAP/NOT keep exactly invertible
+    (I14)."""
+
+    read: int
+    sign: int
+    offset: int
+    compared: int = 0
+
+    def flips(self) -> tuple[int, ...]:
+        """I14: the read values at which ``to_int32(sign * read + offset)`` meets ``compared``
+        or jumps across its wrap (2**31 - 1 -> -2**31, on both sides), each solved exactly
+        modulo 2**32; the identity cannot jump (the read's own wrap is the forecast's, F3)."""
+        sign, offset = self.sign, self.offset
+        if sign == 1 and offset == 0:
+            return (self.compared,)
+        return tuple(to_int32(sign * (value - offset))
+                     for value in (self.compared, _HALF - 1, -_HALF))
 
 
 class _PassShape:
-    """Follows a pass's path symbolically: which registers hold a moving read's value (plus
-    an offset), which the pass reads before writing, and the values each moving read is
-    compared with (the boundaries of I5)."""
+    """Follows a pass's path symbolically: which registers hold an affine function of a moving
+    read's value (:class:`Affine`), which registers' values are known (the pass's start and
+    what it loads), which the pass reads before writing, and the values each moving read is
+    compared with (the boundaries of I5, I14)."""
 
-    def __init__(self, calls: list[Call], moving: set[int]) -> None:
+    def __init__(self, calls: list[Call], moving: set[int], before: tuple[object, ...]) -> None:
         self.moving = moving
         self.pending = iter(enumerate(calls))  # the pass's module commands, in order
-        #: register -> (index of the moving read, offset): the read's value + offset
-        self.symbolic: dict[int, tuple[int, int]] = {}
+        #: register -> the function of a moving read it holds
+        self.symbolic: dict[int, Affine] = {}
+        #: ACC and X -> their value where it is known for certain (None: not known)
+        self.known: dict[int, int | None] = {_ACC: _int(before[_ACC]), _X: _int(before[_X])}
         self.written: set[int] = set()
         self.first_read: set[int] = set()
         self.boundaries: dict[int, set[int]] = {index: set() for index in moving}
@@ -556,11 +598,11 @@ class _PassShape:
         if handler is not None:
             return handler(self, ty, motor, va)
         if op in INTERNAL_OPCODES:
-            return False  # CALCX, subroutines, interrupts, error flags: not analysed
+            return False  # subroutines, interrupts, error flags: not analysed
         index, call = next(self.pending)
         if call.status == STATUS_OK and loads_accumulator(op, ty, motor):
-            source = (index, 0) if index in self.moving else None
-            self.writes(_ACC, source)
+            source = Affine(index, 1, 0) if index in self.moving else None
+            self.writes(_ACC, source, to_int32(call.value))
             self.writes(_ZERO, source)
         return True
 
@@ -568,27 +610,97 @@ class _PassShape:
         if register not in self.written:
             self.first_read.add(register)
 
-    def writes(self, register: int, source: tuple[int, int] | None = None) -> None:
+    def writes(self, register: int, source: Affine | None = None,
+               value: int | None = None) -> None:
+        """``register`` now holds ``source`` (a moving read's function) or ``value`` (known;
+        None: neither)."""
         self.written.add(register)
         if source is None:
             self.symbolic.pop(register, None)
         else:
             self.symbolic[register] = source
+        if register in self.known:
+            self.known[register] = None if source is not None else value
 
     def calc(self, ty: int, motor: int, va: int) -> bool:
-        """CALC: not analysed if it computes with a moving value."""
-        if ty != CalcOp.LOAD:
+        """CALC: a moving value goes on only through what keeps it invertible (I14)."""
+        if ty == CalcOp.LOAD:
+            self.writes(_ACC, None, to_int32(va))
+            self.writes(_ZERO)
+            return True
+        self.reads(_ACC)
+        source = self.symbolic.get(_ACC)
+        if source is None:
+            known = self.known[_ACC]
+            value = None if known is None else _exactly(ty, known, va)
+            self.writes(_ACC, None, value)
+            self.writes(_ZERO)
+            return True
+        if ty == CalcOp.MUL and va == 0:
+            self.writes(_ACC, None, 0)  # the same 0 in every pass
+            self.writes(_ZERO)
+            return True
+        moved = _affine_calc(ty, source, va)
+        if moved is None:
+            return False
+        self.writes(_ACC, moved)
+        self.writes(_ZERO, moved)
+        return True
+
+    def calcx(self, ty: int, motor: int, va: int) -> bool:
+        """CALCX: the accumulator with X, where a moving value stays invertible (I14)."""
+        symbolic, known = self.symbolic, self.known
+        if ty == CalcOp.LOAD:
             self.reads(_ACC)
-            if _ACC in self.symbolic:
+            self.writes(_X, symbolic.get(_ACC), known[_ACC])
+            return True
+        if ty == CalcOp.NOT:
+            self.reads(_X)
+            source, value = symbolic.get(_X), known[_X]
+            self.writes(_X, None if source is None else _affine_calc(ty, source, 0),
+                        None if value is None else to_int32(~value))
+            return True
+        self.reads(_ACC)
+        self.reads(_X)
+        acc, x = symbolic.get(_ACC), symbolic.get(_X)
+        if ty == CalcOp.SWAP:
+            acc_value, x_value = known[_ACC], known[_X]
+            self.writes(_ACC, x, x_value)
+            self.writes(_X, acc, acc_value)
+            self.writes(_ZERO, x)
+            return True
+        if acc is None and x is None:
+            acc_value, x_value, value = known[_ACC], known[_X], None
+            if acc_value is not None and x_value is not None and ty in _PLAIN:
+                value = _exactly(ty, acc_value, x_value)
+            self.writes(_ACC, None, value)
+            self.writes(_ZERO)
+            return True
+        if ty not in _PLAIN:
+            return False
+        sign = 1 if ty == CalcOp.ADD else -1
+        if acc is not None and x is not None:
+            if acc.read != x.read or acc.sign + sign * x.sign != 0:
+                return False  # two reads, or twice one: not one read's +-1 function
+            self.writes(_ACC, None, to_int32(acc.offset + sign * x.offset))  # the read cancels
+        elif acc is not None:
+            other = known[_X]
+            if other is None:
                 return False
-        self.writes(_ACC)
-        self.writes(_ZERO)
+            self.writes(_ACC, Affine(acc.read, acc.sign, to_int32(acc.offset + sign * other)))
+        else:
+            assert x is not None
+            other = known[_ACC]
+            if other is None:
+                return False
+            self.writes(_ACC, Affine(x.read, sign * x.sign, to_int32(other + sign * x.offset)))
+        self.writes(_ZERO, symbolic.get(_ACC))
         return True
 
     def comp(self, ty: int, motor: int, va: int) -> bool:
         self.reads(_ACC)
         source = self.symbolic.get(_ACC)
-        compared = None if source is None else (source[0], source[1] - va)
+        compared = None if source is None else source._replace(compared=va)
         self.writes(_CMP, compared)
         self.writes(_ZERO, compared)
         return True
@@ -596,9 +708,9 @@ class _PassShape:
     def jc(self, ty: int, motor: int, va: int) -> bool:
         register = _ZERO if ty <= 1 else _CMP if ty <= 7 else _ERRORS
         self.reads(register)
-        if register in self.symbolic:
-            index, offset = self.symbolic[register]
-            self.boundaries[index].add(-offset)
+        source = self.symbolic.get(register)
+        if source is not None:
+            self.boundaries[source.read].update(source.flips())  # I5, I14
         return True
 
     def jump(self, ty: int, motor: int, va: int) -> bool:
@@ -636,9 +748,41 @@ class _PassShape:
                        for register in self.first_read)
 
 
-_FOLLOW = {OP_CALC: _PassShape.calc, OP_COMP: _PassShape.comp, OP_JC: _PassShape.jc,
-           OP_JA: _PassShape.jump, OP_WAIT: _PassShape.wait, OP_AAP: _PassShape.accumulator_write,
-           OP_AGP: _PassShape.accumulator_write, OP_ACO: _PassShape.aco}
+def _int(value: object) -> int | None:
+    return value if isinstance(value, int) else None
+
+
+def _exactly(operation: int, value: int, operand: int) -> int | None:
+    """CALC ``operation`` of a known accumulator, where it is plain 32-bit arithmetic (the
+    interpreter's ``calculate``); None for the others (not needed: the value becomes unknown)."""
+    if operation == CalcOp.ADD:
+        return to_int32(value + operand)
+    if operation == CalcOp.SUB:
+        return to_int32(value - operand)
+    if operation == CalcOp.NOT:
+        return to_int32(~value)
+    return None
+
+
+def _affine_calc(operation: int, source: Affine, operand: int) -> Affine | None:
+    """CALC ``operation`` (or CALCX NOT) of a moving read's function, if it is again one of
+    them (I14): ADD, SUB, NOT (~v = -v - 1) and MUL by +-1; None for the rest (stepped)."""
+    index, sign, offset, _ = source
+    if operation == CalcOp.ADD:
+        return Affine(index, sign, to_int32(offset + operand))
+    if operation == CalcOp.SUB:
+        return Affine(index, sign, to_int32(offset - operand))
+    if operation == CalcOp.NOT:
+        return Affine(index, -sign, to_int32(-offset - 1))
+    if operation == CalcOp.MUL and operand in (1, -1):
+        return Affine(index, sign * operand, to_int32(offset * operand))
+    return None
+
+
+_FOLLOW = {OP_CALC: _PassShape.calc, OP_CALCX: _PassShape.calcx, OP_COMP: _PassShape.comp,
+           OP_JC: _PassShape.jc, OP_JA: _PassShape.jump, OP_WAIT: _PassShape.wait,
+           OP_AAP: _PassShape.accumulator_write, OP_AGP: _PassShape.accumulator_write,
+           OP_ACO: _PassShape.aco}
 
 
 def boundaries(code: list[Instruction], path: list[int], calls: list[Call], moving: set[int],
@@ -648,7 +792,7 @@ def boundaries(code: list[Instruction], path: list[int], calls: list[Call], movi
     could decide otherwise (I5), if the pass depends on the moving reads only through COMP
     and JC and leaves every register it reads before writing as it found it (I6); None if the
     pass is not of that shape."""
-    shape = _PassShape(calls, moving)
+    shape = _PassShape(calls, moving, before)
     if not all(shape.follow(code[pc]) for pc in path):
         return None
     if not shape.keeps_what_the_next_pass_reads(before, after):

@@ -7,13 +7,16 @@ polled against a threshold >= 200 x; a 1 ms timer interrupt >= 100 x; six axes i
 program-driven back-and-forth moves, one simulated hour, <= 0.5 s of wall time on every core.
 
     .venv/bin/python scripts/bench_vtime.py [--seconds S] [--repeat N] [--only NAME,...]
-                                            [--code DIR]
+                                            [--compare DIR]
 
 Each shape runs ``--seconds`` of simulated time (default 600, ten minutes; the six-axis shape
 one hour) with loop skipping on (the default) and, with the same program and world, in the
 stepping reference (``Interpreter.skip_loops = False``), which is capped at a few simulated
 seconds when it would take long (its rate is what matters).  Both runs must end in the same
 state (the program's registers, user variables, axis positions, events): the benchmark says so.
+
+``--compare DIR`` also runs each shape's skipping run on another checkout's code (a baseline
+worktree), in a child process between this code's runs, and prints its rate below.
 
 Times are the process's CPU time (``time.process_time``): on a machine shared with other work
 the wall clock also counts the others' turns; alone, the two agree.
@@ -24,15 +27,17 @@ from __future__ import annotations
 import argparse
 import inspect
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-# ``--code DIR`` runs another checkout's simulator (a baseline, side by side in one session)
-sys.path.insert(0, next((sys.argv[i + 1] for i, arg in enumerate(sys.argv[:-1])
-                         if arg == "--code"), str(Path(__file__).resolve().parent.parent)))
+# The code that runs: this checkout's, or with ``--code DIR`` another's (``--compare``'s child
+# process runs this script's shapes on a baseline checkout that may not have them).
+sys.path.insert(0, str(Path(sys.argv[sys.argv.index("--code") + 1]).resolve()
+                       if "--code" in sys.argv[:-1] else Path(__file__).resolve().parent.parent))
 
 from interpreter.assembler import assemble
 from tmcl_server.clock import VirtualClock
@@ -66,6 +71,8 @@ class Shape:
     #: these keywords.
     embed: bool = False
     advance: dict[str, bool] = field(default_factory=dict)
+    #: The world before the program starts (switches, load zones).
+    world: Callable[[TMCLModule], None] | None = None
 
 
 def _toggle_input(sim: Simulation, module: TMCLModule, second: int) -> None:
@@ -137,6 +144,96 @@ for _axis in range(1, 6):
                        .replace(f"SAP 5, {_axis}, 100000", f"SAP 5, {_axis}, 391")
                        .replace(f"SAP 4, {_axis}, 102400", f"SAP 4, {_axis}, 1678")
                        .replace(f"SAP 5, {_axis}, 102400", f"SAP 5, {_axis}, 400"))
+
+def _light_load(module: TMCLModule) -> None:
+    """A light load (stallGuard reads well above 0) over the whole travel of axis 0."""
+    module.set_load(0, [(-10_000_000, 10_000_000, 900)])
+
+
+def _joystick(sim: Simulation, module: TMCLModule, second: int) -> None:
+    """The operator moves the stick (analogue inputs 0 and 1) every other second."""
+    if second % 2 == 0:
+        module.set_analog_input(0, 1000 + 37 * (second % 50))
+        module.set_analog_input(1, 3000 - 29 * (second % 60))
+        sim.replan(module)
+
+
+#: Six axes polled in turn, each move re-issued as it arrives (no WAIT between the axes).
+SIX_ROUND_ROBIN = "\n".join(
+    [*(f"SAP 4, {axis}, {40000 + 10000 * axis}\nSAP 5, {axis}, 100000\n"
+       f"MVP ABS, {axis}, {200000 + 30000 * axis}" for axis in range(6)), "Poll:"]
+    + [f"GAP 8, {axis}\nCOMP 1\nJC EQ, Turn{axis}\nBack{axis}:" for axis in range(6)]
+    + ["JA Poll"]
+    + [f"Turn{axis}:\nGAP 0, {axis}\nCALC MUL, -1\nAAP 0, {axis}\nJA Back{axis}"
+       for axis in range(6)])
+
+#: Issue 33's axis-side shapes (forecasts: CALC/CALCX, a positioning move's speed, six axes
+#: in turn, a joystick over analogue inputs; and stall-zone below).
+AXIS_SHAPES = [
+    Shape("pos-speed", 1000, """
+    // a positioning move's speed polled while it ramps, moves re-issued
+    SAP 4, 0, 100000
+    SAP 5, 0, 20000
+Loop:
+    MVP ABS, 0, 1000000
+Up:
+    GAP 3, 0
+    COMP 80000
+    JC LT, Up
+Down:
+    GAP 3, 0
+    COMP 0
+    JC NE, Down
+    MVP ABS, 0, 0
+Back:
+    GAP 3, 0
+    COMP -80000
+    JC GT, Back
+Rest:
+    GAP 3, 0
+    COMP 0
+    JC NE, Rest
+    JA Loop
+"""),
+    Shape("distance", 1000, """
+    // distance since the start of a move (GAP 1, CALCX SUB, COMP), moves re-issued
+    SAP 4, 0, 100000
+Loop:
+    GAP 1, 0
+    CALCX LOAD
+    MVP REL, 0, 1000000
+Far:
+    GAP 1, 0
+    CALCX SUB
+    COMP 900000
+    JC LT, Far
+    WAIT POS, 0, 0
+    GAP 1, 0
+    CALCX LOAD
+    MVP REL, 0, -1000000
+Near:
+    GAP 1, 0
+    CALCX SUB
+    COMP -900000
+    JC GT, Near
+    WAIT POS, 0, 0
+    JA Loop
+"""),
+    Shape("six-poll", 2000, SIX_ROUND_ROBIN),
+    Shape("joystick-ain", 2000, """
+    // a joystick over analogue inputs 0 and 1 driving axes 0 and 1
+Loop:
+    GIO 0, 1
+    CALC SUB, 2048
+    CALC MUL, 20
+    AAP 2, 0
+    GIO 1, 1
+    CALC SUB, 2048
+    CALC MUL, 20
+    AAP 2, 1
+    JA Loop
+""", host=_joystick),
+]
 
 SHAPES = [
     Shape("flag", 1000, """
@@ -280,6 +377,7 @@ Tick:
     Shape("six-tmc4361a", 0, SIX_AXES, core="tmc4361a", seconds=3600, wall_goal=0.5),
     Shape("six-tmc429", 0, SIX_AXES_TMC429.replace("Loop:\n", "Loop:\n", 1), kind="tmcm-6110",
           seconds=3600, wall_goal=0.5),
+    *AXIS_SHAPES,
 ]
 
 #: A poll of "position reached" over moves back and forth (the flag shape), for the rows
@@ -330,6 +428,12 @@ Delay:
     Shape("six-record10", 200, SIX_AXES, record_s=0.01, seconds=60),
     Shape("speed-record10", 200, SHAPES[6].source, record_s=0.01),
 ]
+#: Issue 33: the "flag" poll with stop-on-stall armed (AP 181 above 10,000 pps, stallGuard
+#: threshold 5), over a light-load zone.
+SHAPES.insert(SHAPES.index(AXIS_SHAPES[0]), replace(
+    next(shape for shape in SHAPES if shape.name == "flag"), name="stall-zone",
+    source="\n    SAP 174, 0, 5\n    SAP 181, 0, 10000" + next(
+        shape for shape in SHAPES if shape.name == "flag").source, world=_light_load))
 #: TMC429 modules: the divisors that make the register values above the pps of the others.
 TMC429_SETUP = [(154, axis, 4) for axis in range(6)] + [(153, axis, 10) for axis in range(6)]
 
@@ -357,6 +461,8 @@ def load(sim: Simulation, module: TMCLModule,
         for number, axis, value in TMC429_SETUP:
             module.execute(Request(1, Opcode.SAP, number, axis, value))
     module.set_analog_input(1, 1234)
+    if shape.world is not None:
+        shape.world(module)
     program = assemble(shape.source).instructions
     module.execute(Request(1, Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0))
     for ins in program:
@@ -422,6 +528,15 @@ def run_embedded(shape: Shape, seconds: float,
         return time.process_time() - start, state
 
 
+def _compared_run(checkout: str, name: str, seconds: float) -> float:
+    """CPU seconds of one skipping run of shape ``name`` on another checkout's code (this
+    script's shapes, that checkout's simulator: a child process)."""
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--code", checkout,
+                          "--child", "--only", name, "--seconds", str(seconds)],
+                         capture_output=True, text=True, check=True)
+    return float(out.stdout.split()[-1])
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=600.0,
@@ -432,11 +547,26 @@ def main() -> int:
                              "takes less)")
     parser.add_argument("--repeat", type=int, default=3, help="runs of each; the median counts")
     parser.add_argument("--only", default="", help="comma-separated shape names")
-    parser.add_argument("--code", default=_CODE,
-                        help="the checkout whose simulator runs (default: this one; e.g. a "
-                             "baseline worktree, run alternately with this one)")
+    parser.add_argument("--compare", metavar="DIR", default="",
+                        help="also run each shape's skipping run on another checkout's code "
+                             "(a child process, alternating with this one's runs)")
+    parser.add_argument("--compare-cpu", type=float, default=20.0,
+                        help="CPU seconds a compared run may take (default 20): where the "
+                             "compared code would take longer over the shape's span (it "
+                             "steps what this code skips), it runs a shorter span")
+    parser.add_argument("--code", metavar="DIR", default=_CODE,
+                        help="the checkout whose simulator runs (default: this one; "
+                             "--compare's child gets the compared one)")
+    parser.add_argument("--child", action="store_true",
+                        help="(internal) print the CPU seconds of one skipping run only")
     args = parser.parse_args()
     chosen = {n for n in args.only.split(",") if n}
+    if args.child:
+        (shape,) = [shape for shape in SHAPES if shape.name in chosen]
+        print(run(shape, shape.seconds or args.seconds, False)[0])
+        return 0
+    if args.compare and not Path(args.compare, "interpreter").is_dir():
+        parser.error(f"--compare {args.compare}: not a tmcl-sim checkout")
     failed = False
     print(f"code: {args.code}")
     print(f"{'shape':<14} {'skipping':>16} {'stepping':>16} {'ratio':>8}  goal      same state")
@@ -444,7 +574,16 @@ def main() -> int:
         if chosen and shape.name not in chosen:
             continue
         seconds = shape.seconds or args.seconds
-        fast = [run(shape, seconds, False) for _ in range(args.repeat)]
+        fast, compared = [], []
+        compared_seconds = seconds
+        if args.compare:  # a short run first: how long the whole span would take it
+            short = min(seconds, args.reference_seconds)
+            rate_there = short / _compared_run(args.compare, shape.name, short)
+            compared_seconds = min(seconds, max(short, round(args.compare_cpu * rate_there)))
+        for _ in range(args.repeat):  # alternating with the compared code's runs
+            fast.append(run(shape, seconds, False))
+            if args.compare:
+                compared.append(_compared_run(args.compare, shape.name, compared_seconds))
         wall = statistics.median(w for w, _ in fast)
         ref_seconds = min(seconds, args.reference_seconds)
         slow = [run(shape, ref_seconds, True) for _ in range(args.repeat)]
@@ -468,6 +607,13 @@ def main() -> int:
         failed |= not met or same != "yes"
         print(f"{shape.name:<14} {shown:>16} {ref_shown:>16} {rate / ref_rate:>7.1f}x  "
               f"{goal:<9} {'met' if met else 'NOT MET'}; {same}")
+        if compared:
+            base = statistics.median(compared) * seconds / compared_seconds
+            base_shown = (f"{base:.3f} s/{seconds / 3600:.0f} h" if shape.wall_goal
+                          else f"{seconds / base:,.0f} x")
+            span = "" if compared_seconds == seconds else f", over {compared_seconds:g} s"
+            print(f"{'':<14} {base_shown:>16}  (skipping, {args.compare}, the same "
+                  f"runs{span})")
     return 1 if failed else 0
 
 

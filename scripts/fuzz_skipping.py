@@ -5,9 +5,10 @@ printed with the program and world that show it.
 
     .venv/bin/python scripts/fuzz_skipping.py [--examples N] [--seed S] [--shapes a,b]
 
-Each shape (poll, wrap, monitor, wait, s-ramp) gets ``--examples`` random programs and worlds;
-the skipping run advances the clock as its world says (one call, or 1 ms, 0.37 ms or mixed
-steps), the stepping reference in one call, both with the world's recorder if it has one.
+Each shape (poll, wrap, monitor, wait, s-ramp, calc, positioning-speed) gets ``--examples``
+random programs and worlds; the skipping run advances the clock as its world says (one call,
+or 1 ms, 0.37 ms or mixed steps), the stepping reference in one call, both with the world's
+recorder if it has one.
 """
 
 from __future__ import annotations

@@ -6,15 +6,17 @@ mixed), and in the stepping reference (``Interpreter.skip_loops = False``, every
 executed, one ``advance`` call per stretch), with the same program, world, host and recorder.
 Both must see the same events at the same instants, the same replies to host requests made
 mid-loop, the same recorded samples, and end in the same state.  Hypothesis makes random
-programs and worlds aimed at the edges the analysis relies on (interpreter/skipping.py I1-I9,
-axes/forecast.py F1-F7), on every module type and core (TMC4210, TMC4361A, TMC429, the
+programs and worlds aimed at the edges the analysis relies on (interpreter/skipping.py I1-I14,
+axes/forecast.py F1-F8), on every module type and core (TMC4210, TMC4361A, TMC429, the
 TMCM-1111's own S-shaped ramps):
 
 * polling loops of GAP/GIO/GGP/COMP/JC/CALC/CALCX/ROR/SAP/AAP/SIO/WAIT, timer interrupts;
 * positions and comparisons across the 32-bit wrap (F3);
 * monitor loops sending several commands to the axis they compare (F7);
 * WAITs for a position, a switch or a reference search that fall through or go on (I3);
-* rotations on S-shaped ramps asked for another speed mid-ramp, whose speed turns (F4).
+* rotations on S-shaped ramps asked for another speed mid-ramp, whose speed turns (F4);
+* moving reads through CALC/CALCX, across the wrap of the read and of the function (I14);
+* positioning moves' speeds polled while they ramp, moves re-issued (F8).
 
 * coolStep and stallGuard set up by the program over load zones of the world: they run on
   the firmware's own clock (axes/tasks.py T1-T3), never at a read, so a skipped read changes
@@ -32,9 +34,11 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, field
 
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
+from axes import forecast
 from interpreter.assembler import assemble
 from tmcl_server.clock import VirtualClock
 from tmcl_server.module import ModuleEvent, TMCLModule
@@ -42,7 +46,7 @@ from tmcl_server.protocol import Reply, Request
 from tmcl_server.record import Recorder
 from tmcl_server.simulation import Simulation
 from tmcl_spec.commands import Opcode
-from tmcl_spec.numbers import INT32_MAX, INT32_MIN
+from tmcl_spec.numbers import INT32_MAX, INT32_MIN, to_int32
 
 MS = 1_000_000
 
@@ -70,9 +74,9 @@ STALLGUARD_SETUPS = [
     ["SAP 174, 1, 1", "SAP 181, 1, 20000", "SAP 172, 1, 3", "SAP 182, 1, 0"],
 ]
 CONDITIONS = ["EQ", "NE", "GT", "GE", "LT", "LE", "ZE", "NZ"]
-#: Arithmetic, also on a moving value just read (stepped, never forecast).
-CALCS = ["CALC ADD, 1", "CALC LOAD, 5", "CALC MUL, 2", "CALC SUB, 3", "CALCX LOAD",
-         "CALCX SUB", "CALCX ADD", "CALCX SWAP"]
+#: Arithmetic, also on a moving value just read (forecast where it stays invertible, I14).
+CALCS = ["CALC ADD, 1", "CALC LOAD, 5", "CALC MUL, 2", "CALC SUB, 3", "CALCX LOAD", "CALC NOT, 0",
+         "CALCX SUB", "CALCX ADD", "CALCX SWAP", "CALCX NOT", "CALC MUL, -1"]
 WAIT_CONDITIONS = ["TICKS", "POS", "REFSW", "LIMSW", "RFS"]
 
 
@@ -277,6 +281,79 @@ def tick_programs(draw: st.DrawFn) -> str:
     return "\n".join(lines)
 
 
+#: What a loop does with a moving value before comparing it (I14): functions the analysis
+#: inverts (offsets, a distance from a start in X, negations) and some it must step.
+CALC_CHAINS = [
+    [], ["CALCX SUB"], ["CALCX SUB"], ["CALC ADD, {k}"], ["CALC SUB, {k}"], ["CALC NOT, 0"],
+    ["CALC MUL, -1"], ["CALCX SWAP", "CALCX SUB"], ["CALCX ADD", "CALC ADD, {k}"],
+    ["CALCX NOT", "CALCX SUB"], ["CALCX LOAD", "CALCX SUB"], ["CALC MUL, 2"], ["CALC MUL, 0"],
+    ["CALCX SWAP"], ["CALC DIV, 3"], ["CALC ADD, {k}", "CALCX SWAP", "CALCX SUB"],
+]
+
+
+@st.composite
+def calc_programs(draw: st.DrawFn) -> str:
+    """A rotation or a move polled through CALC/CALCX (I14): the position or the speed, as an
+    offset from a start kept in X ("distance since the start of the move"), plus or minus a
+    constant chosen so that the function wraps (2**31 - 1 -> -2**31) within the run, or
+    negated, compared with values near the wrap of the function and of the read."""
+    read = draw(st.sampled_from(["GAP 1, 0", "GAP 1, 0", "GAP 3, 0"]))
+    speed = draw(st.sampled_from([20000, 100000, 200000])) * draw(st.sampled_from([1, -1]))
+    start = draw(st.sampled_from([0, INT32_MAX - 30000, INT32_MIN + 30000, -5000]))
+    offset = draw(st.sampled_from([0, 1000, -1000, INT32_MAX - start - 20000,
+                                   INT32_MIN - start + 20000, INT32_MAX, INT32_MIN]))
+    k = draw(st.sampled_from([to_int32(offset), 5, -5, 20000, INT32_MAX, INT32_MIN]))
+    lines = ["SAP 4, 0, 300000", f"SAP 5, 0, {draw(st.sampled_from([100000, 2000000]))}",
+             f"SAP 1, 0, {start}", draw(st.sampled_from(["GAP 1, 0", read, "CALC LOAD, "
+                                                         f"{to_int32(offset)}"])),
+             "CALCX LOAD"]
+    if draw(st.booleans()):
+        lines.append(f"ROR 0, {speed}")
+    else:
+        lines.append(f"MVP REL, 0, {draw(st.sampled_from([40000, -40000, 20000]))}")
+    chain = [op.format(k=k) for op in draw(st.sampled_from(CALC_CHAINS))]
+    values = [0, 1, -1, INT32_MAX, INT32_MIN, 10000, -10000, to_int32(offset + 10000),
+              to_int32(-offset), speed // 2]
+    lines += ["Loop:", read, *chain, f"COMP {draw(st.sampled_from(values))}",
+              f"JC {draw(st.sampled_from(CONDITIONS))}, Out", *_same_axis_commands(draw),
+              "JA Loop", "Out:", read, "AGP 9, 2", "Out2:", read, *chain,
+              f"COMP {draw(st.sampled_from(values))}",
+              f"JC {draw(st.sampled_from(CONDITIONS))}, Out2", "GAP 1, 0", "AGP 10, 2", "STOP"]
+    return "\n".join(lines)
+
+
+@st.composite
+def positioning_speed_programs(draw: st.DrawFn) -> str:
+    """Positioning moves, re-issued, whose speed (AP 3) is polled while it ramps (F8): against
+    fractions of the top speed on the way up and down, zero, and values it never reaches; the
+    TMC42x's soft mode (AP 138), the TMC4361A's start, stop and break speeds, the TMCM-1111's
+    S-shaped ramps (AP 14 = 1), moves that stop short of their top speed and moves re-issued
+    mid-ramp."""
+    top = draw(st.sampled_from([2000, 20000, 100000, 300000]))
+    lines = [f"SAP 4, 0, {top}", f"SAP 5, 0, {draw(st.sampled_from([1000, 50000, 400000]))}"]
+    if draw(st.booleans()):
+        lines.append(f"SAP 138, 0, {draw(st.sampled_from([0, 1]))}")
+    if draw(st.booleans()):  # the TMC4361A's own VSTART, VSTOP, A1/V1/D1 (numbers differ)
+        lines += draw(st.lists(st.sampled_from(
+            ["SAP 19, 0, 3000", "SAP 20, 0, 2000", "SAP 15, 0, 200000", "SAP 16, 0, 30000",
+             "SAP 18, 0, 300000", "SAP 17, 0, 80000", "SAP 19, 0, 0"]), max_size=3))
+    if draw(st.booleans()):
+        lines += ["SAP 14, 0, 1", *(f"SAP {22 + i}, 0, {draw(st.sampled_from([20000, 2000000]))}"
+                                    for i in range(4))]
+    values = [0, 1, -1, top // 2, -top // 2, top, -top, top - 1, top // 10, top * 2]
+    reads = ["GAP 3, 0"] * 3 + ["GAP 3, 0\nCALC ADD, 100", "GAP 3, 0\nCALC NOT, 0"]
+    lines += ["Loop:", f"MVP {draw(st.sampled_from(['ABS', 'REL']))}, 0, "
+              f"{draw(st.integers(-80000, 80000))}"]
+    for label in ("A", "B"):
+        lines += [f"{label}:", draw(st.sampled_from(reads)),
+                  f"COMP {draw(st.sampled_from(values))}",
+                  f"JC {draw(st.sampled_from(CONDITIONS))}, {label}",
+                  *draw(st.lists(st.sampled_from(["GAP 1, 0", "GAP 8, 0", "WAIT TICKS, 0, 1"]),
+                                 max_size=1))]
+    lines += ["GAP 1, 0", "AGP 9, 2", "GGP 0, 2", "CALC ADD, 1", "AGP 0, 2", "JA Loop"]
+    return "\n".join(lines)
+
+
 #: Program shapes, and the modules each runs on.
 SHAPES = {
     "poll": (programs, MODULES),
@@ -285,6 +362,8 @@ SHAPES = {
     "wait": (wait_programs, MODULES),
     "s-ramp": (s_ramp_programs, [("tmcm-1111", None)]),
     "tick": (tick_programs, MODULES),
+    "calc": (calc_programs, MODULES),
+    "positioning-speed": (positioning_speed_programs, MODULES),
 }
 
 
@@ -501,6 +580,13 @@ def test_skipping_delay_loops_on_the_tick_is_exactly_as_stepping(
     same(*scenario)
 
 
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios("calc"))
+def test_skipping_moving_reads_through_calc_is_exactly_as_stepping(
+        scenario: tuple[str, World]) -> None:
+    same(*scenario)
+
+
 def test_a_delay_loop_on_the_tick_is_skipped_to_its_end() -> None:
     """I11: a loop polling GP 132 against a value 400 ms on is skipped to the millisecond the
     tick meets it (it was analysed again every millisecond), and leaves as stepping does;
@@ -570,6 +656,13 @@ def _running(source: str) -> tuple[Simulation, TMCLModule]:
     return sim, module
 
 
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios("positioning-speed"))
+def test_skipping_a_positioning_moves_speed_polls_is_exactly_as_stepping(
+        scenario: tuple[str, World]) -> None:
+    same(*scenario)
+
+
 def _stopped_at(seen: list[object]) -> list[int]:
     return [entry[0] for entry in seen if isinstance(entry, tuple) and len(entry) == 4
             and entry[1] == "program_stopped"]
@@ -602,6 +695,76 @@ def test_a_crossing_between_the_read_and_a_later_command_to_the_same_axis_is_fou
         fast, slow = run(source, world, True), run(source, world, False)
         assert fast[:-1] == slow[:-1], (kind, core, source)
         assert len(_stopped_at(fast)) == 1, (kind, core, source)
+
+
+#: Distance since the start of a rotation (GAP 1, CALCX SUB), plus a constant that makes the
+#: function wrap (2**31 - 1 -> -2**31) 30,000 steps in: ``COMP 0; JC GT`` flips there, never
+#: by passing 0; the position itself crosses its own wrap on the way (I14).
+DISTANCE = "SAP 4, 0, {speed}\nSAP 5, 0, 2000000\nSAP 1, 0, {start}\nGAP 1, 0\nCALCX LOAD\n" \
+           "ROR 0, {speed}\nW:\nGAP 1, 0\nCALCX SUB\nCALC ADD, {offset}\nCOMP 0\nJC GT, W\n" \
+           "GAP 1, 0\nAGP 9, 2\nFar:\nGAP 1, 0\nCALCX SUB\nCOMP 60000\nJC LT, Far\nGAP 1, 0\n" \
+           "AGP 10, 2\nSTOP"
+
+
+def test_a_distance_through_calcx_is_forecast_across_both_wraps() -> None:
+    """I14: the distance since the start (GAP 1; CALCX SUB) plus a constant compares with 0
+    otherwise where the sum wraps, 30,000 steps in, and the second loop leaves at 60,000
+    steps, past the wrap of AP 1 itself: skipping leaves both loops where stepping does, and
+    skips the passes in between (before, any CALC/CALCX on a moving read was stepped)."""
+    cases = [("tmcm-6212", "tmc4210", INT32_MAX - 40000, 200000),
+             ("tmcm-6212", "tmc4361a", INT32_MAX - 40000, 200000),
+             ("tmcm-6110", None, (1 << 23) - 80000, 2047),  # (24 bits: AP 1 would wrap, X not)
+             ("tmcm-1111", None, INT32_MAX - 40000, 200000)]
+    for kind, core, start, speed in cases:
+        source = DISTANCE.format(start=start, offset=INT32_MAX - 30000, speed=speed)
+        world = World(None, [], 700, core, kind)
+        fast, slow = run(source, world, True), run(source, world, False)
+        assert fast[:-1] == slow[:-1], (kind, core)
+        assert len(_stopped_at(fast)) == 1, (kind, core)
+        (end,) = [entry for entry in fast if entry[0] == "end"]
+        moved = [to_int32(end[10][n] - start) for n in (9, 10)]  # (a pass and a read: 20 steps)
+        assert 30000 <= moved[0] <= 30020 and 60000 <= moved[1] <= 60020, (kind, core, moved)
+        assert fast[-1][1] > 2_000, (kind, core, fast[-1])  # skipped, not stepped
+
+
+#: A positioning move's speed polled while it ramps up (to half its top speed), down (to
+#: rest), and for the start of the move back, re-issued each time (F8).
+POSITIONING_SPEED = "SAP 4, 0, {top}\nSAP 5, 0, {acceleration}\nLoop:\nMVP ABS, 0, 300000\n" \
+                    "Up:\nGAP 3, 0\nCOMP {half}\nJC LT, Up\nGAP 1, 0\nAGP 9, 2\nDown:\n" \
+                    "GAP 3, 0\nCOMP 0\nJC NE, Down\nGAP 1, 0\nAGP 10, 2\nMVP ABS, 0, 0\n" \
+                    "Start:\nGAP 3, 0\nCOMP 0\nJC EQ, Start\nBack:\nGAP 3, 0\nCOMP -{half}\n" \
+                    "JC LE, Out\nJA Back\nOut:\nWAIT POS, 0, 0\nJA Loop"
+
+
+def test_a_positioning_moves_speed_is_forecast_between_its_turns() -> None:
+    """F8: a TMC42x move's speed rises to the curve, then falls to the target, a TMC4361A's
+    trapezoid rises to VMAX and falls on the final approach; polled, it is skipped up to each
+    crossing (it was stepped: the speed rises and falls) and leaves each loop where stepping
+    does."""
+    for kind, core, top, acceleration in (("tmcm-6212", "tmc4210", 100000, 50000),
+                                          ("tmcm-6212", "tmc4361a", 100000, 50000),
+                                          ("tmcm-6110", None, 1500, 100)):
+        source = POSITIONING_SPEED.format(top=top, acceleration=acceleration, half=top // 2)
+        world = World(None, [], 5000, core, kind)
+        fast, slow = run(source, world, True), run(source, world, False)
+        assert fast[:-1] == slow[:-1], (kind, core)
+        assert fast[-1][1] > 100_000, (kind, core, fast[-1])  # nearly every pass skipped
+
+
+def test_a_bisection_cut_short_by_its_work_budget_judges_where_it_stopped(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """F4, F8: a probe of the speed's bisection that runs out of work short of its middle is
+    judged where it stopped; its instant was taken as the answer unjudged, which could lie
+    past the crossing (a rotation polled against 6,000 pps left its loop late with a tiny
+    budget)."""
+    monkeypatch.setattr(forecast, "LOOKAHEAD_BUDGET", 1)
+    cases = [(POLL_SPEED, "tmcm-6212", "tmc4210"),
+             (POSITIONING_SPEED.format(top=1500, acceleration=100, half=750), "tmcm-6110", None),
+             (POSITIONING_SPEED.format(top=100000, acceleration=50000, half=50000), "tmcm-6212",
+              "tmc4210")]
+    for source, kind, core in cases:
+        world = World(None, [], 2500, core, kind)
+        assert run(source, world, True)[:-1] == run(source, world, False)[:-1], (kind, core)
 
 
 def test_a_wait_whose_condition_holds_is_part_of_the_pass_it_falls_through() -> None:

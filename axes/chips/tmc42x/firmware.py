@@ -25,17 +25,20 @@ from __future__ import annotations
 
 import logging
 from abc import abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from math import isqrt
+from typing import cast
 
 from axes.board import AxisBoard
 from axes.chips.tmc42x.engine import MotorEngine
+from axes.chips.tmc42x.law import MotorLaw
 from axes.chips.tmc42x.registers import (
     DISABLE_STOP_L,
     DISABLE_STOP_R,
     DISTANCE_LIMIT,
     HALF24,
     MASK24,
+    MODE_VELOCITY,
     SOFT_STOP,
     Irq,
     RampMode,
@@ -55,7 +58,7 @@ from axes.chips.tmc42x.units import (
     stop_speed,
     velocity_register,
 )
-from axes.core import ChipDriver
+from axes.core import ChipDriver, ChipModel
 from tmcl_spec.numbers import INT32_MAX, INT32_MIN, NS_PER_S, to_int32, to_signed
 from tmcl_spec.parameters import AP
 
@@ -76,6 +79,11 @@ HORIZON_MAX_NS = 60 * NS_PER_S
 
 STOP_FLAG = 1 << Irq.STOP
 STOP_MASK = STOP_FLAG << 8
+
+
+def _never_turns(later: ChipModel) -> bool:
+    """TMC42xDriver.positioning_speed's test where the speed only falls up to the target."""
+    return False
 
 
 class TMC42xDriver(ChipDriver):
@@ -183,6 +191,29 @@ class TMC42xDriver(ChipDriver):
         """AP 3: the speed now, in the axis's units (pps, or the chip's units in unit mode 0)."""
         v = self._v_actual()
         return -self._to_speed(-v) if v < 0 else self._to_speed(v)
+
+    def positioning_speed(self, start: ChipModel) -> tuple[Callable[[ChipModel], bool],
+                                                           int] | None:
+        """A ramp or soft move's V_ACTUAL heads for the positioning curve (F8): while it is
+        below the curve's target (towards the target's side) a ramp tick only raises it, and
+        once it has reached it, it only falls, for the curve falls as the distance does, until
+        the position first meets the target.  No promise with a stop switch in play (a hard
+        stop or a soft one would take the speed elsewhere)."""
+        motor = cast(MotorLaw, start)
+        if motor.mode >= MODE_VELOCITY or motor._switch_in_play(1) or motor._switch_in_play(-1):
+            return None
+        distance = sdiff24(motor.x_target, motor.x_actual)
+        if distance == 0:
+            return None
+        toward = 1 if distance > 0 else -1
+
+        def at_curve(later: ChipModel) -> bool:
+            law = cast(MotorLaw, later)
+            return toward * law.v >= toward * (law._ramp_target()[0] << 8)
+
+        if at_curve(start):
+            return _never_turns, distance  # falls (rises, leftwards) until the target
+        return at_curve, distance
 
     def levels(self) -> tuple[bool, bool, bool]:
         """Logical (left, right, home) switch levels as the chip reports them."""

@@ -118,6 +118,18 @@ def _turned_at_once(twin: TMC4361A) -> bool:
     return True
 
 
+def _never_turns(twin: TMC4361A) -> bool:
+    """TMC4361A.positioning_turns' test where the speed only falls up to the target."""
+    return False
+
+
+def _final_approach_begun(twin: TMC4361A) -> bool:
+    """TMC4361A.positioning_turns' test: the speed may fall from here on (the final approach,
+    or the aim passed); it stays true up to the next rest, a STOPPED instant."""
+    ramp = twin._ramp
+    return ramp.braking or ramp.aim_rem(twin._context().target) * ramp.s <= 0
+
+
 class TMC4361A(RememberedRuns, HomeTracking, EncoderInputs, ChipModel):
     """The chip.  Host access is :meth:`spi`; the world drives pins through the board."""
 
@@ -234,6 +246,33 @@ class TMC4361A(RememberedRuns, HomeTracking, EncoderInputs, ChipModel):
                     or (turning and not twin._takes_back_acceleration()))
 
         return turned
+
+    def positioning_turns(self) -> tuple[Callable[[TMC4361A], bool], int] | None:
+        """How far a trapezoid positioning move's VACTUAL moves one way from here, if nothing
+        intervenes (axes/forecast.py F8): (a test of a later copy, false, then true once the
+        speed may have turned; the microsteps to the target, where the stretch ends); None:
+        no promise.  Towards the target, not braking, the speed heads for VMAX (it lands on
+        it) and then falls on the final approach (``braking``) to VSTOP's crawl: it turns
+        only where the final approach begins, or where the aim is passed (at or past the
+        target step, where the stretch ends anyway); rest (a STOPPED instant, where a move
+        may start again at VSTART) ends every run.  S-shaped ramps (a final approach that
+        first takes back the acceleration), a start from rest, a stop switch in play and a
+        move away from the target make no promise."""
+        ramp = self._ramp
+        P = ramp.P
+        if not P.positioning or P.profile != 1 or not P.V:
+            return None
+        if ramp.wait or ramp.stopping or ramp.stage == Stage.IDLE or not ramp.w:
+            return None
+        ctx = self._context()
+        if ctx.blocked_neg or ctx.blocked_pos:
+            return None
+        steps = ctx.target - ramp.x
+        if steps * ramp.s <= 0 or ramp.aim_rem(ctx.target) * ramp.s <= 0:
+            return None
+        if ramp.braking or ramp.w >= P.V:
+            return _never_turns, steps  # only falls (to VMAX, then to the crawl)
+        return _final_approach_begun, steps
 
     def _takes_back_acceleration(self) -> bool:
         """Whether the next tick of an S-shaped rotation moves the speed against where its

@@ -205,6 +205,16 @@ class TMC4361ADriver(ChipDriver):
             return None
         return lambda later: test(cast(TMC4361A, later))
 
+    def positioning_speed(self, start: ChipModel) -> tuple[Callable[[ChipModel], bool],
+                                                           int] | None:
+        """A trapezoid move's VACTUAL rises to VMAX and falls on the final approach (F8)."""
+        assert isinstance(start, TMC4361A)
+        plan = start.positioning_turns()
+        if plan is None:
+            return None
+        test, steps = plan
+        return (lambda later: test(cast(TMC4361A, later))), steps
+
     def levels(self) -> tuple[bool, bool, bool]:
         """Logical (left, right, home) levels, read from the input stage.
 
