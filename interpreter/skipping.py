@@ -68,12 +68,6 @@ I10. A plan survives a batch boundary.  The module counts everything that may ch
     where I7 asks.  A batch end at which nothing intervenes (an ``advance`` returning, a
     timer tick whose handler only counts, a recorder's sample, which reads and changes
     nothing) costs no analysis.
-I13. A kept plan answers its reads.  While the epoch is the plan's (I10), a GAP or GIO the
-    analysed pass sent from a PC, answered OK and changing nothing, answers the same at any
-    instant before its ``steady_until`` (I3) wherever the program executes that PC: a read
-    changes nothing in the module (F6, T3), so the passes that are still stepped (the one
-    I7 keeps, the part of a pass before a batch's end) take those answers from the plan
-    instead of the module.
 I11. The millisecond tick (GGP 132) is arithmetic on the instant: it answers the same until
     the next millisecond (I3), and it is also a moving read whose flip the module forecasts
     exactly (``ModulePort.first_time_at``: it meets every value above the one read, one a
@@ -94,6 +88,12 @@ I12. A timer whose handler only counts is applied for k ticks at once.  A handle
     c further.  They are skipped at once (time, instruction count, the timer's next tick,
     each dispatch's ``interrupt_taken`` event at its instant, the variables k c further),
     ending no later than the batch (I1); the dispatch after them is executed.
+I13. A kept plan answers its reads.  While the epoch is the plan's (I10), a GAP or GIO the
+    analysed pass sent from a PC, answered OK and changing nothing, answers the same at any
+    instant before its ``steady_until`` (I3) wherever the program executes that PC: a read
+    changes nothing in the module (F6, T3), so the passes that are still stepped (the one
+    I7 keeps, the part of a pass before a batch's end) take those answers from the plan
+    instead of the module.
 I14. A moving read through CALC/CALCX compares as the read does with its own boundaries.
     A register follows the read r as ``int32(s * r + o)`` (s = +-1, o known exactly: CALC
     ADD/SUB/NOT/MUL by +-1 and CALCX ADD/SUB with a register whose value is known in every
