@@ -6,15 +6,17 @@ implements.  Time is simulated integer nanoseconds passed in by the caller.  Eve
 instruction takes :data:`INSTRUCTION_NS`; the caller runs the program in batches with
 :meth:`Interpreter.run_until` and learns from :meth:`Interpreter.next_event_ns` when it next
 has to (docs/interpreter.md has the timing model and every choice the manual leaves open).
+Its parts apart: WAIT in ``waits.py``, timer-cycle skipping in ``timer_cycles.py``, the CALC
+arithmetic in ``arithmetic.py``, the :class:`ModulePort` hook in ``port.py``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import NamedTuple
 
 from interpreter import interrupts
+from interpreter.arithmetic import calculate
 from interpreter.interrupts import Trigger
 from interpreter.isa import (
     CALL_STACK_DEPTH,
@@ -28,7 +30,6 @@ from interpreter.isa import (
     OP_AGP,
     OP_CALC,
     OP_COMP,
-    OP_GAP,
     OP_GCO,
     OP_JA,
     OP_JC,
@@ -40,19 +41,18 @@ from interpreter.isa import (
     OP_WAIT,
     PROGRAM_MEMORY_SIZE,
     STOPPED,
-    WAIT_TICK_NS,
-    WAITING,
     YIELD,
     Instruction,
 )
+from interpreter.port import ModulePort
 from interpreter.skipping import (
     FOREVER,
     LOADS_ACCUMULATOR,
     Call,
     LoopSkipper,
-    counting_handler,
-    ticks_to_skip,
 )
+from interpreter.timer_cycles import Timer, TimerCycles
+from interpreter.waits import Wait, WaitHandling
 from tmcl_spec.commands import (
     MOTOR_ALL,
     STATUS_OK,
@@ -65,7 +65,6 @@ from tmcl_spec.commands import (
     WaitCondition,
 )
 from tmcl_spec.numbers import to_int32 as wrap32
-from tmcl_spec.parameters import AP
 
 #: Simulated time one TMCL instruction takes (a command of the main loop of the firmware).
 INSTRUCTION_NS = 10_000
@@ -79,127 +78,9 @@ _RFS_STATUS = RfsType.STATUS.value
 _ERROR_BITS: dict[int, int] = {ErrorFlag.ETO: 1, ErrorFlag.EAL: 2, ErrorFlag.EDV: 4, ErrorFlag.EPO: 8,
                ErrorFlag.ESD: 16}
 _ALL_ERRORS = sum(_ERROR_BITS.values())
-#: The WAIT conditions that read the module (the others: TICKS, or skipped).
-_WAIT_CONDITIONS = frozenset(int(c) for c in WaitCondition) - {int(WaitCondition.TICKS)}
 #: JC condition -> error flag bit it tests.
 _JC_ERROR_BIT: dict[int, int] = {Condition.ETO: 1, Condition.EAL: 2, Condition.EDV: 4, Condition.EPO: 8,
                  Condition.ESD: 16}
-
-
-def _c_div(a: int, b: int) -> int:
-    """C division (truncates toward zero); x/0 gives 0 like an ARM SDIV without the trap."""
-    if b == 0:
-        return 0
-    q = abs(a) // abs(b)
-    return wrap32(q if (a < 0) == (b < 0) else -q)
-
-
-def _c_mod(a: int, b: int) -> int:
-    """C remainder (sign of the dividend); x%0 leaves x, as a - (a/0)*0 does on ARM."""
-    if b == 0:
-        return a
-    return wrap32(a - b * _c_div(a, b))
-
-
-def calculate(operation: int, a: int, b: int) -> int:
-    """CALC/CALCX arithmetic on signed 32-bit values; unknown operations leave ``a``."""
-    if operation == CalcOp.ADD:
-        return wrap32(a + b)
-    if operation == CalcOp.SUB:
-        return wrap32(a - b)
-    if operation == CalcOp.MUL:
-        return wrap32(a * b)
-    if operation == CalcOp.DIV:
-        return _c_div(a, b)
-    if operation == CalcOp.MOD:
-        return _c_mod(a, b)
-    if operation == CalcOp.AND:
-        return wrap32(a & b)
-    if operation == CalcOp.OR:
-        return wrap32(a | b)
-    if operation == CalcOp.XOR:
-        return wrap32(a ^ b)
-    if operation == CalcOp.NOT:
-        return wrap32(~a)
-    if operation == CalcOp.LOAD:
-        return wrap32(b)
-    return a
-
-
-class ModulePort(Protocol):
-    """What the interpreter needs from the module it runs on.
-
-    Every call carries the simulated time of the instruction; the module first brings its
-    motion state up to that time.  Nothing it does may call back into the interpreter
-    except :meth:`Interpreter.raise_interrupt` and the other event entry points.
-    """
-
-    def execute(self, time_ns: int, opcode: int, type_: int, motor: int,
-                value: int) -> tuple[int, int, bool]:
-        """Run one command as a program does: (status, value) as a reply would have them, and
-        whether the command may have created or moved a module event (the caller re-plans)."""
-        ...
-
-    def axis_parameter(self, time_ns: int, motor: int, number: int) -> int:
-        """The value of an axis parameter (WAIT uses 8, 9, 10 and 11)."""
-        ...
-
-    def reference_search_active(self, time_ns: int, motor: int) -> bool:
-        """RFS STATUS: True while a reference search runs on ``motor``."""
-        ...
-
-    def steady_until(self, time_ns: int, opcode: int, type_: int, motor: int) -> int:
-        """How long a read just made at ``time_ns`` (GAP ``type_`` of ``motor`` through
-        :meth:`axis_parameter`, or RFS STATUS) keeps its answer, nothing intervening: as
-        :meth:`probe`'s ``steady_until`` (a WAIT's condition, skipping.py I3)."""
-        ...
-
-    def program_event(self, time_ns: int, kind: str, **data: int) -> None:
-        """Something observers may want to know: ``program_started``, ``program_stopped``
-        (with ``pc``) or ``interrupt_taken`` (with ``vector`` and ``address``)."""
-        ...
-
-    def probe(self, time_ns: int, opcode: int, type_: int, motor: int,
-              value: int) -> tuple[int, int, bool, int]:
-        """:meth:`execute` for a loop being analysed: (status, value, changed, steady_until).
-
-        ``changed``: the command changed the module (a write of a new value, a move, a store);
-        a refused command and a write of what already is change nothing.  ``steady_until``
-        (for an unchanged command): executed again at any time before it, with nothing
-        intervening, the command answers the same and changes nothing (FOREVER: until
-        something intervenes; the present or less: no such promise)."""
-        ...
-
-    def first_time_at(self, time_ns: int, opcode: int, type_: int, motor: int,
-                      values: tuple[int, ...]) -> int:
-        """For a read :meth:`probe` made at ``time_ns`` that was not steady (a moving
-        position): the first time it compares otherwise with one of ``values`` than it did
-        then, or a time before which it surely does not (0: cannot tell)."""
-        ...
-
-    def epoch(self) -> int:
-        """Counts what may have changed the module's answers from outside the program's loop
-        (host requests, commands that changed something, events, world changes), but not a
-        program's write of a user variable: while it holds, an analysed pass holds
-        (skipping.py I10)."""
-        ...
-
-    def user_variable(self, number: int) -> int | None:
-        """User variable ``number`` (bank 2) as GGP would read it, if it is plain RAM (None
-        otherwise): an analysed pass that read it holds while it has the same value (I10)."""
-        ...
-
-
-@dataclass(slots=True)
-class Wait:
-    """A WAIT in progress (the PC stays on the WAIT instruction meanwhile)."""
-
-    condition: int
-    motor: int
-    deadline_ns: int | None
-    #: The condition, false when last evaluated, stays false before this instant (its
-    #: reads' ``ModulePort.steady_until``): it is evaluated again then.
-    recheck_ns: int = FOREVER
 
 
 class Context(NamedTuple):
@@ -213,27 +94,7 @@ class Context(NamedTuple):
     wait: Wait | None
 
 
-@dataclass(slots=True)
-class _Timer:
-    period_ns: int
-    next_ns: int
-
-
-@dataclass(slots=True)
-class _Cycle:
-    """A timer cycle being recorded, from one dispatch of its interrupt to the next, to skip
-    the cycles after it that do exactly the same (interpreter/skipping.py I12)."""
-
-    vector: int
-    counters: dict[int, int]
-    start: int
-    registers: tuple[object, ...]
-    epoch: int
-    executed: int
-    calls: list[Call]
-
-
-class Interpreter:
+class Interpreter(WaitHandling, TimerCycles):
     """One TMCL program and the state of its execution (not thread-safe)."""
 
     def __init__(self, port: ModulePort, instruction_ns: int = INSTRUCTION_NS,
@@ -254,7 +115,7 @@ class Interpreter:
         #: :meth:`busy_until` while the module executes it (an EEPROM write cycle).
         self._hold_ns = 0
         self.triggers: dict[int, Trigger] = {}
-        self._timers: dict[int, _Timer] = {}
+        self._timers: dict[int, Timer] = {}
         #: Addresses a running program stops at, before executing the instruction there (a
         #: debugger's, e.g. the dashboard's: not firmware state, so reset and power-up keep
         #: them).  While the set is empty the dispatch loop runs unchecked, at full speed.
@@ -281,7 +142,7 @@ class Interpreter:
         self.skipper = LoopSkipper(self)
         #: The timer cycle being recorded (I12), and how many dispatches to let pass before
         #: recording one again (doubling while they cannot be skipped, as loops back off).
-        self._cycle: _Cycle | None = None
+        self._cycle = None
         self._cycle_wait = 0
         self._cycle_backoff = 1
         #: Timer cycles skipped so far (tests, benchmarks).
@@ -407,7 +268,7 @@ class Interpreter:
             self._timers.pop(number, None)
             return
         period = period_ms * 1_000_000
-        self._timers[number] = _Timer(period, now_ns + period)
+        self._timers[number] = Timer(period, now_ns + period)
 
     def _fire_timers(self, now_ns: int, fire: bool = True) -> None:
         """Move elapsed timers past ``now_ns``, raising each one's interrupt once if ``fire``
@@ -547,129 +408,6 @@ class Interpreter:
             if outcome == STOPPED:
                 return False
         return False
-
-    def _timer_cycle(self, end_ns: int) -> None:
-        """A timer's interrupt is about to be taken: skip the cycles that will do exactly
-        what the one recorded since its last dispatch did, and record this one (I12)."""
-        cycle = self._cycle
-        pending = self._dispatchable()
-        vector = (pending & -pending).bit_length() - 1
-        if cycle is not None:
-            self._cycle = None
-            self.recording = None
-            self._skip_cycles(cycle, vector, end_ns)
-        if self._cycle_wait > 0:
-            self._cycle_wait -= 1
-            return
-        address = self.vectors.get(vector)
-        timer = self._timers.get(vector - interrupts.TIMER_BASE)
-        counters = None if address is None else counting_handler(self.code, address)
-        if (counters is None or timer is None or len(self._timers) != 1
-                or pending != 1 << vector or self.wait is not None or self.saved is not None
-                or any(self.port.user_variable(number) is None for number in counters)):
-            self._give_up_cycles()
-            return
-        self._cycle = _Cycle(vector, counters, self.time_ns, self._cycle_state(),
-                             self.port.epoch(), self.executed, [])
-        self.recording = self._cycle.calls
-
-    def _cycle_state(self) -> tuple[object, ...]:
-        """What a timer cycle starts from besides the module (I12): the registers and the
-        interrupt set-up (a VECT, EI or DI in the cycle changes none of the module)."""
-        return (*self.registers(), self.enabled, self.globally_enabled,
-                tuple(sorted(self.vectors.items())))
-
-    def _give_up_cycles(self) -> None:
-        self._cycle_wait = self._cycle_backoff
-        self._cycle_backoff = min(self._cycle_backoff * 2, 1024)
-
-    def _skip_cycles(self, cycle: _Cycle, vector: int, end_ns: int) -> None:
-        """I12: the recorded cycle ended at this dispatch; skip the ones after it that do
-        exactly the same, up to the batch's end."""
-        timer = self._timers.get(vector - interrupts.TIMER_BASE)
-        if (timer is None or vector != cycle.vector or len(self._timers) != 1
-                or self.time_ns - cycle.start != timer.period_ns
-                or self._dispatchable() != 1 << vector or self.wait is not None
-                or self._cycle_state() != cycle.registers or self.port.epoch() != cycle.epoch):
-            self._give_up_cycles()
-            return
-        period = timer.period_ns
-        skipped = ticks_to_skip(cycle.calls, cycle.counters, cycle.start, period, end_ns)
-        if skipped <= 0:
-            if (end_ns - 1 - cycle.start) // period - 1 > 0:  # not the batch's end: backoff
-                self._give_up_cycles()
-            return
-        self._cycle_backoff = 1
-        now, port = self.time_ns, self.port
-        address = self.vectors[vector]
-        for index in range(skipped):  # each dispatch left out, at its instant
-            port.program_event(now + index * period, "interrupt_taken", vector=vector,
-                               address=address)
-        self.time_ns = now + skipped * period
-        self.executed += skipped * (self.executed - cycle.executed)
-        timer.next_ns += skipped * period
-        self.ticks_skipped += skipped
-        for number, step in cycle.counters.items():
-            value = port.user_variable(number)
-            assert value is not None
-            port.execute(self.time_ns, OP_SGP, number, 2, wrap32(value + skipped * step))
-
-    def _resume_wait(self, end_ns: int) -> bool:
-        """Check the WAIT in progress at ``self.time_ns``; True once it is over.
-
-        The condition is evaluated when the WAIT starts, at the start of every batch (so
-        after every module event and host request, I1 in interpreter/skipping.py) and when
-        its reads may first answer otherwise (``Wait.recheck_ns``, their steady_until, I3):
-        a condition false now stays false before then, nothing intervening, so the WAIT
-        ends at the same instant however time is cut into batches.  A timeout ends it only
-        before that instant (at it, the condition is evaluated first, as a batch starting
-        there would).
-        """
-        wait = self.wait
-        assert wait is not None
-        ticks = wait.condition == WaitCondition.TICKS
-        if not ticks and self._wait_satisfied(wait, self.time_ns):
-            pass
-        elif (wait.deadline_ns is not None and wait.deadline_ns < end_ns
-              and (ticks or wait.deadline_ns < wait.recheck_ns)):
-            if not ticks:
-                self.errors |= _ERROR_BITS[ErrorFlag.ETO]
-            self.time_ns = max(self.time_ns, wait.deadline_ns)
-        else:
-            return False
-        self.wait = None
-        self.pc += 1
-        return True
-
-    def _wait_satisfied(self, wait: Wait, t: int) -> bool:
-        """Evaluate the WAIT's condition at ``t``.  When it is false, ``wait.recheck_ns``
-        says until when it stays so (a read the module cannot forecast is evaluated again an
-        instruction later, as a poll would); while a pass is analysed, the WAIT is recorded
-        as one call whose answer holds as long as its reads do (skipping.py I3)."""
-        port, motor, condition = self.port, wait.motor, wait.condition
-        if condition == WaitCondition.RFS:
-            reads: tuple[tuple[int, int], ...] = ((OP_RFS, _RFS_STATUS),)
-            satisfied = not port.reference_search_active(t, motor)
-        elif condition == WaitCondition.LIMSW:
-            satisfied = port.axis_parameter(t, motor, AP.LEFT_SWITCH) == 1
-            reads = ((OP_GAP, AP.LEFT_SWITCH),)
-            if not satisfied:
-                satisfied = port.axis_parameter(t, motor, AP.RIGHT_SWITCH) == 1
-                reads += ((OP_GAP, AP.RIGHT_SWITCH),)
-        else:
-            number = AP.POSITION_REACHED if condition == WaitCondition.POS else AP.HOME_SWITCH
-            satisfied = port.axis_parameter(t, motor, number) == 1
-            reads = ((OP_GAP, number),)
-        calls = self.recording
-        if satisfied and calls is None:
-            return True
-        steady = min(port.steady_until(t, opcode, read, motor) for opcode, read in reads)
-        if calls is not None:
-            calls.append(Call(t, STATUS_OK, int(satisfied), False, steady,
-                              (OP_WAIT, condition, motor, 0)))
-        if not satisfied:
-            wait.recheck_ns = steady if steady > t else t + self.instruction_ns
-        return satisfied
 
     def flag(self, condition: int) -> bool:
         """Whether JC ``condition`` would jump now (the dispatch loop inlines this)."""
@@ -897,28 +635,6 @@ class Interpreter:
         else:
             self.enabled &= ~(1 << number)
             self.pending &= ~(1 << number)
-
-    def _start_wait(self, condition: int, motor: int, ticks: int, t: int) -> int:
-        evaluated = condition in _WAIT_CONDITIONS and 0 <= motor < self.number_of_axes
-        if not evaluated and self.recording is not None:
-            # the pass analysis takes one call per WAIT: this one reads nothing (a WAIT
-            # TICKS lasts the same in every pass, I8)
-            self.recording.append(Call(t, STATUS_OK, 0, False, FOREVER,
-                                       (OP_WAIT, condition, motor, 0)))
-        if not evaluated and condition != WaitCondition.TICKS:
-            self.pc += 1  # a WAIT the firmware cannot evaluate is skipped
-            return CONTINUE
-        deadline = t + ticks * WAIT_TICK_NS if ticks > 0 else None
-        wait = Wait(condition, motor, deadline)
-        if condition == WaitCondition.TICKS:
-            if deadline is None:
-                self.pc += 1
-                return CONTINUE
-        elif self._wait_satisfied(wait, t):
-            self.pc += 1
-            return CONTINUE
-        self.wait = wait
-        return WAITING
 
     # -- commands that go to the module --------------------------------------------------------
 
