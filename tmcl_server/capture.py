@@ -210,10 +210,10 @@ def _foreign_frames(path: Path, kind: str) -> Iterator[CapturedFrame]:
     conversation = Conversation()
     origin: float | None = None
     for frame in frames:
-        t_ns = None
-        if frame.time is not None:
-            origin = frame.time if origin is None else origin
-            t_ns = round((frame.time - origin) * NS_PER_S)
+        t_ns, when = None, frame.time  # (parsed from the capture's text at each access)
+        if when is not None:
+            origin = when if origin is None else origin
+            t_ns = round((when - origin) * NS_PER_S)
         for decoded in conversation.decode([frame]):
             direction = _DIRECTION_OF_KIND.get(decoded.kind)
             if direction is None:
