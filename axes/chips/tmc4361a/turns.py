@@ -77,10 +77,9 @@ class TurnPromises:
             return None
         if ramp.w == 0:  # at rest: the standstill the test looks for is a later one
             return _turned_at_once
-        direction = ramp.s
-        if not s_shaped:  # a reversal restarts at VSTART, which may lie beyond the goal
-            return lambda twin: twin._ramp.s != direction or twin._ramp.w == 0
-        turning = self._takes_back_acceleration()
+        # a linear ramp turns only at a reversal's standstill, where it restarts at VSTART
+        # (which may lie beyond the goal); an S-shaped one also where its REC stage ends
+        direction, turning = ramp.s, s_shaped and self._takes_back_acceleration()
 
         def turned(twin: TurnPromises) -> bool:
             later = twin._ramp
