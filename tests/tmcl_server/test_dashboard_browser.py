@@ -75,6 +75,14 @@ def until(condition: Callable[[], Any], timeout: float = 10.0) -> Any:
         time.sleep(0.02)
 
 
+def line_classes(page: Any, address: int) -> str | None:
+    """The classes of the listing's line at ``address`` as the page shows it now (None if
+    there is no such line)."""
+    return page.execute_script(
+        "const line = document.querySelector(`#listing li[data-address=\"${arguments[0]}\"]`);"
+        "return line ? line.className : null;", address)
+
+
 def edit(cell: Any, text: str) -> None:
     """Type into a table cell as a person does: select what is there, type, Enter (the cell
     keeps the focus throughout, so live updates leave it alone)."""
@@ -167,15 +175,22 @@ def test_a_breakpoint_set_in_the_page_stops_the_program_and_step_advances_one_in
         client.close()
     host.send(Opcode.RUN_APPLICATION, 1, 0, 0)
     sim.advance(0.1)  # ten rounds
-    line = until(lambda: page.find_elements("css selector", '#listing li[data-address="2"]'))[0]
-    assert line.text.split() == ["2", "AGP", "0,", "2"]
-    line.click()
-    until(lambda: "breakpoint" in line.get_attribute("class"))
+    # The page renders the listing anew for each change of program memory it hears of, and
+    # the upload's frames reach it at wall-clock pace: wait for the whole program, and find
+    # the line afresh at each look (an element from an earlier rendering is stale).
+    until(lambda: len(page.find_elements("css selector", "#listing li[data-address]")) == 5)
+    assert line_classes(page, 2) is not None
+    assert page.find_element("css selector", '#listing li[data-address="2"]').text.split() == [
+        "2", "AGP", "0,", "2"]
+    until(lambda: page.execute_script(
+        "const line = document.querySelector('#listing li[data-address=\"2\"]');"
+        "if (line) line.click(); return Boolean(line);"))
+    until(lambda: "breakpoint" in (line_classes(page, 2) or ""))
     sim.advance(0.05)
     assert host.get_global_parameter(GP.APPLICATION_STATUS, 0) == ApplicationStatus.STEP
     assert host.send(Opcode.GET_APPLICATION_STATUS, 1, 0, 0).value & 0xFFFF == 2
     rounds = host.get_global_parameter(0, 2)
-    until(lambda: "current" in line.get_attribute("class"))
+    until(lambda: "current" in (line_classes(page, 2) or ""))
     assert page.find_element("id", "reg-state").text == "STEP"
     assert page.find_element("id", "reg-pc").text == "2"
     sim.advance(0.5)  # stopped: time passes, the program does not
