@@ -147,6 +147,9 @@ class Interpreter(WaitHandling, TimerCycles):
         self._cycle_backoff = 1
         #: Timer cycles skipped so far (tests, benchmarks).
         self.ticks_skipped = 0
+        #: The end of the batch being run (skipping.py I15: loops skipped across the ticks of
+        #: a timer that only counts go on up to it, not only to the next tick).
+        self._batch_end_ns = 0
         self.power_up(0)
 
     def power_up(self, now_ns: int) -> None:
@@ -380,6 +383,7 @@ class Interpreter(WaitHandling, TimerCycles):
                 self._give_up_cycles()  # (batches shorter than a cycle: record less often)
 
     def _run_batch(self, end_ns: int) -> bool:
+        self._batch_end_ns = end_ns  # (loops skipped across a timer's ticks go up to it, I15)
         while self.time_ns < end_ns:
             if self._timers:
                 self._fire_timers(self.time_ns)

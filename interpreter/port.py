@@ -43,6 +43,13 @@ class ModulePort(Protocol):
         (with ``pc``) or ``interrupt_taken`` (with ``vector`` and ``address``)."""
         ...
 
+    def program_events(self, time_ns: int, period_ns: int, repeat: int, kind: str,
+                       **data: int) -> None:
+        """:meth:`program_event` ``repeat`` times, ``period_ns`` apart from ``time_ns`` on (a
+        timer's dispatches left out by loop skipping): observers that take such a run as one
+        event pay for one, not for each (skipping.py I12)."""
+        ...
+
     def probe(self, time_ns: int, opcode: int, type_: int, motor: int,
               value: int) -> tuple[int, int, bool, int]:
         """:meth:`execute` for a loop being analysed: (status, value, changed, steady_until).

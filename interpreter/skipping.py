@@ -87,7 +87,10 @@ I12. A timer whose handler only counts is applied for k ticks at once.  A handle
     did: the same instructions at the same offsets, the same answers, and the variables one
     c further.  They are skipped at once (time, instruction count, the timer's next tick,
     each dispatch's ``interrupt_taken`` event at its instant, the variables k c further),
-    ending no later than the batch (I1); the dispatch after them is executed.
+    ending no later than the batch (I1); the dispatch after them is executed.  The events
+    go out as one run (``ModulePort.program_events``): a module's listeners get each one at
+    its instant, its run listeners the run as one event, so skipped ticks cost those nothing
+    a tick.
 I13. A kept plan answers its reads.  While the epoch is the plan's (I10), a GAP or GIO the
     analysed pass sent from a PC, answered OK and changing nothing, answers the same at any
     instant before its ``steady_until`` (I3) wherever the program executes that PC: a read
@@ -104,6 +107,28 @@ I14. A moving read through CALC/CALCX compares as the read does with its own bou
     COMP 0`` turns from greater to less there) it compares alike, and those r are the
     read's boundaries (``Affine.flips``).  Anything else a moving read goes through
     (MUL, DIV, MOD, AND, OR, XOR, a second moving read, a value not known) is stepped.
+I15. A loop is skipped across the ticks of a timer whose handler only counts.  When the
+    batch's ``limit`` is the next tick of the only timer, its handler is I12's (or there is
+    none: the interrupt is dropped), it counts in plain variables the pass neither reads
+    nor writes, the pass lasts its instructions (no WAIT that waits: ``period == length *
+    cost``), nothing is pending, no handler or WAIT is in progress and interrupts are on,
+    then a dispatch interrupts the loop between two of its instructions and RETI resumes it
+    with the registers it saved (PC, accumulator, X, flags; the handler touches no other),
+    having changed only the counters, which the loop does not see.  So the loop's
+    instructions run as without the timer, each later by the handlers taken before it:
+    main instruction n starts at ``start + n * cost`` plus ``handler * cost`` for each
+    dispatch before it, and the dispatches come at the first instruction boundary at or
+    after each tick (``TickSchedule``: a period that is a whole number of instructions
+    keeps the boundaries on one grid, so the dispatches are exactly ``period`` apart and
+    ``between`` loop instructions separate them).  I4 then holds with those instants: a
+    command of pass k is sent before its horizon iff its main instruction starts before
+    it (``TickSchedule.last_before``), and the passes, with the ones I7 keeps, end by the
+    batch's end, the next hardware event or the clock (I1), not the tick.  The ticks taken
+    among the passes left out are applied as I12 applies its cycles (time, instruction
+    count, the timer's next tick, the counters, the events as one run); a tick due at the
+    landing is taken by the dispatch loop, as stepping takes it.  While a loop is skipped
+    across the ticks, I12's cycles are not recorded (recording one steps the loop for a
+    whole period).
 """
 
 from __future__ import annotations
@@ -215,6 +240,69 @@ class Program(Protocol):
         """A plain user variable's value (``ModulePort.user_variable``), or None."""
         ...
 
+    def tick_schedule(self, limit: int, period: int, length: int,
+                      touched: frozenset[int]) -> TickSchedule | None:
+        """I15: when ``limit`` is the next tick of a timer whose handler only counts and the
+        loop at the PC (passes of ``period`` ns, ``length`` instructions, addressing the user
+        variables ``touched``) may be skipped across its ticks, their schedule; else None."""
+        ...
+
+    def take_ticks(self, schedule: TickSchedule, instructions: int) -> None:
+        """I15: leave out ``instructions`` of the loop from the schedule's start and the
+        timer's dispatches among them (time, instruction count, counters, events)."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class TickSchedule:
+    """I15: a loop's instructions interleaved with the dispatches of a timer whose handler
+    only counts, from the loop head at ``start`` to the batch's ``end``.  Main instruction n
+    (counted from the head) starts at ``start + n * cost`` plus the handlers run before it:
+    ``first`` main instructions run before the first dispatch, ``between`` between two
+    (``between * cost + handler * cost == period``), each handler ``handler`` instructions
+    (0: no handler, the interrupt is dropped).  ``vector``, ``address`` and ``counters``
+    (variable -> step a tick) say what each dispatch does."""
+
+    start: int
+    cost: int
+    first: int
+    between: int
+    handler: int
+    period: int
+    end: int
+    vector: int
+    address: int | None
+    counters: dict[int, int]
+
+    def dispatches_before(self, n: int) -> int:
+        """How many dispatches come before main instruction ``n`` (one due just before it
+        is not yet taken: the dispatch loop takes it, as stepping would)."""
+        return 0 if n <= self.first else (n - self.first - 1) // self.between + 1
+
+    def last_before(self, instant: int) -> int:
+        """The last main instruction that starts before ``instant`` (-1: none)."""
+        cost, start = self.cost, self.start
+        first_dispatch = start + self.first * cost
+        if instant <= first_dispatch:
+            return (instant - start - 1) // cost if instant > start else -1
+        cycle, into = divmod(instant - 1 - first_dispatch, self.period)
+        handler = self.handler * cost
+        before = self.first + cycle * self.between
+        return before - 1 if into < handler else before + (into - handler) // cost
+
+    def passes(self, length: int, horizons: tuple[tuple[int, int], ...],
+               real_passes: int) -> int:
+        """I4 across the ticks: how many whole passes of ``length`` instructions from the
+        head may be left out, each command (offset in its pass, steady until) sent before
+        its horizon, with ``real_passes`` more whole passes ending by the batch's end."""
+        cost = self.cost
+        # pass k (from 0 at the head) ends when its last instruction ends: by the batch's end
+        passes = (self.last_before(self.end - cost + 1) + 1) // length - real_passes
+        for offset, horizon in horizons:
+            # the command at `offset` of pass k is main instruction k * length + offset // cost
+            passes = min(passes, (self.last_before(horizon) - offset // cost) // length + 1)
+        return max(passes, 0)
+
 
 class LoopSkipper:
     """Decides, at a loop head, how many passes of the loop can be left out, and leaves them
@@ -233,6 +321,9 @@ class LoopSkipper:
         #: Passes analysed, and passes skipped again from a kept plan (tests, benchmarks).
         self.analyses = 0
         self.reuses = 0
+        #: The last skip went across a counting timer's ticks (I15): the timer's own cycle
+        #: skipping (I12), which steps the loop for a whole cycle to record it, stands aside.
+        self.crosses_ticks = False
 
     def at_loop_head(self, limit: int) -> int:
         """A backward jump brought the program to a loop head: skip the passes that would do
@@ -240,7 +331,8 @@ class LoopSkipper:
         program = self.program
         idle = self._idle_loops.get(program.pc)
         if idle is not None and idle[0] == program.registers():
-            self._skip(idle[1], idle[2], limit, (), program.time_ns - idle[1])  # I9
+            self._skip(idle[1], idle[2], limit, (), program.time_ns - idle[1],
+                       touched=frozenset())  # I9
             return CONTINUE
         plan = self._plan
         if plan is not None and plan.head == program.pc and self._reuse(plan, limit):
@@ -264,11 +356,13 @@ class LoopSkipper:
             return False  # I10: a user variable it reads was written since
         self.countdown = 1
         program.replay, program.replay_epoch = plan.answers, plan.epoch  # I13
-        if program.time_ns + (1 + plan.real_passes) * plan.period > limit:
+        ticks = program.tick_schedule(limit, plan.period, plan.length, plan.touched)  # I15
+        if program.time_ns + (1 + plan.real_passes) * plan.period > (
+                limit if ticks is None else ticks.end):
             return True  # no whole pass to leave out before the batch ends: step on to it
         # I4 counts from a pass that began a period ago, as the analysed one did; I7
         if self._skip(plan.period, plan.length, limit, plan.horizons,
-                      program.time_ns - plan.period, plan.real_passes):
+                      program.time_ns - plan.period, plan.real_passes, ticks=ticks):
             self.reuses += 1
             return True
         self._plan = program.replay = None  # its answers no longer hold
@@ -276,6 +370,7 @@ class LoopSkipper:
 
     def _give_up(self) -> None:
         """This loop cannot be skipped now: analyse again later, less often each time."""
+        self.crosses_ticks = False
         self.countdown = self._backoff
         self._backoff = min(self._backoff * 2, LOOP_BACKOFF_MAX)
 
@@ -354,7 +449,7 @@ class LoopSkipper:
         self._plan = _Plan(analysed.head, analysed.start, self.program.epoch(), registers,
                            everything, variables, analysed.period, analysed.length, horizons,
                            real_passes, _answers(self.program.code, analysed.path,
-                                                 analysed.calls))
+                                                 analysed.calls), analysed.touched())
 
     def _skip_repeats(self, analysed: _Pass, limit: int) -> int:
         """I2: the next passes do exactly the same while every answer holds (I3, I4)."""
@@ -363,14 +458,29 @@ class LoopSkipper:
         horizons = tuple((call.time_ns - analysed.start, call.steady_until)
                          for call in analysed.calls)
         self._keep(analysed, horizons, 0)
-        return self._skip(analysed.period, analysed.length, limit, horizons, analysed.start)
+        return self._skip(analysed.period, analysed.length, limit, horizons, analysed.start,
+                          touched=analysed.touched())
 
     def _skip(self, period: int, length: int, limit: int,
-              horizons: tuple[tuple[int, int], ...], start: int, real_passes: int = 0) -> int:
+              horizons: tuple[tuple[int, int], ...], start: int, real_passes: int = 0,
+              touched: frozenset[int] | None = None, ticks: TickSchedule | None = None) -> int:
         """Skip the whole passes after the one that began at ``start`` whose every module
         command (offset in the pass, steady until) still answers the same, keeping
-        ``real_passes`` whole passes before ``limit`` to be stepped; returns how many."""
+        ``real_passes`` whole passes before ``limit`` to be stepped; returns how many.  Where
+        ``limit`` is the tick of a timer whose handler only counts, the passes go on across
+        its ticks to the batch's end (``ticks``, or found for a loop addressing the user
+        variables ``touched``: I15)."""
         program = self.program
+        if ticks is None and touched is not None:
+            ticks = program.tick_schedule(limit, period, length, touched)
+        if ticks is not None:  # I15: across the timer's ticks, each handler's time counted
+            passes = ticks.passes(length, horizons, real_passes)
+            if passes <= 0:
+                return 0
+            program.take_ticks(ticks, passes * length)
+            program.loops_skipped += passes
+            self.crosses_ticks = True
+            return passes
         passes = (limit - start) // period - 1 - real_passes  # I4: the pass ends by the limit
         for offset, steady_until in horizons:
             # I4: pass k sends at start + k * period + offset, certain while < steady_until
@@ -407,7 +517,7 @@ class LoopSkipper:
             horizons.append((call.time_ns - start, horizon))
         self._keep(analysed, tuple(horizons), 1)
         return self._skip(analysed.period, analysed.length, limit, tuple(horizons), start,
-                          real_passes=1)  # I7
+                          real_passes=1, touched=analysed.touched())  # I7
 
 
 @dataclass(slots=True)
@@ -429,6 +539,7 @@ class _Plan:
     horizons: tuple[tuple[int, int], ...]
     real_passes: int
     answers: dict[int, tuple[int, int, int]] | None  # its reads by PC (I13)
+    touched: frozenset[int]  # the user variables its commands address (I15)
 
 
 def _answers(code: list[Instruction], path: list[int],
@@ -451,6 +562,8 @@ def _answers(code: list[Instruction], path: list[int],
     return answers if next(pending, None) is None else None
 
 
+#: The commands of global parameters, which address a user variable in bank 2 (I15).
+_USER_VARIABLE_OPCODES = frozenset({OP_GGP, OP_SGP, Opcode.STGP.value, Opcode.RSGP.value})
 #: What the dispatch loop keeps to itself (no call), and the reads a plan answers (I13).
 _NO_CALL = frozenset({OP_CALC, OP_COMP, OP_JC, OP_JA})
 _REPLAYED = frozenset({OP_GAP, Opcode.GIO.value})
@@ -470,6 +583,11 @@ class _Pass:
     calls: list[Call]
     path: list[int]
     waited: bool
+
+    def touched(self) -> frozenset[int]:
+        """I15: the user variables (bank 2) the pass's commands read or write."""
+        return frozenset(call.request[1] for call in self.calls
+                         if call.request[2] == 2 and call.request[0] in _USER_VARIABLE_OPCODES)
 
     def moving_reads(self) -> set[int] | None:
         """The indices of the calls whose answers are not steady, and of the tick's reads

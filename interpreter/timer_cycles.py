@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from interpreter import interrupts
 from interpreter.isa import OP_SGP, Instruction
 from interpreter.port import ModulePort
-from interpreter.skipping import Call, counting_handler, ticks_to_skip
+from interpreter.skipping import Call, LoopSkipper, TickSchedule, counting_handler, ticks_to_skip
 from interpreter.waits import Wait
 from tmcl_spec.numbers import to_int32 as wrap32
 
@@ -56,6 +56,11 @@ class TimerCycles:
     wait: Wait | None
     recording: list[Call] | None
     ticks_skipped: int
+    instruction_ns: int
+    pending: int
+    wake_for_timers: bool
+    skipper: LoopSkipper
+    _batch_end_ns: int
     _timers: dict[int, Timer]
     _cycle: _Cycle | None
     _cycle_wait: int
@@ -79,6 +84,8 @@ class TimerCycles:
         if self._cycle_wait > 0:
             self._cycle_wait -= 1
             return
+        if self.skipper.crosses_ticks:
+            return  # the loop is skipped across the ticks (I15): recording would step it
         address = self.vectors.get(vector)
         timer = self._timers.get(vector - interrupts.TIMER_BASE)
         counters = None if address is None else counting_handler(self.code, address)
@@ -120,9 +127,9 @@ class TimerCycles:
         self._cycle_backoff = 1
         now, port = self.time_ns, self.port
         address = self.vectors[vector]
-        for index in range(skipped):  # each dispatch left out, at its instant
-            port.program_event(now + index * period, "interrupt_taken", vector=vector,
-                               address=address)
+        # each dispatch left out, at its instant (as one run to the observers that take runs)
+        port.program_events(now, period, skipped, "interrupt_taken", vector=vector,
+                            address=address)
         self.time_ns = now + skipped * period
         self.executed += skipped * (self.executed - cycle.executed)
         timer.next_ns += skipped * period
@@ -131,3 +138,52 @@ class TimerCycles:
             value = port.user_variable(number)
             assert value is not None
             port.execute(self.time_ns, OP_SGP, number, 2, wrap32(value + skipped * step))
+
+    def tick_schedule(self, limit: int, period: int, length: int,
+                      touched: frozenset[int]) -> TickSchedule | None:
+        """I15: the schedule of the ticks a loop at its head (passes of ``period`` ns and
+        ``length`` instructions, addressing the user variables ``touched``) may be skipped
+        across, when ``limit`` is the next tick of the only timer, before the batch's end,
+        and its handler only counts, in variables the loop leaves alone; else None."""
+        timers = self._timers
+        if len(timers) != 1 or limit >= self._batch_end_ns or self.wake_for_timers:
+            return None
+        ((number, timer),) = timers.items()
+        vector = interrupts.timer(number)
+        cost = self.instruction_ns
+        if (timer.next_ns != limit or period != length * cost or timer.period_ns % cost
+                or self.pending or self.saved is not None or self.wait is not None
+                or not self.globally_enabled or not self.enabled >> vector & 1):
+            return None  # a WAIT in the pass, an interrupt pending or in progress, ...
+        address = self.vectors.get(vector)
+        counters = {} if address is None else counting_handler(self.code, address)
+        if counters is None or any(number in touched or self.port.user_variable(number) is None
+                                   for number in counters):
+            return None  # a handler that does more than count, or counts what the loop reads
+        handler = 0 if address is None else 3 * len(counters) + 1  # (RETI included)
+        between = timer.period_ns // cost - handler
+        if between < 1:
+            return None
+        return TickSchedule(self.time_ns, cost, -(-(limit - self.time_ns) // cost), between,
+                            handler, timer.period_ns, self._batch_end_ns, vector, address,
+                            counters)
+
+    def take_ticks(self, schedule: TickSchedule, instructions: int) -> None:
+        """I15: the loop's next ``instructions`` and the dispatches among them, left out."""
+        taken = schedule.dispatches_before(instructions)
+        self.time_ns = schedule.start + (instructions + taken * schedule.handler) * schedule.cost
+        self.executed += instructions + taken * schedule.handler
+        if not taken:
+            return
+        timer = self._timers[schedule.vector - interrupts.TIMER_BASE]
+        timer.next_ns += taken * schedule.period
+        self.ticks_skipped += taken
+        port = self.port
+        if schedule.address is not None:  # each dispatch at its instant (one run, I12)
+            first = schedule.start + schedule.first * schedule.cost
+            port.program_events(first, schedule.period, taken, "interrupt_taken",
+                                vector=schedule.vector, address=schedule.address)
+        for number, step in schedule.counters.items():
+            value = port.user_variable(number)
+            assert value is not None
+            port.execute(self.time_ns, OP_SGP, number, 2, wrap32(value + taken * step))

@@ -438,7 +438,12 @@ SHAPES.insert(SHAPES.index(AXIS_SHAPES[0]), replace(
 TMC429_SETUP = [(154, axis, 4) for axis in range(6)] + [(153, axis, 10) for axis in range(6)]
 
 
-def build(shape: Shape, reference: bool) -> tuple[Simulation, TMCLModule, list[tuple[int, str]]]:
+#: The events a run saw: (instant, kind, how many, period) -- a run of like events (a timer's
+#: dispatches left out by loop skipping) is one entry, as a listener of runs gets it.
+Events = list[tuple[int, str, int, int]]
+
+
+def build(shape: Shape, reference: bool) -> tuple[Simulation, TMCLModule, Events]:
     module = TMCLModule(kind=shape.kind, chip_core=shape.core)
     sim = Simulation([module], VirtualClock())
     interpreter = module.program.interpreter
@@ -447,16 +452,17 @@ def build(shape: Shape, reference: bool) -> tuple[Simulation, TMCLModule, list[t
     return (sim, *load(sim, module, shape))
 
 
-def load(sim: Simulation, module: TMCLModule,
-         shape: Shape) -> tuple[TMCLModule, list[tuple[int, str]]]:
+def load(sim: Simulation, module: TMCLModule, shape: Shape) -> tuple[TMCLModule, Events]:
     """Set the module up for ``shape`` and start its program; its event list."""
-    events: list[tuple[int, str]] = []
+    events: Events = []
 
     def listen(event: ModuleEvent) -> None:
         if event.kind not in ("current_changed",):
-            events.append((event.time_ns, event.kind))
+            events.append((event.time_ns, event.kind, getattr(event, "repeat", 1),
+                           getattr(event, "period_ns", 0)))
 
-    module.listeners.append(listen)
+    # a listener of runs where the code has them (a baseline's listeners get each event)
+    getattr(module, "run_listeners", module.listeners).append(listen)
     if shape.kind == "tmcm-6110":
         for number, axis, value in TMC429_SETUP:
             module.execute(Request(1, Opcode.SAP, number, axis, value))
@@ -499,13 +505,18 @@ def run(shape: Shape, seconds: float, reference: bool) -> tuple[float, tuple[obj
     return wall, state_of(module, events, samples)
 
 
-def state_of(module: TMCLModule, events: list[tuple[int, str]],
+def state_of(module: TMCLModule, events: Events,
              samples: list[Sample]) -> tuple[object, ...]:
-    """What both runs must end with: registers, variables, positions, events, samples."""
+    """What both runs must end with: registers, variables, positions, the number of events
+    and the last one (a run counted as its events), samples."""
     interp = module.program.interpreter
     axes = tuple(module.axis(i).get_parameter(1) for i in range(len(module.axes)))
+    last = None
+    if events:
+        time_ns, kind, repeat, period_ns = events[-1]
+        last = (time_ns + (repeat - 1) * period_ns, kind)
     return (interp.pc, interp.accumulator, interp.executed, module.globals[2][0], axes,
-            len(events), events[-1] if events else None, len(samples),
+            sum(repeat for _, _, repeat, _ in events), last, len(samples),
             hash(tuple(samples)))
 
 

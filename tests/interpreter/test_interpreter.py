@@ -53,6 +53,11 @@ class FakePort:
     def program_event(self, time_ns: int, kind: str, **data: int) -> None:
         self.events.append((time_ns, kind, data))
 
+    def program_events(self, time_ns: int, period_ns: int, repeat: int, kind: str,
+                       **data: int) -> None:
+        for index in range(repeat):
+            self.program_event(time_ns + index * period_ns, kind, **data)
+
     def epoch(self) -> int:
         return len(self.commands)  # every command counts as something intervening
 

@@ -22,7 +22,9 @@ TMCM-1111's own S-shaped ramps):
   the firmware's own clock (axes/tasks.py T1-T3), never at a read, so a skipped read changes
   nothing (issue 33's D1, issue 34);
 * delay loops on the millisecond tick, across its wrap (I11), and timers whose handlers count
-  (I12).
+  (I12), under loops skipped across their ticks (I15), and handlers that do something else
+  (multiply, toggle an output, WAIT, read an axis, nothing), stepped; periods changed by
+  the program and by hosts.
 
 The skipping run's clock moves in one call or in 1 ms, 0.37 ms or mixed steps, so the plans
 kept across batch ends (I10) are reused at odd instants, with hosts and world changes
@@ -31,6 +33,7 @@ arriving mid-plan.
 
 from __future__ import annotations
 
+import bisect
 import itertools
 from dataclasses import dataclass, field
 
@@ -40,6 +43,7 @@ from hypothesis import strategies as st
 
 from axes import forecast
 from interpreter.assembler import assemble
+from interpreter.skipping import TickSchedule
 from tmcl_server.clock import VirtualClock
 from tmcl_server.module import ModuleEvent, TMCLModule
 from tmcl_server.protocol import Reply, Request
@@ -108,7 +112,7 @@ class World:
 def worlds(draw: st.DrawFn, modules: list[tuple[str, str | None]] | None = None) -> World:
     kind, core = draw(st.sampled_from(modules or MODULES))
     actions = draw(st.lists(st.tuples(st.integers(1, 299), st.sampled_from(
-        ["input", "analog", "gap", "sap", "sgp", "switch", "ror", "ror0"]),
+        ["input", "analog", "gap", "sap", "sgp", "switch", "ror", "ror0", "timer"]),
         st.integers(-50000, 50000)), max_size=6))
     loads = draw(st.lists(st.tuples(st.integers(0, 1), st.integers(-60000, 50000),
                                     st.integers(100, 30000), st.sampled_from([0, 20, 300, 900])),
@@ -354,6 +358,64 @@ def positioning_speed_programs(draw: st.DrawFn) -> str:
     return "\n".join(lines)
 
 
+#: Timer handlers: counting ones (I12, I15: applied for many ticks at once; two variables, a
+#: step that wraps, nothing but RETI) and others, stepped: a multiplication, one variable
+#: counted twice, an output set or toggled, a WAIT, an axis read.
+HANDLERS = [
+    ["GGP 3, 2", "CALC ADD, 1", "AGP 3, 2", "RETI"],
+    ["GGP 3, 2", "CALC SUB, 7", "AGP 3, 2", "GGP 4, 2", "CALC ADD, 100000", "AGP 4, 2", "RETI"],
+    ["GGP 3, 2", "CALC ADD, 2147483000", "AGP 3, 2", "RETI"],
+    ["RETI"],
+    ["GGP 3, 2", "CALC MUL, 2", "AGP 3, 2", "RETI"],
+    ["GGP 3, 2", "CALC ADD, 1", "AGP 3, 2", "GGP 3, 2", "CALC ADD, 1", "AGP 3, 2", "RETI"],
+    ["SIO 0, 2, 1", "RETI"],
+    ["GIO 0, 2", "JC ZE, TickOn", "SIO 0, 2, 0", "RETI", "TickOn:", "SIO 0, 2, 1", "RETI"],
+    ["WAIT TICKS, 0, 1", "GGP 3, 2", "CALC ADD, 1", "AGP 3, 2", "RETI"],
+    ["GAP 1, 0", "AGP 6, 2", "GGP 3, 2", "CALC ADD, 1", "AGP 3, 2", "RETI"],
+]
+#: What a main loop under a timer does: polls skipped across the ticks (I15), a moving read
+#: skipped to its flip, a read of the counter or the tick (the count decides), a WAIT.
+TIMER_LOOP_PARTS = [
+    ["GAP 8, 0", "COMP 1", "JC EQ, {out}"], [], ["GAP 1, 0", "COMP {x}", "JC GT, {out}"],
+    ["GGP 3, 2", "COMP {n}", "JC GE, {out}"], ["WAIT TICKS, 0, 1"],
+    ["GGP 132, 0", "COMP {n}", "JC GE, {out}"], ["SAP 4, 0, 100000"], ["GIO 0, 0"],
+    ["GAP 1, 0", "CALCX SUB", "COMP {x}", "JC LT, {out}"], ["SGP 3, 2, 0"], ["GGP 0, 2"],
+]
+
+
+@st.composite
+def timer_programs(draw: st.DrawFn) -> str:
+    """A timer (1 to 12 ms; sometimes a second one, or none with an interrupt handler) whose
+    handler counts or does something else, over main loops that are skipped across its
+    ticks or must be stepped, a move, and a second loop after the first (the program may
+    change the period there, or turn the timer's interrupt off)."""
+    handler = draw(st.sampled_from(HANDLERS))
+    lines = ["SAP 4, 0, 20000", f"MVP ABS, 0, {draw(st.integers(-60000, 60000))}",
+             "GAP 1, 0", "CALCX LOAD"]
+    if draw(st.integers(0, 4)):  # (no VECT: the interrupt is dropped at every tick)
+        lines.append("VECT 0, Tick")
+    lines += [f"SGP 0, 3, {draw(st.sampled_from([1, 1, 2, 3, 7, 10, 12]))}", "EI 0", "EI 255"]
+    if not draw(st.integers(0, 5)):  # a second timer, counting variable 5
+        lines += ["VECT 1, Tick2", f"SGP 1, 3, {draw(st.integers(1, 5))}", "EI 1"]
+
+    def loop(label: str, out: str) -> list[str]:
+        body = [line.format(out=out, x=draw(st.integers(-60000, 60000)),
+                            n=draw(st.integers(0, 400)))
+                for part in draw(st.lists(st.sampled_from(TIMER_LOOP_PARTS), min_size=1,
+                                          max_size=3)) for line in part]
+        return [f"{label}:", *body, f"JA {label}"]
+
+    lines += loop("Main", "Out")
+    lines += ["Out:", "GGP 3, 2", "AGP 9, 2",
+              *draw(st.sampled_from([[], [f"SGP 0, 3, {draw(st.integers(1, 9))}"], ["DI 0"],
+                                     ["DI 255"], ["SGP 0, 3, 0"]])),
+              f"MVP ABS, 0, {draw(st.integers(-60000, 60000))}"]
+    lines += loop("Back", "End")
+    lines += ["End:", "GGP 3, 2", "AGP 10, 2", "STOP", "Tick:", *handler,
+              "Tick2:", "GGP 5, 2", "CALC ADD, 1", "AGP 5, 2", "RETI"]
+    return "\n".join(lines)
+
+
 #: Program shapes, and the modules each runs on.
 SHAPES = {
     "poll": (programs, MODULES),
@@ -364,6 +426,7 @@ SHAPES = {
     "tick": (tick_programs, MODULES),
     "calc": (calc_programs, MODULES),
     "positioning-speed": (positioning_speed_programs, MODULES),
+    "timer": (timer_programs, MODULES),
 }
 
 
@@ -384,9 +447,12 @@ def run(source: str, world: World, skip: bool) -> list[object]:
     recorder = Recorder(sim, world.record_us / 1e6).start() if world.record_us else None
     seen: list[object] = []
     steps = itertools.cycle(world.steps_us if skip else ())
+    each: list[ModuleEvent] = []
+    runs: list[ModuleEvent] = []  # a timer's dispatches left out as one run (I12, I15)
 
     def listen(event: ModuleEvent) -> None:
         seen.append((event.time_ns, event.kind, event.axis, sorted(event.data.items())))
+        each.append(event)
 
     def advance_to(t_ns: int) -> None:
         for step in steps:
@@ -396,6 +462,7 @@ def run(source: str, world: World, skip: bool) -> list[object]:
         sim.advance_to_ns(max(sim.now_ns, t_ns))
 
     module.listeners.append(listen)
+    module.run_listeners.append(runs.append)
     if world.switch_at is not None:
         module.set_switch(0, "right", world.switch_at)
     for axis in range(min(2, module.type.number_of_axes)):
@@ -432,6 +499,8 @@ def run(source: str, world: World, skip: bool) -> list[object]:
             host(Opcode.SGP, 0, 2, value)
         elif action in ("ror", "ror0"):
             host(Opcode.ROR, 0, 1 if action == "ror" else 0, value)
+        elif action == "timer":  # timer 0 restarted with another period
+            host(Opcode.SGP, 0, 3, abs(value) % 12 + 1)
         else:
             module.set_switch(0, "left", value)
         sim.replan(module)
@@ -441,6 +510,8 @@ def run(source: str, world: World, skip: bool) -> list[object]:
     if recorder is not None:
         seen.append(("recorded", recorder.stop(), recorder.marks))
     interp = module.program.interpreter
+    # a listener of runs sees the same events, a run counted as its events at their instants
+    assert [event for run_ in runs for event in run_.each()] == each
     seen.append(("skipped", interp.loops_skipped, interp.skipper.analyses) if skip
                 else ("skipped", 0, 0))
     return seen
@@ -587,6 +658,18 @@ def test_skipping_moving_reads_through_calc_is_exactly_as_stepping(
     same(*scenario)
 
 
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios("timer"))
+# a poll of "position reached" under a 1 ms counting timer, advanced in 0.37 ms steps
+@example(("SAP 4, 0, 20000\nMVP ABS, 0, 3000\nGAP 1, 0\nCALCX LOAD\nVECT 0, Tick\n"
+          "SGP 0, 3, 1\nEI 0\nEI 255\nMain:\nGAP 8, 0\nCOMP 1\nJC EQ, Out\nJA Main\nOut:\n"
+          "GGP 3, 2\nAGP 9, 2\nMVP ABS, 0, 0\nBack:\nJA Back\nEnd:\nSTOP\nTick:\nGGP 3, 2\n"
+          "CALC ADD, 1\nAGP 3, 2\nRETI\nTick2:\nRETI", World(None, [], 300, steps_us=(370,))))
+def test_skipping_loops_under_timer_interrupts_is_exactly_as_stepping(
+        scenario: tuple[str, World]) -> None:
+    same(*scenario)
+
+
 def test_a_delay_loop_on_the_tick_is_skipped_to_its_end() -> None:
     """I11: a loop polling GP 132 against a value 400 ms on is skipped to the millisecond the
     tick meets it (it was analysed again every millisecond), and leaves as stepping does;
@@ -643,6 +726,81 @@ def test_timer_cycles_are_skipped_not_stepped() -> None:
     interp = module.program.interpreter
     assert module.globals[2][3] == 9_999  # a tick a millisecond, the first at 1 ms
     assert interp.ticks_skipped > 9_000
+
+
+def test_a_poll_under_a_counting_timer_is_skipped_across_its_ticks() -> None:
+    """I15: a poll of "position reached" under a 1 ms or 10 ms timer whose handler counts is
+    skipped across the ticks to the move's end: one analysis a move, no timer cycle stepped
+    to be recorded (I12 did that at every batch), each dispatch's event still at its
+    instant; the same with a timer that has no handler and with one whose handler also
+    multiplies (its ticks are stepped, the poll's plan reused between them, I10)."""
+    for period in (1, 10):
+        sim, module = _running(TIMER_OVER_POLL.format(period=period, step=1, read="")
+                               .replace("4000", "400000"))
+        runs: list[ModuleEvent] = []
+        module.run_listeners.append(runs.append)
+        sim.advance(10.0)
+        taken = [event for event in runs if event.kind == "interrupt_taken"]
+        interp = module.program.interpreter
+        assert module.globals[2][3] == 10_000 // period - 1  # the first tick one period in
+        assert interp.skipper.analyses < 10 and interp.ticks_skipped > 9_000 // period
+        # a few runs (the power-up's current switching ends batches in its first 66 ms), each
+        # dispatch at its tick (1.01 ms on: the timer was set by the program's second line)
+        assert len(taken) < 20 and sum(event.repeat for event in taken) == 10_000 // period - 1
+        assert [event.time_ns for run_ in taken for event in run_.each()] == [
+            tick * period * MS + 10_000 for tick in range(1, 10_000 // period)]
+    stepped = (TIMER_OVER_POLL.format(period=1, step=1, read="").replace("4000", "400000")
+               .replace("AGP 3, 2\nRETI", "AGP 3, 2\nCALC MUL, 3\nRETI"))
+    sim, module = _running(stepped)
+    sim.advance(1.0)
+    assert module.program.interpreter.ticks_skipped == 0
+    assert module.program.interpreter.skipper.reuses > 900  # the plan again after each tick
+    for source in (stepped, TIMER_OVER_POLL.format(period=1, step=1, read="")
+                   .replace("VECT 0, Tick\n", "")):
+        world = World(None, [(50, "gap", 0)], 300, steps_us=(370,))
+        assert run(source, world, True)[:-1] == run(source, world, False)[:-1]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 50), st.integers(1, 60), st.integers(0, 9), st.integers(1, 4),
+       st.integers(1, 7), st.integers(0, 3), st.lists(st.tuples(st.integers(0, 6),
+                                                                  st.integers(0, 40_000)),
+                                                        max_size=3))
+def test_a_tick_schedule_is_the_instructions_and_handlers_stepped_one_by_one(
+        start: int, first: int, handler: int, between: int, length: int, real_passes: int,
+        horizons: list[tuple[int, int]]) -> None:
+    """I15's arithmetic against the schedule written out instruction by instruction: main
+    instructions on a 10 us grid from the head, the first dispatch before main instruction
+    ``first``, then one every ``between`` main instructions, each handler ``handler``
+    instructions long."""
+    cost = 10
+    period = (between + handler) * cost
+    end = start + 4_000
+    schedule = TickSchedule(start, cost, first, between, handler, period, end, 0, 6, {})
+    starts, dispatched, t, n = [], [], start, 0
+    while t < 3 * end or n < 1_000:
+        if n >= first and (n - first) % between == 0:
+            dispatched.append(t)
+            t += handler * cost
+        starts.append(t)
+        t += cost
+        n += 1
+    assert all(dispatched[j] == start + first * cost + j * period for j in range(len(dispatched)))
+    for instant in range(start - 3, end + 40):
+        assert schedule.last_before(instant) == bisect.bisect_left(starts, instant) - 1
+    for count in range(0, 200):
+        assert schedule.dispatches_before(count) == sum(1 for j in range(len(dispatched))
+                                                        if first + j * between < count)
+    offsets = [(index * cost, horizon + start) for index, horizon in horizons
+               if index < length]
+    passes = schedule.passes(length, tuple(offsets), real_passes)
+
+    def fits(k: int) -> bool:  # k passes left out, `real_passes` more stepped, all by the end
+        ends = (k + real_passes) * length
+        if ends and starts[ends - 1] + cost > end:
+            return False
+        return all(starts[(k - 1) * length + o // cost] < h for o, h in offsets) if k else True
+    assert fits(passes) and not (passes < 400 and fits(passes + 1))
 
 
 def _running(source: str) -> tuple[Simulation, TMCLModule]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -72,6 +72,20 @@ class ModuleEvent:
     kind: str
     axis: int | None = None
     data: dict[str, Any] = field(default_factory=dict)
+    #: A run of like events, as only :attr:`ModuleCore.run_listeners` get them: ``repeat``
+    #: events ``period_ns`` apart from ``time_ns`` on (a timer's dispatches left out by loop
+    #: skipping, interpreter/skipping.py I12).  Everyone else gets each one.
+    repeat: int = 1
+    period_ns: int = 0
+
+    def each(self) -> Iterator[ModuleEvent]:
+        """The events of a run one by one, each at its instant."""
+        if self.repeat == 1:
+            yield self
+            return
+        for index in range(self.repeat):
+            yield ModuleEvent(self.time_ns + index * self.period_ns, self.kind, self.axis,
+                              self.data)
 
 
 @dataclass(slots=True)
@@ -118,6 +132,10 @@ class ModuleCore:
         #: Builds one axis by index (tests); None: the chip core builds the module's axes.
         self._axis_factory = axis_factory
         self.listeners: list[Callable[[ModuleEvent], None]] = []
+        #: Listeners that take a run of like events as one event (``ModuleEvent.repeat``): a
+        #: timer's dispatches left out by loop skipping cost them one call, not one a tick
+        #: (the others get each dispatch, at its instant, and pay for each).
+        self.run_listeners: list[Callable[[ModuleEvent], None]] = []
         #: Called when the serial or CAN addresses may have changed (routers cache them).
         self.on_address_change: Callable[[], None] | None = None
         self.now_ns = start_ns
@@ -538,11 +556,26 @@ class ModuleCore:
                 watch.sink.send_unsolicited(reply)
 
     def emit(self, kind: str, axis: int | None, time_ns: int | None = None, **data: Any) -> None:
-        if not self.listeners:
+        if not self.listeners and not self.run_listeners:
             return
         event = ModuleEvent(self.now_ns if time_ns is None else time_ns, kind, axis, data)
         for listener in list(self.listeners):
             listener(event)
+        for listener in list(self.run_listeners):
+            listener(event)
+
+    def emit_run(self, kind: str, axis: int | None, time_ns: int, period_ns: int, repeat: int,
+                 **data: Any) -> None:
+        """``repeat`` events of ``kind``, ``period_ns`` apart from ``time_ns`` on: each one to
+        :attr:`listeners`, the run as one event to :attr:`run_listeners`."""
+        if repeat <= 0 or (not self.listeners and not self.run_listeners):
+            return
+        run = ModuleEvent(time_ns, kind, axis, data, repeat, period_ns)
+        for listener in list(self.listeners):
+            for event in run.each():
+                listener(event)
+        for listener in list(self.run_listeners):
+            listener(run)
 
     # == I/O from the outside world ============================================================
 

@@ -99,6 +99,10 @@ class StandaloneHost(Protocol):
     def emit(self, kind: str, axis: int | None, time_ns: int | None = None, **data: Any) -> None:
         """Tell the module's listeners (telemetry) about a program event."""
 
+    def emit_run(self, kind: str, axis: int | None, time_ns: int, period_ns: int, repeat: int,
+                 **data: Any) -> None:
+        """Tell them about ``repeat`` like events, ``period_ns`` apart (``ModuleEvent.repeat``)."""
+
 
 class ProgramSupport:
     """Program memory, download mode, the interpreter and its control commands for one module."""
@@ -189,6 +193,10 @@ class ProgramSupport:
 
     def program_event(self, time_ns: int, kind: str, **data: int) -> None:
         self.module.emit(kind, None, time_ns=time_ns, **data)
+
+    def program_events(self, time_ns: int, period_ns: int, repeat: int, kind: str,
+                       **data: int) -> None:
+        self.module.emit_run(kind, None, time_ns, period_ns, repeat, **data)
 
     def epoch(self) -> int:
         return self.module.epoch

@@ -197,8 +197,8 @@ class LineRate:
         self._table = table
         self._fallback = fallback
         self.bits_per_s = fixed or self._read()
-        if fixed is None and module is not None:
-            module.listeners.append(self._on_event)
+        if fixed is None and module is not None:  # (runs of a timer's dispatches as one call)
+            module.run_listeners.append(self._on_event)
 
     @classmethod
     def uart(cls, module: TMCLModule | None, fixed: int | None = None) -> LineRate:
@@ -222,8 +222,8 @@ class LineRate:
             self.bits_per_s = self._read()
 
     def close(self) -> None:
-        if self._module is not None and self._on_event in self._module.listeners:
-            self._module.listeners.remove(self._on_event)
+        if self._module is not None and self._on_event in self._module.run_listeners:
+            self._module.run_listeners.remove(self._on_event)
 
 
 def parse_baud(text: str | None, endpoint: str) -> int | None:
