@@ -13,7 +13,7 @@ arithmetic in ``arithmetic.py``, the :class:`ModulePort` hook in ``port.py``.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 from interpreter import interrupts
 from interpreter.arithmetic import calculate
@@ -83,6 +83,11 @@ _JC_ERROR_BIT: dict[int, int] = {Condition.ETO: 1, Condition.EAL: 2, Condition.E
                  Condition.ESD: 16}
 
 
+#: The first seven of :meth:`Interpreter.registers`: PC, accumulator, X, the two flag
+#: sources, error flags, call stack.
+_Registers = tuple[int, int, int, int, int, int, tuple[int, ...]]
+
+
 class Context(NamedTuple):
     """What an interrupt saves and RETI restores."""
 
@@ -149,7 +154,7 @@ class Interpreter(WaitHandling, TimerCycles):
         self.ticks_skipped = 0
         #: The end of the batch being run (skipping.py I15: loops skipped across the ticks of
         #: a timer that only counts go on up to it, not only to the next tick).
-        self._batch_end_ns = 0
+        self.batch_end_ns = 0
         self.power_up(0)
 
     def power_up(self, now_ns: int) -> None:
@@ -383,7 +388,7 @@ class Interpreter(WaitHandling, TimerCycles):
                 self._give_up_cycles()  # (batches shorter than a cycle: record less often)
 
     def _run_batch(self, end_ns: int) -> bool:
-        self._batch_end_ns = end_ns  # (loops skipped across a timer's ticks go up to it, I15)
+        self.batch_end_ns = end_ns  # (loops skipped across a timer's ticks go up to it, I15)
         while self.time_ns < end_ns:
             if self._timers:
                 self._fire_timers(self.time_ns)
@@ -404,6 +409,10 @@ class Interpreter(WaitHandling, TimerCycles):
                     return False
                 self.time_ns = wake
                 continue
+            if self.skipper.inside is not None and self.recording is None:
+                self.skipper.resume(limit)  # skipping.py I16: where a skip stopped inside a pass
+                if self.time_ns >= limit:
+                    continue
             outcome = self._execute_checked(limit) if self.breakpoints else self._execute(limit)
             if outcome == LOOP:
                 outcome = self.skipper.at_loop_head(limit)
@@ -680,6 +689,12 @@ class Interpreter(WaitHandling, TimerCycles):
         """What a pass may read of the program's state (besides the module)."""
         return (self.pc, self.accumulator, self.x, self.zero_source, self.compare_source,
                 self.errors, tuple(self.stack), self.saved, self.memory_revision)
+
+    def restore(self, registers: tuple[object, ...]) -> None:
+        pc, accumulator, x, zero, compare, errors, stack = cast(_Registers, registers[:7])
+        self.pc, self.accumulator, self.x = pc, accumulator, x
+        self.zero_source, self.compare_source, self.errors = zero, compare, errors
+        self.stack = list(stack)
 
     def interrupt_due(self) -> bool:
         return bool(self.pending and self._dispatchable())

@@ -129,6 +129,23 @@ I15. A loop is skipped across the ticks of a timer whose handler only counts.  W
     landing is taken by the dispatch loop, as stepping takes it.  While a loop is skipped
     across the ticks, I12's cycles are not recorded (recording one steps the loop for a
     whole period).
+I16. A skip stops where stepping would, inside a pass.  A pass that repeats whole (every
+    answer steady, I2: no flip, so no pass I7 must keep; every register as it found it; no
+    WAIT that waits, so instruction i of a pass starts ``i * cost`` after its head; no
+    handler in progress) takes the same states in every pass: before its instruction i, the
+    registers the analysed pass had there (``_Plan.states``, recorded by the analysis).
+    Instruction n counted from a head at ``began`` starts at ``began + n * cost``; stepping
+    runs those that start before the batch's ``limit``, and the command at offset o of pass
+    k answers as analysed while it starts before its horizon (I3, I4).  So the program is
+    put straight into the state before the first instruction that either starts at or after
+    ``limit`` or is a command at or past its horizon (``LoopSkipper._glide``; that one is
+    then executed by the dispatch loop, against the module), instead of stepping the last
+    part of a pass to ``limit``: no module command is left out that stepping would have
+    answered otherwise, and a read changes nothing in the module (F6, T3).  The next batch
+    goes on from there without stepping to the head (``LoopSkipper.resume``) if nothing
+    intervened: the same instant, epoch (I10; a pass without commands needs none, I9),
+    registers as the recorded state there, and no interrupt due.  A timer's tick ending the
+    batch is taken at the instruction boundary stepping takes it at.
 """
 
 from __future__ import annotations
@@ -205,6 +222,10 @@ class Program(Protocol):
     loops_skipped: int
     #: While a pass is analysed, every module command is appended here (None otherwise).
     recording: list[Call] | None
+    #: Simulated time one instruction takes.
+    instruction_ns: int
+    #: The end of the batch being run (I15).
+    batch_end_ns: int
     #: A kept plan's reads by PC, (status, value, steady until), with the epoch they hold
     #: under (I13); None: every command goes to the module.
     replay: dict[int, tuple[int, int, int]] | None
@@ -212,6 +233,10 @@ class Program(Protocol):
 
     def registers(self) -> tuple[object, ...]:
         """What a pass may read of the program's state besides the module (I2)."""
+        ...
+
+    def restore(self, registers: tuple[object, ...]) -> None:
+        """Set the registers to what :meth:`registers` returned (I16: a state of the pass)."""
         ...
 
     def interrupt_due(self) -> bool:
@@ -324,17 +349,27 @@ class LoopSkipper:
         #: The last skip went across a counting timer's ticks (I15): the timer's own cycle
         #: skipping (I12), which steps the loop for a whole cycle to record it, stands aside.
         self.crosses_ticks = False
+        #: Where the program stands in the kept plan's pass, left there by a skip that ended
+        #: inside one (I16): (the instant that pass began, instructions into it).
+        self.inside: tuple[int, int] | None = None
 
     def at_loop_head(self, limit: int) -> int:
         """A backward jump brought the program to a loop head: skip the passes that would do
         exactly what the last one did (or analyse one pass to learn whether they would)."""
         program = self.program
         idle = self._idle_loops.get(program.pc)
-        if idle is not None and idle[0] == program.registers():
-            self._skip(idle[1], idle[2], limit, (), program.time_ns - idle[1],
-                       touched=frozenset())  # I9
-            return CONTINUE
         plan = self._plan
+        if idle is not None:
+            registers = program.registers()
+            if idle[0] == registers:
+                if (plan is not None and plan.states is not None and not plan.horizons
+                        and plan.states[0] == registers and limit >= program.batch_end_ns
+                        and not program.interrupt_due()):
+                    self._glide(plan, program.time_ns, 0, limit)  # I9 and I16
+                else:
+                    self._skip(idle[1], idle[2], limit, (), program.time_ns - idle[1],
+                               touched=frozenset())  # I9
+                return CONTINUE
         if plan is not None and plan.head == program.pc and self._reuse(plan, limit):
             return CONTINUE
         return self._analyse(limit)
@@ -356,7 +391,14 @@ class LoopSkipper:
             return False  # I10: a user variable it reads was written since
         self.countdown = 1
         program.replay, program.replay_epoch = plan.answers, plan.epoch  # I13
-        ticks = program.tick_schedule(limit, plan.period, plan.length, plan.touched)  # I15
+        ticks = (program.tick_schedule(limit, plan.period, plan.length, plan.touched)
+                 if limit < program.batch_end_ns else None)  # I15
+        if ticks is None and plan.states is not None:  # I16: to the limit's instruction
+            if self._glide(plan, program.time_ns, 0, limit):
+                self.reuses += 1
+                return True
+            self._plan = program.replay = None  # a horizon is here: its answers may change
+            return False
         if program.time_ns + (1 + plan.real_passes) * plan.period > (
                 limit if ticks is None else ticks.end):
             return True  # no whole pass to leave out before the batch ends: step on to it
@@ -374,8 +416,8 @@ class LoopSkipper:
         self.countdown = self._backoff
         self._backoff = min(self._backoff * 2, LOOP_BACKOFF_MAX)
 
-    def _run_pass(self, limit: int, calls: list[Call],
-                  path: list[int]) -> tuple[int, bool] | None:
+    def _run_pass(self, limit: int, calls: list[Call], path: list[int],
+                  states: list[tuple[object, ...]]) -> tuple[int, bool] | None:
         """Execute one pass from the loop head, recording its commands and path: (outcome,
         whether it waited), or None when it cannot be analysed (too long, past ``limit``, a
         WAIT that goes on)."""
@@ -388,6 +430,7 @@ class LoopSkipper:
                 if program.time_ns >= limit or len(path) >= MAX_PASS:
                     return None
                 path.append(program.pc)
+                states.append(program.registers())
                 outcome = program.execute_one()
                 if outcome == WAITING:
                     if not program.tick_wait_ends(limit):
@@ -413,12 +456,13 @@ class LoopSkipper:
         before = program.registers()
         calls: list[Call] = []
         path: list[int] = []
-        ran = self._run_pass(limit, calls, path)
+        states: list[tuple[object, ...]] = []
+        ran = self._run_pass(limit, calls, path, states)
         if ran is None or ran[0] != CONTINUE or any(call.changed for call in calls):
             self._give_up()
             return CONTINUE if ran is None else ran[0]
         analysed = _Pass(head, start, program.time_ns - start, program.executed - executed,
-                         before, program.registers(), calls, path, ran[1])
+                         before, program.registers(), calls, path, ran[1], states)
         repeats = analysed.repeats()
         if analysed.reads_clock():  # I11: to the tick's flip, else to its next millisecond
             skipped = self._skip_to_flip(analysed, limit)
@@ -446,10 +490,18 @@ class LoopSkipper:
         variables = tuple((call.request[1], call.value) for call in analysed.calls
                           if call.request[0] == OP_GGP and call.request[2] == 2)
         everything = before if len(registers) == len(before) else None
+        # I16: a pass that repeats whole, its instructions alone in its time, and touches
+        # nothing a batch boundary could (no handler in progress): its states, one an
+        # instruction, to stop inside it where stepping would
+        states = (tuple(analysed.states) if real_passes == 0 and everything is not None
+                  and analysed.period == analysed.length * self.program.instruction_ns
+                  and len(analysed.states) == analysed.length and before[_SAVED] is None
+                  else None)
+        self.inside = None
         self._plan = _Plan(analysed.head, analysed.start, self.program.epoch(), registers,
                            everything, variables, analysed.period, analysed.length, horizons,
                            real_passes, _answers(self.program.code, analysed.path,
-                                                 analysed.calls), analysed.touched())
+                                                 analysed.calls), analysed.touched(), states)
 
     def _skip_repeats(self, analysed: _Pass, limit: int) -> int:
         """I2: the next passes do exactly the same while every answer holds (I3, I4)."""
@@ -458,8 +510,57 @@ class LoopSkipper:
         horizons = tuple((call.time_ns - analysed.start, call.steady_until)
                          for call in analysed.calls)
         self._keep(analysed, horizons, 0)
+        plan, program = self._plan, self.program
+        assert plan is not None
+        ticks = (program.tick_schedule(limit, plan.period, plan.length, plan.touched)
+                 if limit < program.batch_end_ns else None)  # I15
+        if ticks is None and plan.states is not None:  # I16: to the limit's instruction
+            return self._glide(plan, program.time_ns, 0, limit)
         return self._skip(analysed.period, analysed.length, limit, horizons, analysed.start,
-                          touched=analysed.touched())
+                          ticks=ticks)
+
+    def _glide(self, plan: _Plan, began: int, index: int, limit: int) -> int:
+        """I16: from instruction ``index`` of a pass of ``plan`` that began at ``began`` (the
+        program there, in the state the analysed pass had there), leave out the
+        instructions that start before ``limit``, as long as every command among them is
+        sent before its horizon; the program is left in the state the analysed pass had
+        at the instruction it stops before.  Returns how many were left out."""
+        program = self.program
+        states = plan.states
+        assert states is not None
+        cost, length = program.instruction_ns, plan.length
+        stop = index + max(0, -(-(limit - program.time_ns) // cost))
+        for offset, horizon in plan.horizons:
+            # the first time the command at `offset` is sent at or after its horizon
+            first = max(index, -(-(horizon - began) // cost))
+            at = offset // cost
+            stop = min(stop, first + (at - first) % length)
+        if stop <= index:
+            return 0
+        whole, inside = divmod(stop, length)
+        program.restore(states[inside])
+        program.time_ns = began + stop * cost
+        program.executed += stop - index
+        program.loops_skipped += whole
+        self.inside = (began + whole * length * cost, inside)
+        return stop - index
+
+    def resume(self, limit: int) -> None:
+        """I16 at a batch's start: the program still stands where a skip left it inside the
+        kept plan's pass, nothing intervened (the epoch, the registers), so it goes on
+        gliding to ``limit``."""
+        inside, plan, program = self.inside, self._plan, self.program
+        if program.time_ns >= limit:
+            return  # nothing to run in this batch: it stays where it is
+        self.inside = None
+        if inside is None or plan is None or plan.states is None:
+            return
+        began, index = inside
+        if (program.time_ns != began + index * program.instruction_ns
+                or (plan.horizons and program.epoch() != plan.epoch)  # (I9: no command)
+                or program.interrupt_due() or program.registers() != plan.states[index]):
+            return  # something intervened: the dispatch loop steps on from here
+        self._glide(plan, began, index, limit)
 
     def _skip(self, period: int, length: int, limit: int,
               horizons: tuple[tuple[int, int], ...], start: int, real_passes: int = 0,
@@ -540,6 +641,8 @@ class _Plan:
     real_passes: int
     answers: dict[int, tuple[int, int, int]] | None  # its reads by PC (I13)
     touched: frozenset[int]  # the user variables its commands address (I15)
+    #: the registers before each of its instructions (I16), where it may be stopped inside
+    states: tuple[tuple[object, ...], ...] | None
 
 
 def _answers(code: list[Instruction], path: list[int],
@@ -583,6 +686,7 @@ class _Pass:
     calls: list[Call]
     path: list[int]
     waited: bool
+    states: list[tuple[object, ...]]
 
     def touched(self) -> frozenset[int]:
         """I15: the user variables (bank 2) the pass's commands read or write."""
@@ -663,7 +767,7 @@ def _reads_clock(call: Call) -> bool:
 
 
 #: Registers of the pass analysis (the indices in Program.registers()).
-_ACC, _X, _ZERO, _CMP, _ERRORS, _STACK = 1, 2, 3, 4, 5, 6
+_ACC, _X, _ZERO, _CMP, _ERRORS, _STACK, _SAVED = 1, 2, 3, 4, 5, 6, 7
 _HALF = 1 << 31
 #: CALCX operations of plain arithmetic that keep a moving read's function invertible.
 _PLAIN = (CalcOp.ADD, CalcOp.SUB)

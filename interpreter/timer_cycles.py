@@ -60,7 +60,7 @@ class TimerCycles:
     pending: int
     wake_for_timers: bool
     skipper: LoopSkipper
-    _batch_end_ns: int
+    batch_end_ns: int
     _timers: dict[int, Timer]
     _cycle: _Cycle | None
     _cycle_wait: int
@@ -146,7 +146,7 @@ class TimerCycles:
         across, when ``limit`` is the next tick of the only timer, before the batch's end,
         and its handler only counts, in variables the loop leaves alone; else None."""
         timers = self._timers
-        if len(timers) != 1 or limit >= self._batch_end_ns or self.wake_for_timers:
+        if len(timers) != 1 or limit >= self.batch_end_ns or self.wake_for_timers:
             return None
         ((number, timer),) = timers.items()
         vector = interrupts.timer(number)
@@ -165,7 +165,7 @@ class TimerCycles:
         if between < 1:
             return None
         return TickSchedule(self.time_ns, cost, -(-(limit - self.time_ns) // cost), between,
-                            handler, timer.period_ns, self._batch_end_ns, vector, address,
+                            handler, timer.period_ns, self.batch_end_ns, vector, address,
                             counters)
 
     def take_ticks(self, schedule: TickSchedule, instructions: int) -> None:

@@ -6,7 +6,7 @@ mixed), and in the stepping reference (``Interpreter.skip_loops = False``, every
 executed, one ``advance`` call per stretch), with the same program, world, host and recorder.
 Both must see the same events at the same instants, the same replies to host requests made
 mid-loop, the same recorded samples, and end in the same state.  Hypothesis makes random
-programs and worlds aimed at the edges the analysis relies on (interpreter/skipping.py I1-I14,
+programs and worlds aimed at the edges the analysis relies on (interpreter/skipping.py I1-I16,
 axes/forecast.py F1-F8), on every module type and core (TMC4210, TMC4361A, TMC429, the
 TMCM-1111's own S-shaped ramps):
 
@@ -994,6 +994,40 @@ def _flag_poll(steps_ms: float, seconds: float, record_s: float | None = None) -
     for _ in range(round(seconds * 1000 * MS) // step):
         sim.advance_to_ns(sim.now_ns + step)
     return module
+
+
+def test_a_skip_stops_inside_a_pass_where_stepping_would(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """I16: the clock advanced in 1 ms or 0.37 ms steps over a poll, the program is put where
+    stepping leaves it at each step's end, inside a pass, and the next step goes on from
+    there: almost no instruction is stepped (two runs of the dispatch loop a step before),
+    and every step ends in stepping's state (the registers, the instruction count)."""
+    source = "SAP 4, 0, 2000\nMVP ABS, 0, 100000\nWait:\nGAP 8, 0\nCOMP 1\nJC NE, Wait\nSTOP"
+    runs = [0]
+    for steps_us in (1000, 370):
+        states = []
+        for skip in (True, False):
+            sim, module = _running(source)
+            interp = module.program.interpreter
+            interp.skip_loops = skip
+            sim.advance(0.1)
+            if skip:
+                execute = interp._execute
+
+                def counted(limit_ns: int, execute: object = execute) -> int:
+                    runs[0] += 1
+                    assert callable(execute)
+                    return int(execute(limit_ns))
+                monkeypatch.setattr(interp, "_execute", counted)
+            seen = []
+            for _ in range(300):
+                sim.advance_to_ns(sim.now_ns + steps_us * 1000)
+                seen.append((interp.pc, interp.accumulator, interp.compare_source,
+                             interp.executed, interp.time_ns))
+            states.append(seen)
+        assert states[0] == states[1], steps_us
+        assert len({pc for pc, *_ in states[0]}) == 3  # it stops at each of the pass's three
+    assert runs[0] < 20, runs
 
 
 def test_a_plan_survives_a_batch_boundary() -> None:
