@@ -191,3 +191,28 @@ def test_events_selected_in_intr_conf_wake_at_their_clock_inside_a_segment() -> 
     assert law.step(10_000) is Stop.EVENT
     assert chip.t == law.t == 3
     assert chip.events & Event.RAMP_STATE_ACC and chip.events & Event.VEL_STATE_POS
+
+
+def test_an_acceleration_held_above_a_lowered_amax_is_one_segment() -> None:
+    """An S-ramp rotation with AMAX lowered below the acceleration its UP stage has reached:
+    the law keeps that acceleration in the UP stage (no quantum is due above the new peak)
+    until DOWN must start.  ``run`` jumps that stretch as one segment, as it jumps HOLD, and
+    lands where the law does; it used to do each of its clocks by itself (a TMCM-1111 at
+    16 MHz spent 20 s on 50 ms of it)."""
+    chip = TMC4361A(clock_hz=500, bow_quantum=4)
+    for reg, value in ((Reg.RAMPMODE, 2), (Reg.VMAX, 120 * 256), (Reg.AMAX, 4000),
+                       (Reg.DMAX, 4000), (Reg.BOW1, 20000), (Reg.BOW2, 20000),
+                       (Reg.BOW3, 20000), (Reg.BOW4, 20000), (Reg.CLK_FREQ, 500)):
+        chip.write(reg, value)
+    while chip.ramp.stage != Stage.UP or chip.ramp.a <= 0:
+        chip.step(chip.t + 1)
+    chip.write(Reg.AMAX, 40)  # below the acceleration reached, before its peak
+    assert chip.ramp.stage == Stage.UP and chip.ramp.a > chip.ramp.P.AMAX
+    law, until, calls = chip.clone(), chip.t + 5000, 0
+    while chip.t < until:
+        stop = chip.run(until, 2)  # at most two clocks by itself a call
+        calls += 1
+        assert law.step(chip.t) is stop and law.t == chip.t
+        assert _state(law) == _state(chip), f"at tick {chip.t}"
+    assert chip.ramp.stage == Stage.CRUISE
+    assert calls <= 4

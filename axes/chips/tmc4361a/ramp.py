@@ -210,8 +210,9 @@ class Ramp(RampLaw):
 
     def _s_segment(self, slope: int, variant: int, reversal: bool) -> Segment | None:
         """An S-ramp stage as a segment: a bow stage (REC, UP, DOWN) changes the gain by its
-        bow quantum on its quantum grid, HOLD and END keep it; an UP stage at its peak, or a
-        crawl that is not the final approach's, is special."""
+        bow quantum on its quantum grid, HOLD and END keep it (so does UP above a lowered
+        AMAX: no quantum is due there); an UP stage at its peak, or a crawl that is not the
+        final approach's, is special."""
         stage = self.stage
         j_rec, j_up, j_down, g_max, _, _, _ = self.slope_constants(slope, variant, reversal)
         if stage == Stage.CRAWL:
@@ -219,7 +220,9 @@ class Ramp(RampLaw):
         if stage == Stage.REC:
             return (self.a, slope * j_rec, self.q)
         if stage == Stage.UP:
-            return None if slope * self.a >= g_max else (self.a, slope * j_up, self.q)
+            if slope * self.a > g_max:  # above a lowered AMAX: held, as in HOLD, until DOWN
+                return (self.a, 0, 0)
+            return None if slope * self.a == g_max else (self.a, slope * j_up, self.q)
         if stage in (Stage.HOLD, Stage.END):
             return (self.a, 0, 0)
         if stage == Stage.DOWN:
