@@ -90,6 +90,17 @@ def _hold_equal(chip: TMC4361A, script: list) -> None:
          board=LineBoard(right=150), conf=0x22, virtual=(-100, 100, 50, 5), intr=0xFFFF_FFFF,
          recall=True, script=[(2500, None, None), (2500, 2, (1, "xtarget", -50)),
                               (2500, None, None)])  # an S-ramp into a soft stop switch
+# A reversal through v = 0 (BOW2 = BOW4) whose speed lands on 0 exactly at a clock inside its
+# segment: VEL_STATE_ZERO, selected, was returned a clock late (CI drew it)
+@example(regs=Registers(rampmode=1, vmax=0xFFFF_FF00, amax=4, dmax=4, clk_freq=500), quantum=2,
+         board=None, conf=0, virtual=(0, 0, 0, 0), intr=Event.VEL_STATE_ZERO, recall=False,
+         script=[(1, None, (1, "bow3", 250)), (1, None, (1, "rampmode", 6)), (4, None, None)])
+# Braking in a REC stage whose bow is 0: the speed passes |VMAX| without ending the segment,
+# equal to it for one clock: VEL_REACHED latched there was missed (CI drew it)
+@example(regs=Registers(rampmode=1, vmax=0xFFFF_FF00, amax=4, dmax=4, clk_freq=500), quantum=2,
+         board=None, conf=0, virtual=(0, 0, 0, 0), intr=Event.TARGET_REACHED | Event.VEL_REACHED,
+         recall=False,
+         script=[(1, None, (1, "rampmode", 6)), (1, None, (1, "bow3", 250)), (502, None, None)])
 @given(regs=ramp_registers((0, 1, 2)), quantum=st.sampled_from([1, 2, 4, 8, 64]),
        board=_boards, conf=_conf,
        virtual=st.tuples(st.integers(-300, 0), st.integers(0, 300), st.integers(-100, 100),

@@ -421,6 +421,7 @@ class Ramp(RampLaw):
         the arrival in the target step, and the braking decision of a positioning move."""
         kind = action[0]
         best = limit + 1 if kind == A_NORAMP else self._slope_horizon(action, seg, limit)
+        best = self._vmax_limit(seg, best)
         if self.w or seg[0] or seg[1]:
             wanted = list(positions)
             if self.P.positioning:
@@ -431,6 +432,19 @@ class Ramp(RampLaw):
             best = self._braking_limit(seg, action[1], best - 1)
             best = min(best, self._rem_sign_limit(action[1], seg, best - 1))
         return best
+
+    def _vmax_limit(self, seg: Segment, best: int) -> int:
+        """The tick that reaches or passes |VMAX|, or ``best`` if that is later: VEL_REACHED
+        is the speed equal to VMAX, which a speed that only passes through it (a slope that
+        does not end there, e.g. a braking REC stage whose bow is 0) shows for one tick, and
+        the event latches (the law does that tick; within a segment |v| is monotone)."""
+        V, w = self.P.V, self.w
+        if w == V or not (seg[0] or seg[1]):
+            return best
+        state_after = self._state_after
+        if w < V:
+            return first_nonneg(lambda i: state_after(seg, i)[0] - V, best - 1)
+        return first_nonneg(lambda i: V - state_after(seg, i)[0], best - 1)
 
     def _arrival_limit(self, ctx: Context, seg: Segment, best: int) -> int:
         """Inside the target microstep (positioning, moving or about to): the move ends at the
@@ -455,9 +469,9 @@ class Ramp(RampLaw):
         chip's VEL_STATE_F and RAMP_STATE_F show changes without the segment ending: the
         acceleration's sign at the segment's first tick (it applies ``alpha`` from there), or
         at the first quantum of a bow stage started at |a| = 0; the speed leaving 0 on a
-        segment that starts at rest.  (Everywhere else they change only where
-        :meth:`horizon` stops anyway: the chip asks for this only when INTR_CONF wants their
-        events at once.)  ``seg``: the segment ahead (:meth:`segment_for`)."""
+        segment that starts at rest, or landing on 0 on one that falls.  (Everywhere else
+        they change only where :meth:`horizon` stops anyway: the chip asks for this only when
+        INTR_CONF wants their events at once.)  ``seg``: the segment ahead (:meth:`segment_for`)."""
         if seg is None or limit < 1:
             return limit + 1
         alpha, delta, q0 = seg
@@ -470,6 +484,10 @@ class Ramp(RampLaw):
             best = min(best, (Q // 2 - q0) % Q + 1)
         if self.w == 0 and (alpha or delta):
             best = first_nonneg(lambda i: state_after(seg, i)[0] - 1, best - 1)
+        elif self.w > 0 and (alpha < 0 or delta < 0):
+            # the speed landing on 0 exactly: a slope that passes through 0 (BOW2 = BOW4)
+            # goes on, and its horizon stops only below 0 (falling as that horizon assumes)
+            best = first_nonneg(lambda i: -state_after(seg, i)[0], best - 1)
         return best
 
     def start_is_void(self, ctx: Context) -> bool:
