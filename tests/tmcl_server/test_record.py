@@ -19,7 +19,7 @@ from tmcl_server.clock import VirtualClock
 from tmcl_server.embed import SimulatorThread
 from tmcl_server.module import TMCM6212, TMCLModule
 from tmcl_server.protocol import Request
-from tmcl_server.record import Mark, Recorder, RecordWriter, read_record
+from tmcl_server.record import Mark, Recorder, RecordWriter, Sample, read_record
 from tmcl_server.simulation import PROGRAM_CHUNK_NS, RECORDER_SAMPLES_PER_TURN, Simulation
 from tmcl_server.tool import main as tmcl
 from tmcl_spec.commands import Opcode, Status
@@ -228,7 +228,7 @@ Back:
 
 
 def _recorded_ramps(kind: str, core: str | None, program: str, skip: bool, resolution: float,
-                    modules: int = 1, seconds: float = 3.0) -> tuple[list[object], list[object],
+                    modules: int = 1, seconds: float = 3.0) -> tuple[list[Sample], list[object],
                                                                       TMCLModule]:
     """Rows and marks of ``program`` run on ``modules`` modules with a recorder whose samples
     and marks reach callbacks (in the order they are handed on), skipping or stepping."""
