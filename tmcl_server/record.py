@@ -2,10 +2,14 @@
 
 A :class:`Recorder` attached to a simulation is called by the simulation before it brings any
 module up to a time (``Simulation.run_due`` and ``sync_module``, which every advance passes
-through): it steps its modules to every sample instant on the way
-(``module.advance_to(instant)``), reads each recorded axis and writes a :class:`Sample`.
-Stepping to an instant only splits the simulation's stride in two; the axes are exact at any
-instant, so event times do not move (tests/tmcl_server/test_record.py checks it).  On the
+through): it brings each recorded module once to the last sample instant up to that time
+(``module.advance_to(last)``) and samples each axis on the way, at an instant when a command
+or an event is about to bring the axis past it (the module's ``sampler`` hook) or once the
+module has reached the last instant (:class:`_ModuleSampler`), and writes a :class:`Sample`.
+Nothing but its own motion changes an axis between two of those calls, and the axes are
+exact at any instant, so a sample is what stopping the module at its instant would read, a
+program's batches go on through the instants, and event times do not move
+(tests/tmcl_server/test_record.py checks both against the stepping interpreter).  On the
 virtual clock the samples are therefore exact; on a real clock they are exact too, only
 computed when the simulation next catches up (a request, an internal event, or the
 recorder's own wake-up).
