@@ -68,6 +68,9 @@ _conf = st.builds(
 _boards = st.one_of(st.none(), st.builds(
     LineBoard, st.one_of(st.none(), st.integers(-300, 0)), st.one_of(st.none(), st.integers(1, 300)),
     st.one_of(st.none(), st.tuples(st.integers(-200, 0), st.integers(0, 200)))))
+#: INTR_CONF: any selection, or one event alone (with many selected, another event at the
+#: same clock hides one that comes late; both of CI's finds had one or two selected)
+_intr = st.one_of(st.integers(0, MASK32), st.sampled_from([0, *(1 << bit for bit in range(32))]))
 #: (clocks to run, work budget or None, a register change after it or None)
 _script = st.lists(st.tuples(st.one_of(st.integers(1, 30), st.integers(1, 2500)),
                              st.one_of(st.none(), st.integers(1, 4)),
@@ -105,7 +108,7 @@ def _hold_equal(chip: TMC4361A, script: list) -> None:
        board=_boards, conf=_conf,
        virtual=st.tuples(st.integers(-300, 0), st.integers(0, 300), st.integers(-100, 100),
                          st.integers(0, 20)),
-       intr=st.integers(0, MASK32), recall=st.booleans(), script=_script)
+       intr=_intr, recall=st.booleans(), script=_script)
 def test_run_is_the_law_clock_by_clock(regs: Registers, quantum: int, board: LineBoard | None,
                                        conf: int, virtual: tuple, intr: int, recall: bool,
                                        script: list) -> None:

@@ -729,7 +729,7 @@ def test_a_distance_through_calcx_is_forecast_across_both_wraps() -> None:
 
 #: A positioning move's speed polled while it ramps up (to half its top speed), down (to
 #: rest), and for the start of the move back, re-issued each time (F8).
-POSITIONING_SPEED = "SAP 4, 0, {top}\nSAP 5, 0, {acceleration}\nLoop:\nMVP ABS, 0, 300000\n" \
+POSITIONING_SPEED = "SAP 4, 0, {top}\nSAP 5, 0, {acceleration}\nLoop:\nMVP ABS, 0, {target}\n" \
                     "Up:\nGAP 3, 0\nCOMP {half}\nJC LT, Up\nGAP 1, 0\nAGP 9, 2\nDown:\n" \
                     "GAP 3, 0\nCOMP 0\nJC NE, Down\nGAP 1, 0\nAGP 10, 2\nMVP ABS, 0, 0\n" \
                     "Start:\nGAP 3, 0\nCOMP 0\nJC EQ, Start\nBack:\nGAP 3, 0\nCOMP -{half}\n" \
@@ -741,14 +741,17 @@ def test_a_positioning_moves_speed_is_forecast_between_its_turns() -> None:
     trapezoid rises to VMAX and falls on the final approach; polled, it is skipped up to each
     crossing (it was stepped: the speed rises and falls) and leaves each loop where stepping
     does."""
-    for kind, core, top, acceleration in (("tmcm-6212", "tmc4210", 100000, 50000),
-                                          ("tmcm-6212", "tmc4361a", 100000, 50000),
-                                          ("tmcm-6110", None, 1500, 100)):
-        source = POSITIONING_SPEED.format(top=top, acceleration=acceleration, half=top // 2)
-        world = World(None, [], 5000, core, kind)
+    for kind, core, top, acceleration in (("tmcm-6212", "tmc4210", 100000, 400000),
+                                          ("tmcm-6212", "tmc4361a", 100000, 400000),
+                                          ("tmcm-6110", None, 1500, 1000)):
+        source = POSITIONING_SPEED.format(top=top, acceleration=acceleration, half=top // 2,
+                                          target=60000)
+        world = World(None, [], 2000, core, kind)  # every loop at least once
         fast, slow = run(source, world, True), run(source, world, False)
         assert fast[:-1] == slow[:-1], (kind, core)
-        assert fast[-1][1] > 100_000, (kind, core, fast[-1])  # nearly every pass skipped
+        end = next(entry for entry in fast if entry[0] == "end")
+        assert end[10][9] and end[10][10] == 60000, (kind, core, end)  # up and down polled
+        assert fast[-1][1] > 30_000, (kind, core, fast[-1])  # nearly every pass skipped
 
 
 def test_a_bisection_cut_short_by_its_work_budget_judges_where_it_stopped(
@@ -759,8 +762,10 @@ def test_a_bisection_cut_short_by_its_work_budget_judges_where_it_stopped(
     budget)."""
     monkeypatch.setattr(forecast, "LOOKAHEAD_BUDGET", 1)
     cases = [(POLL_SPEED, "tmcm-6212", "tmc4210"),
-             (POSITIONING_SPEED.format(top=1500, acceleration=100, half=750), "tmcm-6110", None),
-             (POSITIONING_SPEED.format(top=100000, acceleration=50000, half=50000), "tmcm-6212",
+             (POSITIONING_SPEED.format(top=1500, acceleration=100, half=750, target=300000),
+              "tmcm-6110", None),
+             (POSITIONING_SPEED.format(top=100000, acceleration=50000, half=50000, target=300000),
+              "tmcm-6212",
               "tmc4210")]
     for source, kind, core in cases:
         world = World(None, [], 2500, core, kind)
