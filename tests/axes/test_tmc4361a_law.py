@@ -104,6 +104,12 @@ def _hold_equal(chip: TMC4361A, script: list) -> None:
          board=None, conf=0, virtual=(0, 0, 0, 0), intr=Event.TARGET_REACHED | Event.VEL_REACHED,
          recall=False,
          script=[(1, None, (1, "rampmode", 6)), (1, None, (1, "bow3", 250)), (502, None, None)])
+# A TZEROWAIT at rest jumped, then the clock that starts the motor: it reaches a home switch
+# edge in that clock, which run missed (the marks were watched from the wait, none at rest)
+@example(regs=Registers(rampmode=6, vmax=7680, amax=120, dmax=120, bow1=76, bow2=76, bow3=76,
+                        bow4=76, clk_freq=500, tzerowait=37, xtarget=MASK32), quantum=1,
+         board=LineBoard(None, None, (0, 0)), conf=0, virtual=(0, 0, 0, 0), intr=0,
+         recall=False, script=[(1, None, (1, "rampmode", 1)), (39, None, None)])
 @given(regs=ramp_registers((0, 1, 2)), quantum=st.sampled_from([1, 2, 4, 8, 64]),
        board=_boards, conf=_conf,
        virtual=st.tuples(st.integers(-300, 0), st.integers(0, 300), st.integers(-100, 100),
