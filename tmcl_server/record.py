@@ -27,6 +27,8 @@ import csv
 import json
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from itertools import repeat
+from operator import add
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
 
@@ -109,6 +111,12 @@ class Recorder:
         self.next_ns = simulation.now_ns
         #: Instants a real clock made the recorder skip (it could not keep up).
         self.skipped = 0
+        #: A moving axis's samples of a stretch at once where its core has the closed form
+        #: (Axis.samples_at); False: each read from the axis brought to its instant (the
+        #: reference tests/tmcl_server/test_record.py compares with).
+        self.closed_forms = True
+        #: Samples a closed form gave (how far :attr:`closed_forms` reached).
+        self.at_once = 0
         self._last_velocity: dict[tuple[int, int], int] = {}
         #: (module, axis) -> (the module's epoch, the sample) of an axis at rest: its samples
         #: are the same until something intervenes (AxisRig.resting).
@@ -279,6 +287,8 @@ class _ModuleSampler:
         self._column = dict(zip(self.indices, self.columns, strict=True))
         self.first = first
         self.last = last
+        #: The span's instants in seconds (a sample's ``t``), made when first needed.
+        self._times: list[float] | None = None
         #: How many instants of the span were handed on (kept, passed to on_sample).
         self.handed = 0
         #: The module is between commands and events (finish): an axis found at rest may be
@@ -287,6 +297,7 @@ class _ModuleSampler:
 
     def open(self, first: int, last: int) -> None:
         self.first, self.last, self.handed = first, last, 0
+        self._times = None
         for index, column in zip(self.indices, self.columns, strict=True):
             column.clear()
             self.due[index] = first
@@ -363,6 +374,23 @@ class _ModuleSampler:
                     int(status.left_switch), int(status.right_switch), int(status.home_switch))))
                 previous = velocity
                 instant += step
+                # the instants before the last at once where the core has a closed form
+                # (Axis.samples_at: a steady run); the last one the plain way, so the axis
+                # ends where it does sampled one by one
+                before_last = (end - instant) // step - 1
+                if before_last > 0 and recorder.closed_forms:
+                    stretch = axis.samples_at(instant, step, before_last)
+                    recorder.at_once += len(stretch)
+                    for status in stretch:
+                        velocity = status.velocity
+                        column.append(new(Sample, (
+                            instant / NS_PER_S, slot, index, status.position, velocity,
+                            0.0 if previous is None else (velocity - previous) / dt_s,
+                            status.current, status.target, int(status.position_reached),
+                            int(status.left_switch), int(status.right_switch),
+                            int(status.home_switch))))
+                        previous = velocity
+                        instant += step
         # the rest of the instants read ``status``: its velocity does not change
         position, velocity, current, target = status[:4]
         reached, left, right, home = (int(status.position_reached), int(status.left_switch),
@@ -371,9 +399,15 @@ class _ModuleSampler:
             instant / NS_PER_S, slot, index, position, velocity,
             0.0 if previous is None else (velocity - previous) / dt_s,
             current, target, reached, left, right, home)))
-        column.extend([new(Sample, (at / NS_PER_S, slot, index, position, velocity, 0.0, current,
-                                    target, reached, left, right, home))
-                       for at in range(instant + step, end, step)])
+        if end > instant + step:  # the times in seconds are the span's, made once for all axes
+            times = self._times
+            if times is None:
+                times = self._times = [at / NS_PER_S for at in range(self.first, self.last + 1, step)]
+            rest = (slot, index, position, velocity, 0.0, current, target, reached, left, right,
+                    home)
+            column.extend(map(new, repeat(Sample), map(add, zip(
+                times[(instant + step - self.first) // step:(end - self.first) // step]),
+                repeat(rest))))
         recorder._last_velocity[key] = velocity
 
 

@@ -229,9 +229,11 @@ Back:
 
 def _recorded_ramps(kind: str, core: str | None, program: str, skip: bool, resolution: float,
                     modules: int = 1, seconds: float = 3.0) -> tuple[list[Sample], list[object],
-                                                                      TMCLModule]:
+                                                                      TMCLModule, Recorder]:
     """Rows and marks of ``program`` run on ``modules`` modules with a recorder whose samples
-    and marks reach callbacks (in the order they are handed on), skipping or stepping."""
+    and marks reach callbacks (in the order they are handed on), skipping (and a moving
+    axis's samples of a steady stretch given at once) or stepping (each sample read from the
+    axis brought to its instant)."""
     built = [TMCLModule(slot, kind=kind, chip_core=core) for slot in range(1, modules + 1)]
     sim = Simulation(built, VirtualClock())
     for module in built:
@@ -241,11 +243,13 @@ def _recorded_ramps(kind: str, core: str | None, program: str, skip: bool, resol
             module.execute(Request(module.slot, *ins))
         sim.replan(module)
     handed: list[object] = []
-    recorder = Recorder(sim, resolution, on_sample=handed.append, on_mark=handed.append).start()
+    recorder = Recorder(sim, resolution, on_sample=handed.append, on_mark=handed.append)
+    recorder.closed_forms = skip
+    recorder.start()
     sim.advance(seconds / 2)
     sim.advance_to_ns(sim.now_ns + 1_234_567)  # an advance that ends between two instants
     sim.advance(seconds / 2)
-    return recorder.stop(), handed, built[0]
+    return recorder.stop(), handed, built[0], recorder
 
 
 @pytest.mark.parametrize(("kind", "core", "speed", "acceleration", "threshold"), RAMPS)
@@ -260,11 +264,13 @@ def test_samples_inside_ramps_are_the_stepping_reference(kind: str, core: str | 
     module brought to every instant)."""
     program = RAMP_PROGRAM.format(speed=speed, acceleration=acceleration, threshold=threshold)
     for resolution in (0.001, 0.0037):
-        rows, handed, module = _recorded_ramps(kind, core, program, True, resolution)
+        rows, handed, module, recorder = _recorded_ramps(kind, core, program, True, resolution)
         reference = _recorded_ramps(kind, core, program, False, resolution)
         assert rows == reference[0]
         assert handed == reference[1]
         assert module.program.interpreter.loops_skipped > 100  # the loops were skipped
+        if core != "tmc4361a" and kind != "tmcm-1111":  # the TMC42x cores' closed form
+            assert recorder.at_once > 0.05 * len(rows), recorder.at_once  # axis 1's rotation
         ramping = {row.velocity for row in rows if row.axis == 0}
         assert len(ramping) > 50  # samples inside the ramps, not only at rest or at speed
         assert any(0 < row.velocity < threshold for row in rows if row.axis == 0)
@@ -276,7 +282,8 @@ def test_samples_of_several_modules_reach_the_callbacks_in_time_order() -> None:
     stepping hands them on."""
     kind, core, speed, acceleration, threshold = RAMPS[0]
     program = RAMP_PROGRAM.format(speed=speed, acceleration=acceleration, threshold=threshold)
-    rows, handed, _ = _recorded_ramps(kind, core, program, True, 0.002, modules=2, seconds=1.0)
+    rows, handed, _, _ = _recorded_ramps(kind, core, program, True, 0.002, modules=2,
+                                         seconds=1.0)
     reference = _recorded_ramps(kind, core, program, False, 0.002, modules=2, seconds=1.0)
     assert rows == reference[0] and handed == reference[1]
     assert {row.module for row in rows} == {1, 2}
@@ -288,7 +295,7 @@ def test_a_recorder_does_not_cut_the_programs_batches() -> None:
     of the plan) per sample instant as when each sample brought the module to its instant."""
     program = "SAP 4, 0, 2000\nMVP ABS, 0, 100000\nWait:\nGAP 8, 0\nCOMP 1\nJC NE, Wait\nSTOP"
     kind, core = "tmcm-6212", "tmc4210"
-    rows, _, module = _recorded_ramps(kind, core, program, True, 0.001, seconds=1.0)
+    rows, _, module, _ = _recorded_ramps(kind, core, program, True, 0.001, seconds=1.0)
     assert len(rows) == 6 * 1002  # six axes, every millisecond of 1.001 s
     skipper = module.program.interpreter.skipper
     assert skipper.analyses + skipper.reuses <= 30, (skipper.analyses, skipper.reuses)
