@@ -210,12 +210,25 @@ class AxisForecast:
             # F4: the same speed at both ends of a monotonic stretch is the same all along it
             if axis.driver.speed_on(ahead.chip.clone()) == axis.actual_speed():
                 turns = axis.driver.speed_turns(axis.driver.chip)
-                if turns is None or not turns(ahead.chip):
+                if (turns is None or not turns(ahead.chip)) and self._same_speed_before_end(ahead):
                     return ahead.time_ns
             self._keep_reading(number, ahead)
         elif number == AP.ACTUAL_POSITION or number == AP.ACTUAL_SPEED:
             self._keep_reading(number, ahead)  # (a positioning move's speed: F8)
         return 0  # a moving quantity
+
+    def _same_speed_before_end(self, ahead: Lookahead) -> bool:
+        """F4 for the stretch up to the look-ahead's end, whose own tick may change the speed
+        at once (a stop switch met there: the rotation reads 0 at both ends, and not in
+        between): the speed a clock before the end is the one read too.  A horizon's tick
+        is a plain one."""
+        axis = self._axis
+        end = ahead.chip.t - 1
+        before = axis.driver.chip.clone()
+        if ahead.stop is None or end <= before.t:
+            return True
+        before.run(end, LOOKAHEAD_BUDGET)
+        return before.t == end and axis.driver.speed_on(before) == axis.actual_speed()
 
     def _keep_reading(self, number: int, ahead: Lookahead) -> None:
         """Keep a copy of the chip at this read, if it is at the read's instant (F7)."""

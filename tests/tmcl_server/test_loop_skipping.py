@@ -544,6 +544,14 @@ S_RAMP_OVERSHOOT = _S_RAMP + "ROR 0, 10000\nWAIT TICKS, 0, 20\nROR 0, 5000\nL:\n
 @example(("SAP 173, 0, 1\nSAP 174, 0, 1\nSAP 181, 0, 29000\nROL 0, 30000\nMain:\nGAP 3, 0\n"
           "COMP 0\nJC NE, Main\nNext:\nNext2:\nJA Next2\nTick:\nRETI",
           World(None, [(5, "gap", 0)], 900, loads=[(0, -9000, -3000, 0)])))
+# F4: a rotation reversed by the host reads 0 on its way through; ahead, a stop switch ends
+# its look-ahead at 0 again: equal speeds at both ends, but not in between (kept at 0 while
+# the speed went on to -732); a random draw of the CALC shape found it
+@example(("SAP 4, 0, 300000\nSAP 5, 0, 100000\nROR 0, 20000\nLoop:\nGAP 3, 0\nCOMP 0\n"
+          "JC EQ, Out\nJA Loop\nOut:\nGAP 3, 0\nAGP 9, 2\nOut2:\nGAP 3, 0\nCOMP 1\n"
+          "JC NZ, Out2\nGAP 1, 0\nAGP 10, 2\nSTOP",
+          World(None, [(1, "switch", 0), (128, "ror0", -729)], 300, "tmc4210", "tmcm-6212",
+                steps_us=(370,))))
 def test_skipping_polling_loops_is_exactly_as_stepping(scenario: tuple[str, World]) -> None:
     same(*scenario)
 
