@@ -33,7 +33,8 @@ F4. A rotation's speed is monotonic only as far as its driver says
     an S-shaped one first takes back the acceleration of the other slope, so a rotation
     asked for more speed while braking dips first, and one asked for less while
     accelerating overshoots.  Over a stretch where it is monotonic, the same speed at both
-    ends is the same speed all along, and the first tick at which the speed compares
+    ends is the same speed all along (the end's own tick may change it at once, a stop
+    switch met there: the speed a clock before the end is compared too), and the first tick at which the speed compares
     otherwise with a boundary is found by bisecting a copy of the chip over the clock
     ticks; past the point where it may turn there is no promise (the driver's test is
     false, then true, so the same bisection finds whichever comes first).
