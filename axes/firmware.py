@@ -788,10 +788,12 @@ class AxisFirmware(RiggedAxis):
         return samples
 
     def resting(self) -> bool:
-        """The chip rests (the look-ahead finds no motion, F2) with nothing pending: what
-        :meth:`sample` reads changes only at an event (the current switching, T1) or by a
-        command or a world change; the firmware's other passes do not run at rest."""
-        return not self._pending and self._lookahead() is None
+        """The chip rests (the look-ahead finds no motion, F2) with nothing pending, and the
+        firmware's passes are all left out (T2; not while coolStep winds the current back
+        after a stop, pass by pass): what :meth:`sample` reads changes only at an event (the
+        current switching, T1) or by a command or a world change."""
+        return (not self._pending and self._lookahead() is None
+                and self.tasks.left_out_until() == FOREVER)
 
     def status(self) -> AxisStatus:
         """A snapshot for telemetry (MQTT bridge, tests); clears nothing."""

@@ -34,10 +34,11 @@ F4. A rotation's speed is monotonic only as far as its driver says
     asked for more speed while braking dips first, and one asked for less while
     accelerating overshoots.  Over a stretch where it is monotonic, the same speed at both
     ends is the same speed all along (the end's own tick may change it at once, a stop
-    switch met there: the speed a clock before the end is compared too), and the first tick at which the speed compares
-    otherwise with a boundary is found by bisecting a copy of the chip over the clock
-    ticks; past the point where it may turn there is no promise (the driver's test is
-    false, then true, so the same bisection finds whichever comes first).
+    switch met there: the speed a clock before the end is compared too), and the first
+    tick at which the speed compares otherwise with a boundary is found by bisecting a copy
+    of the chip over the clock ticks; past the point where it may turn there is no promise
+    (the driver's test is false, then true, so the same bisection finds whichever comes
+    first).
 F5. A crossing found is kept while the look-ahead it was found for is the current one (its
     identity): a new look-ahead is made after every change (F1).  A crossing found from an
     earlier instant of the same look-ahead is still the first one after any later instant
