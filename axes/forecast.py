@@ -332,9 +332,19 @@ class AxisForecast:
                        for value, side in zip(values, above, strict=True))
 
         end_ns, end_chip = end
-        if not compares_otherwise(end_chip):
-            return end_ns
         high = end_chip.t
+        if not compares_otherwise(end_chip):
+            # the end's own tick may change the speed at once (an arrival at VSTOP or above,
+            # a stop switch): alike there says nothing of the clock before it
+            if high - start.t <= 1:
+                return end_ns
+            before = start.clone()
+            before.run(high - 1, LOOKAHEAD_BUDGET)
+            if before.t != high - 1:
+                return 0  # (stopped short: no promise)
+            if not compares_otherwise(before):
+                return end_ns
+            end_chip, high = before, high - 1  # it flips before the end: search up to there
         # the end itself often flips (a speed polled to 0 at arrival); where it has turned by
         # then, the turn is usually earlier (the top speed reached): no use looking there
         if high - start.t > 2 and (turns is None or not turns(end_chip)):
