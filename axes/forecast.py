@@ -165,6 +165,9 @@ class AxisForecast:
         #: The last speed crossing found: (the look-ahead, values, the read's instant, time):
         #: the same answer for a later read it does not precede (F5).
         self._speed_crossing: tuple[Lookahead, tuple[int, ...], int, int] | None = None
+        #: A stretch's end (a copy of the chip there) and a copy a clock before it: the same
+        #: end comes back from the caches above for every read of a look-ahead (F5)
+        self._before_end: tuple[ChipModel, ChipModel] | None = None
 
     def invalidate(self) -> None:
         """Something changed the chip or what it runs into (F1): look again when asked."""
@@ -225,12 +228,11 @@ class AxisForecast:
         between): the speed a clock before the end is the one read too.  A horizon's tick
         is a plain one."""
         axis = self._axis
-        end = ahead.chip.t - 1
-        before = axis.driver.chip.clone()
-        if ahead.stop is None or end <= before.t:
+        chip = axis.driver.chip
+        if ahead.stop is None or ahead.chip.t - 1 <= chip.t:
             return True
-        before.run(end, LOOKAHEAD_BUDGET)
-        return before.t == end and axis.driver.speed_on(before) == axis.actual_speed()
+        before = self._clock_before(chip, ahead.chip)
+        return before is not None and axis.driver.speed_on(before.clone()) == axis.actual_speed()
 
     def _keep_reading(self, number: int, ahead: Lookahead) -> None:
         """Keep a copy of the chip at this read, if it is at the read's instant (F7)."""
@@ -338,9 +340,8 @@ class AxisForecast:
             # a stop switch): alike there says nothing of the clock before it
             if high - start.t <= 1:
                 return end_ns
-            before = start.clone()
-            before.run(high - 1, LOOKAHEAD_BUDGET)
-            if before.t != high - 1:
+            before = self._clock_before(start, end_chip)
+            if before is None:
                 return 0  # (stopped short: no promise)
             if not compares_otherwise(before):
                 return end_ns
@@ -398,6 +399,20 @@ class AxisForecast:
         result = self._run_to_marks(start, marks, ahead)[0]
         self._crossing = (ahead, values, since, result)
         return result
+
+    def _clock_before(self, start: ChipModel, end: ChipModel) -> ChipModel | None:
+        """A copy of ``start`` run to the clock before ``end`` (a later copy of the same run),
+        or None if it stops short; kept for the same ``end``: every chip from ``start`` on
+        to that end passes the same clock."""
+        kept = self._before_end
+        if kept is not None and kept[0] is end and start.t <= kept[1].t:
+            return kept[1]
+        before = start.clone()
+        before.run(end.t - 1, LOOKAHEAD_BUDGET)
+        if before.t != end.t - 1:
+            return None
+        self._before_end = (end, before)
+        return before
 
     def _meeting(self, start: ChipModel, steps: int, reading: Reading,
                  ahead: Lookahead) -> tuple[int, ChipModel]:
