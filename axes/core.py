@@ -14,7 +14,7 @@ the module's input stage and the mechanics of the world (``axes/board.py``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from enum import IntEnum
 from typing import TYPE_CHECKING, Protocol, Self
 
@@ -249,6 +249,16 @@ class ChipDriver(ABC):
     @abstractmethod
     def actual_speed(self) -> int:
         """AP 3: signed speed now."""
+
+    def readings_at(self, ticks: Iterable[int]) -> tuple[list[int], int]:
+        """AP 1 at each of a prefix of ``ticks`` (the chip's ticks, ascending, none before its
+        present) and AP 3 there (the same at all of them), exactly as :meth:`read_position`
+        and :meth:`actual_speed` would read them from the chip brought to each, without
+        bringing it there: where the chip's motion has a closed form and a read changes
+        nothing but what it answers.  The positions count as read (:attr:`position` is the
+        last one's).  A recorder's samples of a moving axis (AxisFirmware.samples_at); a
+        driver without a closed form gives none (the caller runs the chip)."""
+        return [], 0
 
     def speed_on(self, chip: ChipModel) -> int:
         """AP 3 as the firmware would read it from ``chip``, a look-ahead copy of its own (to

@@ -24,7 +24,7 @@ from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, MotorDriverLink, StaleLookahead, Stop
 from axes.encoder import Encoder
 from axes.forecast import AxisForecast, Lookahead
-from axes.interface import AxisEvent, AxisEventKind, AxisSample, AxisStatus
+from axes.interface import FOREVER, AxisEvent, AxisEventKind, AxisSample, AxisStatus
 from axes.reference_search import ReferenceSearcher
 from axes.rig import RiggedAxis
 from axes.tasks import FirmwareTasks
@@ -749,11 +749,51 @@ class AxisFirmware(RiggedAxis):
         return AxisSample(position, self.actual_speed(), self.current, target,
                           position == target, left, right, home)
 
+    def samples_at(self, first_ns: int, step_ns: int, count: int) -> list[AxisSample]:
+        """:meth:`sample` at the first of ``count`` instants ``step_ns`` apart from
+        ``first_ns`` on (none before the present), as many as the driver reads in closed form
+        (:meth:`ChipDriver.readings_at`) with nothing else on the way: no event or timer of the
+        axis is due up to them (:meth:`advance_to` would only move the present), and the
+        firmware's passes before them are left out (T2).  The axis ends at the last one as
+        advance_to leaves it (the chip behind, brought there by the next reading: the law's
+        state at an instant is the same however the run to it is cut) and with its passes
+        and the driver's last reading where sampling each in turn leaves them.  A prefix,
+        perhaps empty: the caller samples the rest the plain way."""
+        tasks = self.tasks
+        if self._pending or tasks.stall_watch:  # a stall check's instant moves with the present
+            return []
+        ahead = self._lookahead()
+        horizon = FOREVER if ahead is None else ahead.time_ns
+        timer = tasks.due()
+        if timer is not None and timer < horizon:
+            horizon = timer
+        last = min(horizon - 1, tasks.left_out_until(), first_ns + (count - 1) * step_ns)
+        if last < first_ns:
+            return []
+        ticks_at = self.driver.chip.ticks_at
+        positions, speed = self.driver.readings_at(  # lazily: the driver may stop at the first
+            map(ticks_at, range(first_ns, last + 1, step_ns)))
+        left, right, home = self._levels
+        target = self._target
+        samples = []
+        instant = first_ns
+        for position in positions:
+            if tasks.next_pass_ns < instant:
+                tasks.lazy_pass(instant)  # leaves them out (left_out_until)
+            samples.append(AxisSample(position, speed, self.current, target, position == target,
+                                      left, right, home))
+            instant += step_ns
+        if samples and instant - step_ns > self._now_ns:
+            self._now_ns = instant - step_ns
+        return samples
+
     def resting(self) -> bool:
-        """The chip rests (the look-ahead finds no motion, F2) with nothing pending: what
-        :meth:`sample` reads changes only at an event (the current switching, T1) or by a
-        command or a world change; the firmware's other passes do not run at rest."""
-        return not self._pending and self._lookahead() is None
+        """The chip rests (the look-ahead finds no motion, F2) with nothing pending, and the
+        firmware's passes are all left out (T2; not while coolStep winds the current back
+        after a stop, pass by pass): what :meth:`sample` reads changes only at an event (the
+        current switching, T1) or by a command or a world change."""
+        return (not self._pending and self._lookahead() is None
+                and self.tasks.left_out_until() == FOREVER)
 
     def status(self) -> AxisStatus:
         """A snapshot for telemetry (MQTT bridge, tests); clears nothing."""

@@ -33,10 +33,12 @@ F4. A rotation's speed is monotonic only as far as its driver says
     an S-shaped one first takes back the acceleration of the other slope, so a rotation
     asked for more speed while braking dips first, and one asked for less while
     accelerating overshoots.  Over a stretch where it is monotonic, the same speed at both
-    ends is the same speed all along, and the first tick at which the speed compares
-    otherwise with a boundary is found by bisecting a copy of the chip over the clock
-    ticks; past the point where it may turn there is no promise (the driver's test is
-    false, then true, so the same bisection finds whichever comes first).
+    ends is the same speed all along (the end's own tick may change it at once, a stop
+    switch met there: the speed a clock before the end is compared too), and the first
+    tick at which the speed compares otherwise with a boundary is found by bisecting a copy
+    of the chip over the clock ticks; past the point where it may turn there is no promise
+    (the driver's test is false, then true, so the same bisection finds whichever comes
+    first).
 F5. A crossing found is kept while the look-ahead it was found for is the current one (its
     identity): a new look-ahead is made after every change (F1).  A crossing found from an
     earlier instant of the same look-ahead is still the first one after any later instant
@@ -163,6 +165,9 @@ class AxisForecast:
         #: The last speed crossing found: (the look-ahead, values, the read's instant, time):
         #: the same answer for a later read it does not precede (F5).
         self._speed_crossing: tuple[Lookahead, tuple[int, ...], int, int] | None = None
+        #: A stretch's end (a copy of the chip there) and a copy a clock before it: the same
+        #: end comes back from the caches above for every read of a look-ahead (F5)
+        self._before_end: tuple[ChipModel, ChipModel] | None = None
 
     def invalidate(self) -> None:
         """Something changed the chip or what it runs into (F1): look again when asked."""
@@ -210,12 +215,24 @@ class AxisForecast:
             # F4: the same speed at both ends of a monotonic stretch is the same all along it
             if axis.driver.speed_on(ahead.chip.clone()) == axis.actual_speed():
                 turns = axis.driver.speed_turns(axis.driver.chip)
-                if turns is None or not turns(ahead.chip):
+                if (turns is None or not turns(ahead.chip)) and self._same_speed_before_end(ahead):
                     return ahead.time_ns
             self._keep_reading(number, ahead)
         elif number == AP.ACTUAL_POSITION or number == AP.ACTUAL_SPEED:
             self._keep_reading(number, ahead)  # (a positioning move's speed: F8)
         return 0  # a moving quantity
+
+    def _same_speed_before_end(self, ahead: Lookahead) -> bool:
+        """F4 for the stretch up to the look-ahead's end, whose own tick may change the speed
+        at once (a stop switch met there: the rotation reads 0 at both ends, and not in
+        between): the speed a clock before the end is the one read too.  A horizon's tick
+        is a plain one."""
+        axis = self._axis
+        chip = axis.driver.chip
+        if ahead.stop is None or ahead.chip.t - 1 <= chip.t:
+            return True
+        before = self._clock_before(chip, ahead.chip)
+        return before is not None and axis.driver.speed_on(before.clone()) == axis.actual_speed()
 
     def _keep_reading(self, number: int, ahead: Lookahead) -> None:
         """Keep a copy of the chip at this read, if it is at the read's instant (F7)."""
@@ -317,9 +334,18 @@ class AxisForecast:
                        for value, side in zip(values, above, strict=True))
 
         end_ns, end_chip = end
-        if not compares_otherwise(end_chip):
-            return end_ns
         high = end_chip.t
+        if not compares_otherwise(end_chip):
+            # the end's own tick may change the speed at once (an arrival at VSTOP or above,
+            # a stop switch): alike there says nothing of the clock before it
+            if high - start.t <= 1:
+                return end_ns
+            before = self._clock_before(start, end_chip)
+            if before is None:
+                return 0  # (stopped short: no promise)
+            if not compares_otherwise(before):
+                return end_ns
+            end_chip, high = before, high - 1  # it flips before the end: search up to there
         # the end itself often flips (a speed polled to 0 at arrival); where it has turned by
         # then, the turn is usually earlier (the top speed reached): no use looking there
         if high - start.t > 2 and (turns is None or not turns(end_chip)):
@@ -373,6 +399,20 @@ class AxisForecast:
         result = self._run_to_marks(start, marks, ahead)[0]
         self._crossing = (ahead, values, since, result)
         return result
+
+    def _clock_before(self, start: ChipModel, end: ChipModel) -> ChipModel | None:
+        """A copy of ``start`` run to the clock before ``end`` (a later copy of the same run),
+        or None if it stops short; kept for the same ``end``: every chip from ``start`` on
+        to that end passes the same clock."""
+        kept = self._before_end
+        if kept is not None and kept[0] is end and start.t <= kept[1].t:
+            return kept[1]
+        before = start.clone()
+        before.run(end.t - 1, LOOKAHEAD_BUDGET)
+        if before.t != end.t - 1:
+            return None
+        self._before_end = (end, before)
+        return before
 
     def _meeting(self, start: ChipModel, steps: int, reading: Reading,
                  ahead: Lookahead) -> tuple[int, ChipModel]:

@@ -235,6 +235,13 @@ class AxisRig(ABC):
         return AxisSample(s.position, s.velocity, s.current, s.target, s.position_reached,
                           s.left_switch, s.right_switch, s.home_switch)
 
+    def samples_at(self, first_ns: int, step_ns: int, count: int) -> list[AxisSample]:
+        """:meth:`sample` at the first of ``count`` instants ``step_ns`` apart from
+        ``first_ns`` on, as far as the core computes them without bringing the axis to each
+        (a prefix, the same values; the axis left as bringing it to the last one leaves it,
+        nothing due on the way).  By default none: the caller samples them one by one."""
+        return []
+
     def resting(self) -> bool:
         """True when :meth:`sample` answers the same until something intervenes (a command,
         an event, a world change: what the module's epoch counts); False: no promise."""

@@ -212,6 +212,15 @@ class FirmwareTasks:
             self._deferred = (last, axis.driver.chip.clone())
         return None
 
+    def left_out_until(self) -> int:
+        """The last instant up to which :meth:`lazy_pass` leaves every pass out (a reading's
+        passes, T2): each pass must run where one may switch coolStep or the current, so up
+        to the next pass's instant (lazy_pass runs none up to it); else every pass is left
+        out, until a command or an event changes that."""
+        if self._switches() and (self.dirty or self.rest_since is None):
+            return self.next_pass_ns
+        return FOREVER
+
     def settle(self) -> None:
         """Something reads what the last pass read from the driver: a pass left for it runs
         now on the copy of the chip made before the chip went past it (T2)."""

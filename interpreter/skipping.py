@@ -66,8 +66,8 @@ I10. A plan survives a batch boundary.  The module counts everything that may ch
     and the path is the analysed one (I2, I6).  So the passes from there are skipped by I4
     as if the analysed pass had begun one period earlier, the last whole one still stepped
     where I7 asks.  A batch end at which nothing intervenes (an ``advance`` returning, a
-    timer tick whose handler only counts, a recorder's sample, which reads and changes
-    nothing) costs no analysis.
+    timer tick whose handler only counts, the end of a recorder's span of samples, which
+    reads and changes nothing) costs no analysis.
 I11. The millisecond tick (GGP 132) is arithmetic on the instant: it answers the same until
     the next millisecond (I3), and it is also a moving read whose flip the module forecasts
     exactly (``ModulePort.first_time_at``: it meets every value above the one read, one a

@@ -2,10 +2,14 @@
 
 A :class:`Recorder` attached to a simulation is called by the simulation before it brings any
 module up to a time (``Simulation.run_due`` and ``sync_module``, which every advance passes
-through): it steps its modules to every sample instant on the way
-(``module.advance_to(instant)``), reads each recorded axis and writes a :class:`Sample`.
-Stepping to an instant only splits the simulation's stride in two; the axes are exact at any
-instant, so event times do not move (tests/tmcl_server/test_record.py checks it).  On the
+through): it brings each recorded module once to the last sample instant up to that time
+(``module.advance_to(last)``) and samples each axis on the way, at an instant when a command
+or an event is about to bring the axis past it (the module's ``sampler`` hook) or once the
+module has reached the last instant (:class:`_ModuleSampler`), and writes a :class:`Sample`.
+Nothing but its own motion changes an axis between two of those calls, and the axes are
+exact at any instant, so a sample is what stopping the module at its instant would read, a
+program's batches go on through the instants, and event times do not move
+(tests/tmcl_server/test_record.py checks both against the stepping interpreter).  On the
 virtual clock the samples are therefore exact; on a real clock they are exact too, only
 computed when the simulation next catches up (a request, an internal event, or the
 recorder's own wake-up).
@@ -22,10 +26,13 @@ from __future__ import annotations
 import csv
 import json
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field
+from itertools import repeat
+from operator import add
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
 
+from axes.interface import FOREVER
 from tmcl_spec.numbers import NS_PER_S, seconds_to_ns
 
 if TYPE_CHECKING:
@@ -37,9 +44,10 @@ if TYPE_CHECKING:
 DEFAULT_RESOLUTION_S = 0.01
 
 
-@dataclass(frozen=True, slots=True)
-class Sample:
-    """One axis at one instant of simulated time."""
+class Sample(NamedTuple):
+    """One axis at one instant of simulated time (a named tuple: a recorder builds one per
+    axis and instant, a thousand a simulated second at 1 ms for each axis, and a tuple costs
+    a tenth of a frozen dataclass to build)."""
 
     t: float  # simulated seconds
     module: int  # the module's address (slot)
@@ -70,7 +78,7 @@ class Mark:
         return " ".join(f"{k}={v}" for k, v in self.data.items() if v is not None)
 
 
-SAMPLE_FIELDS = tuple(f.name for f in fields(Sample))
+SAMPLE_FIELDS: tuple[str, ...] = Sample._fields
 #: CSV columns: a sample fills the sample fields, an event row t/module/axis/event/detail.
 CSV_COLUMNS = (*SAMPLE_FIELDS, "event", "detail")
 
@@ -103,11 +111,20 @@ class Recorder:
         self.next_ns = simulation.now_ns
         #: Instants a real clock made the recorder skip (it could not keep up).
         self.skipped = 0
+        #: A moving axis's samples of a stretch at once where its core has the closed form
+        #: (Axis.samples_at); False: each read from the axis brought to its instant (the
+        #: reference tests/tmcl_server/test_record.py compares with).
+        self.closed_forms = True
+        #: Samples a closed form gave (how far :attr:`closed_forms` reached).
+        self.at_once = 0
         self._last_velocity: dict[tuple[int, int], int] = {}
         #: (module, axis) -> (the module's epoch, the sample) of an axis at rest: its samples
         #: are the same until something intervenes (AxisRig.resting).
         self._resting: dict[tuple[int, int], tuple[int, AxisSample]] = {}
         self._listeners: list[tuple[TMCLModule, Callable[[ModuleEvent], None]]] = []
+        #: While a span is taken with callbacks for samples and marks: the sampler whose
+        #: samples before a mark are handed on first.
+        self._ordered: _ModuleSampler | None = None
 
     def _axes_of(self, module: TMCLModule) -> list[int]:
         return self.axes if self.axes is not None else list(range(len(module.axes)))
@@ -142,6 +159,8 @@ class Recorder:
         def on_event(event: ModuleEvent) -> None:
             if event.axis is not None and self.axes is not None and event.axis not in self.axes:
                 return
+            if self._ordered is not None:
+                self._before_mark(event.time_ns)
             mark = Mark(event.time_ns / NS_PER_S, module.slot, event.axis, event.kind,
                         {k: v for k, v in event.data.items() if v is not None})
             if self.keep:
@@ -153,31 +172,86 @@ class Recorder:
     # -- sampling -----------------------------------------------------------------------------
 
     def catch_up(self, t_ns: int, max_samples: int | None = None) -> int:
-        """Take every sample due up to ``t_ns``, stepping the modules to each instant.
+        """Take every sample due up to ``t_ns``, each module brought once to the last instant.
 
-        With ``max_samples`` at most that many instants are taken (a real clock's server
-        bounds its work per turn); returns the time up to which every sample is taken:
-        ``t_ns``, or less when the budget ran out.
+        The modules run on through the instants (a program's batches are not cut there):
+        each axis is sampled at an instant when it is about to be brought past it (a command
+        or an event touches it, :class:`_ModuleSampler`) or at the end, when the module has
+        reached the last instant; nothing but its own motion changes an axis in between, so
+        a sample is what stepping the module to its instant reads.  With ``max_samples`` at
+        most that many instants are taken (a real clock's server bounds its work per turn);
+        returns the time up to which every sample is taken: ``t_ns``, or less when the
+        budget ran out.
         """
-        if self.next_ns > t_ns:
+        first = self.next_ns
+        if first > t_ns:
             return t_ns
-        taken = 0
-        while self.next_ns <= t_ns:
-            if max_samples is not None and taken >= max_samples:
-                t_ns = self.next_ns - 1  # the rest next time
-                break
-            taken += 1
-            instant = self.next_ns
-            for module in self.modules:
-                due = module.next_event_ns()
-                if module.now_ns < instant or (due is not None and due <= instant):
-                    module.advance_to(instant)
-            for module in self.modules:
-                self._sample(module, instant)
-            self.next_ns = instant + self.step_ns
+        count = (t_ns - first) // self.step_ns + 1
+        if max_samples is not None and count > max_samples:
+            count = max_samples
+            t_ns = first + count * self.step_ns - 1  # the rest next time
+        last = first + (count - 1) * self.step_ns
+        samplers = [_ModuleSampler(self, module, first, last) for module in self.modules]
+        # With callbacks for both, samples and marks reach them in time order (a file): a
+        # mark first takes the samples before it (one module; several step instant by instant)
+        ordered = self.on_sample is not None and self.on_mark is not None
+        if ordered and len(samplers) > 1:
+            for instant in range(first, last + 1, self.step_ns):
+                self._take(samplers, instant, instant)
+        else:
+            self._ordered = samplers[0] if ordered else None
+            try:
+                self._take(samplers, first, last)
+            finally:
+                self._ordered = None
+        self.next_ns = last + self.step_ns
         for module in self.modules:
             self.simulation.replan(module)  # stepping may have handled or planned events
         return t_ns
+
+    def _take(self, samplers: list[_ModuleSampler], first: int, last: int) -> None:
+        """Bring each module to ``last`` with its sampler attached, sample the rest of the
+        instants from ``first`` and hand them on in time order."""
+        for sampler in samplers:
+            sampler.open(first, last)
+        for sampler in samplers:
+            module = sampler.module
+            module.sampler = sampler
+            try:
+                due = module.next_event_ns()
+                if module.now_ns < last or (due is not None and due <= last):
+                    module.advance_to(last)
+                sampler.finish()
+            finally:
+                module.sampler = None
+        self._hand_on(samplers, (last - first) // self.step_ns + 1)
+
+    def _hand_on(self, samplers: list[_ModuleSampler], upto: int) -> None:
+        """Keep and pass on the samples of the instants before index ``upto`` of the span
+        not handed on yet: instant by instant, module by module, axis by axis."""
+        columns = [rows for sampler in samplers for rows in sampler.columns]
+        done = samplers[0].handed
+        if upto <= done:
+            return
+        span = zip(*(rows[done:upto] for rows in columns), strict=True)
+        for sampler in samplers:
+            sampler.handed = upto
+        if self.keep and self.on_sample is None:
+            self.rows.extend(sample for row in span for sample in row)
+            return
+        for row in span:
+            for sample in row:
+                if self.keep:
+                    self.rows.append(sample)
+                if self.on_sample is not None:
+                    self.on_sample(sample)
+
+    def _before_mark(self, time_ns: int) -> None:
+        """A mark at ``time_ns`` is about to be passed on: the samples before it go first."""
+        sampler = self._ordered
+        if sampler is not None:
+            sampler.take_all(time_ns)
+            self._hand_on([sampler], sampler.taken_before(time_ns))
 
     def skip_to(self, t_ns: int) -> None:
         """A real clock ran away from the recorder: the instants before ``t_ns`` are not
@@ -187,34 +261,154 @@ class Recorder:
             self.skipped += missed
             self.next_ns += missed * self.step_ns
 
-    def _sample(self, module: TMCLModule, instant: int) -> None:
-        t = instant / NS_PER_S
-        dt = self.step_ns / NS_PER_S
-        epoch = module.epoch
-        resting = self._resting
-        for index in self._axes_of(module):
-            key = (module.slot, index)
-            kept = resting.get(key)
-            if kept is not None and kept[0] == epoch:
-                status = kept[1]
-            else:
-                axis = module.axis(index)
+
+class _ModuleSampler:
+    """One module's axes sampled over one span of instants (``module.sampler`` while the
+    recorder brings the module through them, ``ModuleCore.AxisSampler``).
+
+    Exact because nothing changes an axis without the module telling the sampler first: a
+    command reaches an axis through ``ModuleCore.axis`` and an event through
+    ``ModuleCore.step_to``, and both call :meth:`before_move` with the instant the axis is
+    brought to; the instants before it are sampled then, from the axis brought to each of
+    them (``ModuleCore.axis_at``: the module is past them, the axis is not, and only its own
+    motion moved it since it was last touched).  An axis at rest is read once: nothing
+    changes what it reads until it is touched again (``AxisRig.resting``), and across spans
+    while the module's epoch (every command that changed something, every event, every
+    host request and world change) stays what it was when it was read.
+    """
+
+    def __init__(self, recorder: Recorder, module: TMCLModule, first: int, last: int) -> None:
+        self.recorder = recorder
+        self.module = module
+        self.indices = recorder._axes_of(module)
+        self.due = [FOREVER] * len(module.axes)
+        #: Per recorded axis (in ``indices`` order), its samples of the span so far.
+        self.columns: list[list[Sample]] = [[] for _ in self.indices]
+        self._column = dict(zip(self.indices, self.columns, strict=True))
+        self.first = first
+        self.last = last
+        #: The span's instants in seconds (a sample's ``t``), made when first needed.
+        self._times: list[float] | None = None
+        #: How many instants of the span were handed on (kept, passed to on_sample).
+        self.handed = 0
+        #: The module is between commands and events (finish): an axis found at rest may be
+        #: kept under the present epoch (any later change counts in it).
+        self._settled = False
+
+    def open(self, first: int, last: int) -> None:
+        self.first, self.last, self.handed = first, last, 0
+        self._times = None
+        for index, column in zip(self.indices, self.columns, strict=True):
+            column.clear()
+            self.due[index] = first
+
+    def taken_before(self, t_ns: int) -> int:
+        """How many instants of the span lie before ``t_ns``."""
+        if t_ns <= self.first:
+            return 0
+        return min((t_ns - 1 - self.first) // self.recorder.step_ns + 1,
+                   (self.last - self.first) // self.recorder.step_ns + 1)
+
+    def before_move(self, index: int, t_ns: int) -> None:
+        column = self._column.get(index)
+        if column is None:
+            self.due[index] = FOREVER
+            return
+        step = self.recorder.step_ns
+        instant = self.due[index]
+        end = min(t_ns - 1, self.last)
+        if instant > end:
+            return
+        count = (end - instant) // step + 1
+        after = instant + count * step
+        self.due[index] = after if after <= self.last else FOREVER
+        self._sample(index, column, instant, count)
+
+    def take_all(self, t_ns: int) -> None:
+        """Sample every axis at the instants before ``t_ns`` (the module has reached it)."""
+        for index in self.indices:
+            if self.due[index] < t_ns:
+                self.before_move(index, t_ns)
+
+    def finish(self) -> None:
+        """The module has reached the span's last instant and rests there: the rest of the
+        samples (an axis found at rest now is kept as read, for the spans after)."""
+        self._settled = True
+        try:
+            self.take_all(self.last + 1)
+        finally:
+            self._settled = False
+
+    def _sample(self, index: int, column: list[Sample], instant: int, count: int) -> None:
+        """Axis ``index`` at ``count`` instants from ``instant`` (no command or event touches
+        it before the last of them)."""
+        recorder = self.recorder
+        module = self.module
+        step = recorder.step_ns
+        key = (module.slot, index)
+        slot = module.slot
+        previous = recorder._last_velocity.get(key)
+        dt_s = step / NS_PER_S
+        new = tuple.__new__
+        end = instant + count * step
+        kept = recorder._resting.get(key)
+        if kept is not None and kept[0] == module.epoch:
+            status = kept[1]  # at rest, and nothing intervened since it was read
+        else:
+            while True:
+                axis = module.axis_at(index, instant)
                 status = axis.sample()
-                if axis.resting():
-                    resting[key] = (epoch, status)
-                elif kept is not None:
-                    del resting[key]
-            previous = self._last_velocity.get(key)
-            self._last_velocity[key] = status.velocity
-            sample = Sample(
-                t, module.slot, index, status.position, status.velocity,
-                0.0 if previous is None else (status.velocity - previous) / dt,
-                status.current, status.target, int(status.position_reached),
-                int(status.left_switch), int(status.right_switch), int(status.home_switch))
-            if self.keep:
-                self.rows.append(sample)
-            if self.on_sample is not None:
-                self.on_sample(sample)
+                resting = axis.resting()
+                if resting and self._settled:
+                    recorder._resting[key] = (module.epoch, status)
+                elif not resting and kept is not None:
+                    del recorder._resting[key]
+                    kept = None
+                if resting or instant + step >= end:
+                    break  # at rest, untouched up to the last instant: it reads the same
+                velocity = status.velocity
+                column.append(new(Sample, (
+                    instant / NS_PER_S, slot, index, status.position, velocity,
+                    0.0 if previous is None else (velocity - previous) / dt_s,
+                    status.current, status.target, int(status.position_reached),
+                    int(status.left_switch), int(status.right_switch), int(status.home_switch))))
+                previous = velocity
+                instant += step
+                # the instants before the last at once where the core has a closed form
+                # (Axis.samples_at: a steady run); the last one the plain way, so the axis
+                # ends where it does sampled one by one
+                before_last = (end - instant) // step - 1
+                if before_last > 0 and recorder.closed_forms:
+                    stretch = axis.samples_at(instant, step, before_last)
+                    recorder.at_once += len(stretch)
+                    for status in stretch:
+                        velocity = status.velocity
+                        column.append(new(Sample, (
+                            instant / NS_PER_S, slot, index, status.position, velocity,
+                            0.0 if previous is None else (velocity - previous) / dt_s,
+                            status.current, status.target, int(status.position_reached),
+                            int(status.left_switch), int(status.right_switch),
+                            int(status.home_switch))))
+                        previous = velocity
+                        instant += step
+        # the rest of the instants read ``status``: its velocity does not change
+        position, velocity, current, target = status[:4]
+        reached, left, right, home = (int(status.position_reached), int(status.left_switch),
+                                      int(status.right_switch), int(status.home_switch))
+        column.append(new(Sample, (
+            instant / NS_PER_S, slot, index, position, velocity,
+            0.0 if previous is None else (velocity - previous) / dt_s,
+            current, target, reached, left, right, home)))
+        if end > instant + step:  # the times in seconds are the span's, made once for all axes
+            times = self._times
+            if times is None:
+                times = self._times = [at / NS_PER_S for at in range(self.first, self.last + 1, step)]
+            rest = (slot, index, position, velocity, 0.0, current, target, reached, left, right,
+                    home)
+            column.extend(map(new, repeat(Sample), map(add, zip(
+                times[(instant + step - self.first) // step:(end - self.first) // step]),
+                repeat(rest))))
+        recorder._last_velocity[key] = velocity
 
 
 class Recording:
@@ -290,7 +484,7 @@ class RecordWriter:
         if self._csv is not None:
             self._csv.writerow((*(getattr(sample, name) for name in SAMPLE_FIELDS), "", ""))
         else:
-            self.stream.write(json.dumps(asdict(sample), separators=(",", ":")) + "\n")
+            self.stream.write(json.dumps(sample._asdict(), separators=(",", ":")) + "\n")
 
     def mark(self, mark: Mark) -> None:
         if self._csv is not None:

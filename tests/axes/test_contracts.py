@@ -10,6 +10,8 @@ import inspect
 from functools import cache
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from axes.core import ChipDriver, ChipModel, MotorDriverLink
 from axes.cores import CHIP_CORES, axis_class, make_axes, make_axis
@@ -177,3 +179,57 @@ def test_every_rig_method_works_on_every_core(core: str) -> None:
     world = AxisWorld(switches={"home": Switch(-INFINITY, INFINITY)})
     if rig(core, axis.set_world, world):
         assert axis.world is world and axis.status().home_switch
+
+
+#: Where each core's AP 1 wraps (the TMC429 modules count 24 bits, the others 32).
+_WRAPS = {"tmc429": 1 << 23}
+
+
+@pytest.mark.parametrize("core", CORES)
+@settings(max_examples=15, deadline=None)
+@given(speed=st.sampled_from([SPEED, -SPEED, 7 * SPEED, 1]), step_ns=st.integers(1, 3_000_000),
+       count=st.integers(1, 60), offset_ns=st.integers(0, 10_000_000))
+def test_samples_at_once_are_the_samples_one_by_one(core: str, speed: int, step_ns: int,
+                                                    count: int, offset_ns: int) -> None:
+    """Axis.samples_at (a recorder's samples of a steady stretch at once): each is what
+    bringing the axis to its instant and sampling reads, AP 1 across the position's wrap
+    (the firmware's 32-bit count, 24 bits on the TMC429 modules), at odd instants; and the
+    axis goes on as if it had been sampled one by one."""
+    wrap = _WRAPS.get(core, 1 << 31)
+    start = wrap - 300 if speed > 0 else -wrap + 300
+    twins = [one_axis(core), one_axis(core)]
+    for axis in twins:
+        axis.advance_to(0)
+        axis.rotate(speed)
+        advance(axis, 0, NS_PER_S)  # at speed (or still ramping at 7,000)
+        axis.set_parameter(AP.ACTUAL_POSITION, start)  # short of the wrap
+        axis.sample()  # as a recorder's first instant: the chip brought to the present
+    at_once, one_by_one = twins
+    first = NS_PER_S + offset_ns
+    given = at_once.samples_at(first, step_ns, count)
+    assert len(given) <= count
+    for k, sample in enumerate(given):
+        assert one_by_one.advance_to(first + k * step_ns) == []
+        assert one_by_one.sample() == sample, k
+    later = first + count * step_ns + 1_000_000
+    events = [advance(axis, first, later) for axis in twins]
+    assert events[0] == events[1]
+    assert at_once.status() == one_by_one.status()
+    assert at_once.get_parameter(AP.ACTUAL_POSITION) == one_by_one.get_parameter(
+        AP.ACTUAL_POSITION)
+
+
+@pytest.mark.parametrize("core", ["tmc4210", "tmc429"])
+def test_a_steady_rotation_is_sampled_at_once_across_the_wrap(core: str) -> None:
+    """Not a vacuous prefix: on the TMC42x cores a rotation at speed gives every instant,
+    the position through its wrap."""
+    wrap = _WRAPS.get(core, 1 << 31)
+    axis = one_axis(core)
+    axis.advance_to(0)
+    axis.rotate(SPEED)
+    advance(axis, 0, NS_PER_S)
+    axis.set_parameter(AP.ACTUAL_POSITION, wrap - 300)
+    axis.sample()
+    given = axis.samples_at(NS_PER_S + 1, 1_000_003, 900)
+    assert len(given) == 900
+    assert given[0].position > 0 > given[-1].position

@@ -13,6 +13,7 @@ holds it to the product's law on everything, from states anywhere in the registe
 from __future__ import annotations
 
 from collections.abc import Callable
+from itertools import accumulate
 
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
@@ -187,3 +188,56 @@ def test_the_laws_ticks_stop_where_a_move_ends() -> None:
     assert walled.motor_position == 399 and walled.v != 0  # the edge before the switch
     assert walled.step(10**6) is Stop.MARK
     assert walled.motor_position == 400 and walled.v == 0  # active: a hard stop at once
+
+
+def _hold_readings(state: dict, board: _Strip | None, offsets: list[int]) -> list[int]:
+    """``steady_readings`` at ticks ``offsets`` apart from the motor's present: the motor
+    unchanged, and each reading the law's, the law's ticks stopping nowhere on the way."""
+    chip = _chip(state, board)
+    before = _state(chip)
+    ticks = list(accumulate(offsets, initial=chip.t))[1:]
+    positions, v_bits = chip.steady_readings(iter(ticks))
+    assert _state(chip) == before  # nothing ran, nothing was read
+    law = chip.clone()
+    for tick, position in zip(ticks, positions, strict=False):  # a prefix of them
+        assert law.step(tick) is None, f"a notable instant before tick {tick}"
+        assert (law.t, law.x_actual, law.v_actual & 0xFFF) == (tick, position, v_bits)
+    return positions
+
+
+#: A cruise in velocity mode at V 1000 (PULSE_DIV 2): X_ACTUAL across its 24-bit wrap.
+_CRUISE = {"v_min": 0, "v_max": 1000, "a_max": 10, "pmul": 128, "pdiv": 0, "pulse_div": 2,
+           "ramp_div": 3, "mode": RampMode.VELOCITY, "x_actual": MASK24 - 40, "x_target": 0,
+           "v": 1000 << 8, "v_target": 1000, "acc": 2000, "dx_ref_tolerance": 0,
+           "ref_conf": 0, "int_mask": 0, "latch_pending": False, "usrs": 0, "pos_comp": 0,
+           "pos_comp_on": False, "inv_ref": False, "right_wired": False, "steps_out": True,
+           "t": 5}
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(state=_CRUISE, board=None, offsets=[0, 1, 3, 7, 101, 4095, 3])
+@example(state={**_CRUISE, "mode": RampMode.RAMP, "x_target": 200, "v": -(1000 << 8)},
+         board=None, offsets=[1] * 12)  # a ramp move: only up to the next ramp tick
+@example(state={**_CRUISE, "x_actual": 3, "pos_comp_on": True, "pos_comp": 40, "int_mask": 0xFF,
+                "x_target": 0}, board=_Strip(None, None, [30]), offsets=[3] * 150)  # marks ahead
+@example(state={**_CRUISE, "mode": RampMode.RAMP, "x_actual": 0, "x_target": 11400,
+                "v_max": 300, "v": 300 << 8, "v_target": 300, "pmul": 255, "pdiv": 13},
+         board=None, offsets=[40] * 200)  # at V_MAX, then braking for the target
+@given(state=motor_states, board=boards,
+       offsets=st.lists(st.one_of(st.integers(0, 40), st.integers(0, 6000)), min_size=1,
+                        max_size=12))
+def test_steady_readings_are_the_laws_positions(state: dict, board: _Strip | None,
+                                                offsets: list[int]) -> None:
+    """A recorder's samples of a steady stretch at once (MotorSteady.steady_readings): from
+    any register state (ramps, hold mode, A_MAX 0, switches and their tolerance window, marks,
+    the compare position, REF_MISS, targets across the 24-bit wrap) and at any ticks (odd
+    ones, repeated ones), every X_ACTUAL and V_ACTUAL it gives is the law's at its tick, no
+    notable instant lies before it, and the motor is left as it was."""
+    _hold_readings(state, board, offsets)
+
+
+def test_steady_readings_give_a_whole_cruise_across_the_wrap() -> None:
+    """Not a vacuous prefix: a cruise gives every tick asked, X_ACTUAL wrapping past 2**24."""
+    positions = _hold_readings(_CRUISE, None, [0, 1, 3, 7, 101, 4095, 3, 9000])
+    assert len(positions) == 8
+    assert positions[0] > HALF24 > positions[-1]  # through the wrap

@@ -615,6 +615,19 @@ S_RAMP_OVERSHOOT = _S_RAMP + "ROR 0, 10000\nWAIT TICKS, 0, 20\nROR 0, 5000\nL:\n
 @example(("SAP 173, 0, 1\nSAP 174, 0, 1\nSAP 181, 0, 29000\nROL 0, 30000\nMain:\nGAP 3, 0\n"
           "COMP 0\nJC NE, Main\nNext:\nNext2:\nJA Next2\nTick:\nRETI",
           World(None, [(5, "gap", 0)], 900, loads=[(0, -9000, -3000, 0)])))
+# F4: a rotation reversed by the host reads 0 on its way through; ahead, a stop switch ends
+# its look-ahead at 0 again: equal speeds at both ends, but not in between (kept at 0 while
+# the speed went on to -732); a random draw of the CALC shape found it
+@example(("SAP 4, 0, 300000\nSAP 5, 0, 100000\nROR 0, 20000\nLoop:\nGAP 3, 0\nCOMP 0\n"
+          "JC EQ, Out\nJA Loop\nOut:\nGAP 3, 0\nAGP 9, 2\nOut2:\nGAP 3, 0\nCOMP 1\n"
+          "JC NZ, Out2\nGAP 1, 0\nAGP 10, 2\nSTOP",
+          World(None, [(1, "switch", 0), (128, "ror0", -729)], 300, "tmc4210", "tmcm-6212",
+                steps_us=(370,))))
+# A recorder's axis at rest while coolStep winds the current back, pass by pass, after the
+# move: its samples were kept as first read (120) where stepping's rose to 128 (fuzz_skipping)
+@example(("SAP 4, 0, 100000\nSAP 5, 0, 2000000\nSAP 172, 0, 2\nSAP 170, 0, 1\nSAP 169, 0, 2\n"
+          "SAP 182, 0, 20000\nMVP ABS, 0, 512\nMain:\nGAP 8, 0\nJA Main\nTick:\nRETI",
+          World(None, [], 300, "tmc4210", "tmcm-6212", record_us=10000)))
 def test_skipping_polling_loops_is_exactly_as_stepping(scenario: tuple[str, World]) -> None:
     same(*scenario)
 
@@ -816,6 +829,16 @@ def _running(source: str) -> tuple[Simulation, TMCLModule]:
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenarios("positioning-speed"))
+# F8: a TMC4361A move whose VSTOP is its VMAX arrives at full speed and stops in its arrival
+# tick: 0 at the stretch's end compared as at the read, the crossing of -99 on the way was
+# promised for the arrival, 1.3 s late (fuzz_skipping seed 4307)
+@example(("SAP 4, 0, 2000\nSAP 5, 0, 1000\nSAP 138, 0, 0\nSAP 20, 0, 2000\nSAP 14, 0, 1\n"
+          "SAP 22, 0, 20000\nSAP 23, 0, 20000\nSAP 24, 0, 20000\nSAP 25, 0, 20000\nLoop:\n"
+          "MVP ABS, 0, -959\nA:\nGAP 3, 0\nCOMP 0\nJC EQ, A\nGAP 1, 0\nB:\nGAP 3, 0\n"
+          "CALC ADD, 100\nCOMP 1\nJC GT, B\nGAP 1, 0\nGAP 1, 0\nAGP 9, 2\nGGP 0, 2\n"
+          "CALC ADD, 1\nAGP 0, 2\nJA Loop",
+          World(None, [(26, "analog", 50000), (26, "analog", 50000)], 300, "tmc4361a",
+                "tmcm-6212", steps_us=(370,))))
 def test_skipping_a_positioning_moves_speed_polls_is_exactly_as_stepping(
         scenario: tuple[str, World]) -> None:
     same(*scenario)
@@ -887,7 +910,7 @@ def test_a_distance_through_calcx_is_forecast_across_both_wraps() -> None:
 
 #: A positioning move's speed polled while it ramps up (to half its top speed), down (to
 #: rest), and for the start of the move back, re-issued each time (F8).
-POSITIONING_SPEED = "SAP 4, 0, {top}\nSAP 5, 0, {acceleration}\nLoop:\nMVP ABS, 0, 300000\n" \
+POSITIONING_SPEED = "SAP 4, 0, {top}\nSAP 5, 0, {acceleration}\nLoop:\nMVP ABS, 0, {target}\n" \
                     "Up:\nGAP 3, 0\nCOMP {half}\nJC LT, Up\nGAP 1, 0\nAGP 9, 2\nDown:\n" \
                     "GAP 3, 0\nCOMP 0\nJC NE, Down\nGAP 1, 0\nAGP 10, 2\nMVP ABS, 0, 0\n" \
                     "Start:\nGAP 3, 0\nCOMP 0\nJC EQ, Start\nBack:\nGAP 3, 0\nCOMP -{half}\n" \
@@ -899,14 +922,17 @@ def test_a_positioning_moves_speed_is_forecast_between_its_turns() -> None:
     trapezoid rises to VMAX and falls on the final approach; polled, it is skipped up to each
     crossing (it was stepped: the speed rises and falls) and leaves each loop where stepping
     does."""
-    for kind, core, top, acceleration in (("tmcm-6212", "tmc4210", 100000, 50000),
-                                          ("tmcm-6212", "tmc4361a", 100000, 50000),
-                                          ("tmcm-6110", None, 1500, 100)):
-        source = POSITIONING_SPEED.format(top=top, acceleration=acceleration, half=top // 2)
-        world = World(None, [], 5000, core, kind)
+    for kind, core, top, acceleration in (("tmcm-6212", "tmc4210", 100000, 400000),
+                                          ("tmcm-6212", "tmc4361a", 100000, 400000),
+                                          ("tmcm-6110", None, 1500, 1000)):
+        source = POSITIONING_SPEED.format(top=top, acceleration=acceleration, half=top // 2,
+                                          target=60000)
+        world = World(None, [], 2000, core, kind)  # every loop at least once
         fast, slow = run(source, world, True), run(source, world, False)
         assert fast[:-1] == slow[:-1], (kind, core)
-        assert fast[-1][1] > 100_000, (kind, core, fast[-1])  # nearly every pass skipped
+        end = next(entry for entry in fast if entry[0] == "end")
+        assert end[10][9] and end[10][10] == 60000, (kind, core, end)  # up and down polled
+        assert fast[-1][1] > 30_000, (kind, core, fast[-1])  # nearly every pass skipped
 
 
 def test_a_bisection_cut_short_by_its_work_budget_judges_where_it_stopped(
@@ -917,8 +943,10 @@ def test_a_bisection_cut_short_by_its_work_budget_judges_where_it_stopped(
     budget)."""
     monkeypatch.setattr(forecast, "LOOKAHEAD_BUDGET", 1)
     cases = [(POLL_SPEED, "tmcm-6212", "tmc4210"),
-             (POSITIONING_SPEED.format(top=1500, acceleration=100, half=750), "tmcm-6110", None),
-             (POSITIONING_SPEED.format(top=100000, acceleration=50000, half=50000), "tmcm-6212",
+             (POSITIONING_SPEED.format(top=1500, acceleration=100, half=750, target=300000),
+              "tmcm-6110", None),
+             (POSITIONING_SPEED.format(top=100000, acceleration=50000, half=50000, target=300000),
+              "tmcm-6212",
               "tmc4210")]
     for source, kind, core in cases:
         world = World(None, [], 2500, core, kind)
@@ -1031,12 +1059,14 @@ def test_a_skip_stops_inside_a_pass_where_stepping_would(
 
 
 def test_a_plan_survives_a_batch_boundary() -> None:
-    """I10: the clock advanced in 1 ms steps (a lockstep host), or a recorder sampling every
-    millisecond, ends a batch every millisecond; nothing intervenes, so the pass analysed in
-    the first is skipped again in the others, not analysed in each (it was, 1,000 times a
-    second)."""
-    for module in (_flag_poll(1, 1.0), _flag_poll(0.37, 1.0), _flag_poll(10, 1.0, 0.001)):
+    """I10: the clock advanced in 1 ms steps (a lockstep host) ends a batch every
+    millisecond; nothing intervenes, so the pass analysed in the first is skipped again in
+    the others, not analysed in each (it was, 1,000 times a second).  A recorder sampling
+    every millisecond ends no batch at all (docs/scheduling.md, point 9): advanced in 10 ms
+    steps, one reuse per step."""
+    for module, batches in ((_flag_poll(1, 1.0), 1000), (_flag_poll(0.37, 1.0), 2702),
+                            (_flag_poll(10, 1.0, 0.001), 100)):
         skipper = module.program.interpreter.skipper
         assert module.program.interpreter.pc in (2, 3, 4)  # still polling: the move takes 50 s
-        assert skipper.analyses <= 20 and skipper.reuses >= 900, (skipper.analyses,
-                                                                  skipper.reuses)
+        assert skipper.analyses <= 20 and 0.9 * batches <= skipper.reuses <= batches, (
+            skipper.analyses, skipper.reuses)

@@ -11,13 +11,15 @@ from pathlib import Path
 
 import pytest
 
+from interpreter.assembler import assemble
 from tests.conftest import RawClient
 from tests.helpers.clocks import ManualClock
 from tests.helpers.processes import ServerProcess
+from tmcl_server.clock import VirtualClock
 from tmcl_server.embed import SimulatorThread
-from tmcl_server.module import TMCM6212
+from tmcl_server.module import TMCM6212, TMCLModule
 from tmcl_server.protocol import Request
-from tmcl_server.record import Recorder, RecordWriter, read_record
+from tmcl_server.record import Mark, Recorder, RecordWriter, Sample, read_record
 from tmcl_server.simulation import PROGRAM_CHUNK_NS, RECORDER_SAMPLES_PER_TURN, Simulation
 from tmcl_server.tool import main as tmcl
 from tmcl_spec.commands import Opcode, Status
@@ -191,3 +193,109 @@ def test_a_recorder_behind_a_real_clock_never_holds_up_a_request() -> None:
     assert recorder.rows[-1].t == 10.0
     times = [round(row.t * 1000) for row in recorder.rows]
     assert times == sorted(set(times))  # on the grid, each instant once
+
+
+#: Moves and a rotation that ramp while a program polls a moving speed through the ramp and
+#: re-issues the move mid-ramp (a command that changes the axis between two samples), with
+#: the module type's own units: (module type, axis core, speed, acceleration, threshold).
+RAMPS = [("tmcm-6212", "tmc4210", 40000, 50000, 25000),
+         ("tmcm-6212", "tmc4361a", 40000, 50000, 25000),
+         ("tmcm-6110", None, 1000, 40, 600),
+         ("tmcm-1111", None, 40000, 50000, 25000)]
+RAMP_PROGRAM = """
+    SAP 4, 0, {speed}
+    SAP 5, 0, {acceleration}
+    SAP 4, 1, {speed}
+    SAP 5, 1, {acceleration}
+Loop:
+    ROR 1, {threshold}
+    MVP ABS, 0, 400000
+Up:
+    GAP 3, 0
+    COMP {threshold}
+    JC LT, Up
+    MVP ABS, 0, -30000
+    ROR 1, -{threshold}
+Back:
+    GAP 8, 0
+    COMP 1
+    JC NE, Back
+    GGP 0, 2
+    CALC ADD, 1
+    AGP 0, 2
+    JA Loop
+"""
+
+
+def _recorded_ramps(kind: str, core: str | None, program: str, skip: bool, resolution: float,
+                    modules: int = 1, seconds: float = 3.0) -> tuple[list[Sample], list[object],
+                                                                      TMCLModule, Recorder]:
+    """Rows and marks of ``program`` run on ``modules`` modules with a recorder whose samples
+    and marks reach callbacks (in the order they are handed on), skipping (and a moving
+    axis's samples of a steady stretch given at once) or stepping (each sample read from the
+    axis brought to its instant)."""
+    built = [TMCLModule(slot, kind=kind, chip_core=core) for slot in range(1, modules + 1)]
+    sim = Simulation(built, VirtualClock())
+    for module in built:
+        module.program.interpreter.skip_loops = skip
+        for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(program).instructions,
+                    (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
+            module.execute(Request(module.slot, *ins))
+        sim.replan(module)
+    handed: list[object] = []
+    recorder = Recorder(sim, resolution, on_sample=handed.append, on_mark=handed.append)
+    recorder.closed_forms = skip
+    recorder.start()
+    sim.advance(seconds / 2)
+    sim.advance_to_ns(sim.now_ns + 1_234_567)  # an advance that ends between two instants
+    sim.advance(seconds / 2)
+    return recorder.stop(), handed, built[0], recorder
+
+
+@pytest.mark.parametrize(("kind", "core", "speed", "acceleration", "threshold"), RAMPS)
+def test_samples_inside_ramps_are_the_stepping_reference(kind: str, core: str | None, speed: int,
+                                                          acceleration: int, threshold: int) -> None:
+    """A recorder's instants no longer end the program's batches (docs/scheduling.md, point
+    9): each axis is sampled at an instant when a command or an event is about to bring it
+    past it, or once the module has reached the span's end.  Samples taken inside ramps, a
+    move re-issued between two of them, a speed polled through the ramp (a moving read the
+    loop skips to its crossing): every sample, and the order in which samples and marks
+    reach the callbacks, is the stepping interpreter's (every instruction executed, the
+    module brought to every instant)."""
+    program = RAMP_PROGRAM.format(speed=speed, acceleration=acceleration, threshold=threshold)
+    for resolution in (0.001, 0.0037):
+        rows, handed, module, recorder = _recorded_ramps(kind, core, program, True, resolution)
+        reference = _recorded_ramps(kind, core, program, False, resolution)
+        assert rows == reference[0]
+        assert handed == reference[1]
+        assert module.program.interpreter.loops_skipped > 100  # the loops were skipped
+        if core != "tmc4361a" and kind != "tmcm-1111":  # the TMC42x cores' closed form
+            assert recorder.at_once > 0.05 * len(rows), recorder.at_once  # axis 1's rotation
+        ramping = {row.velocity for row in rows if row.axis == 0}
+        assert len(ramping) > 50  # samples inside the ramps, not only at rest or at speed
+        assert any(0 < row.velocity < threshold for row in rows if row.axis == 0)
+        assert sum(1 for item in handed if isinstance(item, Mark)) >= 2  # an arrival among them
+
+
+def test_samples_of_several_modules_reach_the_callbacks_in_time_order() -> None:
+    """Two modules, samples and marks to callbacks: instant by instant, module by module, as
+    stepping hands them on."""
+    kind, core, speed, acceleration, threshold = RAMPS[0]
+    program = RAMP_PROGRAM.format(speed=speed, acceleration=acceleration, threshold=threshold)
+    rows, handed, _, _ = _recorded_ramps(kind, core, program, True, 0.002, modules=2,
+                                         seconds=1.0)
+    reference = _recorded_ramps(kind, core, program, False, 0.002, modules=2, seconds=1.0)
+    assert rows == reference[0] and handed == reference[1]
+    assert {row.module for row in rows} == {1, 2}
+
+
+def test_a_recorder_does_not_cut_the_programs_batches() -> None:
+    """A 1 ms recorder over a loop polling "position reached": the loop's passes are skipped
+    from one event to the next, in one go per ``advance`` call, not one batch (and one reuse
+    of the plan) per sample instant as when each sample brought the module to its instant."""
+    program = "SAP 4, 0, 2000\nMVP ABS, 0, 100000\nWait:\nGAP 8, 0\nCOMP 1\nJC NE, Wait\nSTOP"
+    kind, core = "tmcm-6212", "tmc4210"
+    rows, _, module, _ = _recorded_ramps(kind, core, program, True, 0.001, seconds=1.0)
+    assert len(rows) == 6 * 1002  # six axes, every millisecond of 1.001 s
+    skipper = module.program.interpreter.skipper
+    assert skipper.analyses + skipper.reuses <= 30, (skipper.analyses, skipper.reuses)

@@ -14,7 +14,7 @@ import logging
 import random
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 from axes.cores import CHIP_CORES, make_axes, refusal
 from axes.interface import FOREVER, Axis, AxisEvent, AxisEventKind
@@ -97,6 +97,19 @@ class _ReachWatch:
 AxisFactory = Callable[[int], Axis]
 
 
+class AxisSampler(Protocol):
+    """Samples a module's axes at instants the module passes without stopping there (a
+    recorder, tmcl_server/record.py): told before an axis is brought past one, it samples
+    the axis there first, so a program's batches go on through the instants."""
+
+    #: Per axis, the next instant it still has to sample (FOREVER: none now).
+    due: list[int]
+
+    def before_move(self, index: int, t_ns: int) -> None:
+        """Axis ``index`` is about to be brought to ``t_ns``: sample it at the instants before."""
+        ...
+
+
 #: A handler: (module, request, sink, interface) -> reply value, None, or a special result.
 HandlerFunction = Callable[..., Any]
 
@@ -148,6 +161,9 @@ class ModuleCore:
         #: (interpreter/skipping.py I10); a program's write of a user variable does not count
         #: (the plan checks the variables it reads).
         self.epoch = 0
+        #: Told before an axis is brought past an instant it samples (a recorder catching
+        #: up, :class:`AxisSampler`); None: nobody samples.
+        self.sampler: AxisSampler | None = None
         #: Standalone mode: program memory, the interpreter, control commands 128-135.
         self.program = ProgramSupport(self, self.type.program_memory, self.type.number_of_axes,
                                       self.type.digital_inputs)
@@ -497,7 +513,18 @@ class ModuleCore:
         """Axis ``index``, brought up to the module's current time (use this, not ``axes``)."""
         axis = self.axes[index]
         self._touched.add(index)
+        sampler = self.sampler
+        if sampler is not None and sampler.due[index] < self.now_ns:
+            sampler.before_move(index, self.now_ns)  # a recorder's instants it passes
         for event in axis.advance_to(self.now_ns):  # none are due: advance_to handled them
+            self._on_axis_event(event)
+        return axis
+
+    def axis_at(self, index: int, t_ns: int) -> Axis:
+        """Axis ``index`` brought to ``t_ns``, an instant the module has reached but the axis
+        not yet (a recorder's sample: nothing but its own motion changed the axis since)."""
+        axis = self.axes[index]
+        for event in axis.advance_to(t_ns):
             self._on_axis_event(event)
         return axis
 
@@ -506,9 +533,12 @@ class ModuleCore:
         self.now_ns = t_ns
         self._due_stale = True
         self.epoch += 1  # events are handled here: what a loop reads may change
+        sampler = self.sampler
         for index, due in enumerate(self._axis_due):
             if (due is not None and due <= t_ns) or index in self._stale_axes:
                 self._stale_axes.add(index)
+                if sampler is not None and sampler.due[index] < t_ns:
+                    sampler.before_move(index, t_ns)  # its samples before the event
                 for event in self.axes[index].advance_to(t_ns):
                     self._on_axis_event(event)
         self._check_heartbeats()

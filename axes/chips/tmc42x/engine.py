@@ -74,6 +74,13 @@ class MotorEngine(RampBatches, ChipModel):
     def steps_reach_motor(self) -> bool:
         return self.steps_out
 
+    def reads_are_quiet(self) -> bool:
+        """A read of an axis register over SPI would change nothing now but what it answers
+        (no chip woken from power-down, no status bit cleared, no datagram sent on): a
+        reading computed without the read (:meth:`steady_readings`) leaves the chip as the
+        read would.  A chip that cannot tell says no."""
+        return False
+
     def at_rest(self) -> bool:
         """Stopped, and no ramp tick will start the motor again."""
         return self.v == 0 and self._steady_steps() == -1

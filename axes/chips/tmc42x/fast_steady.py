@@ -18,6 +18,8 @@ it stops at the tick where the law's :meth:`~MotorLaw.tick` returns a ``Stop``.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 from axes.chips.tmc42x.law import MotorLaw
 from axes.chips.tmc42x.registers import (
     DISTANCE_LIMIT,
@@ -150,6 +152,46 @@ class MotorSteady(MotorLaw):
             if used >= ticks:
                 self.t = t_end
                 return None
+
+    def steady_readings(self, ticks: Iterable[int]) -> tuple[list[int], int]:
+        """X_ACTUAL at each of ``ticks`` (ascending, none before ``t``) as :meth:`run` would
+        leave it there, and V_ACTUAL (the 12 bits a read returns), for the first of them
+        that the motor reaches at its present velocity without a notable step: a prefix,
+        perhaps empty; the state does not change (the caller runs the engine for the rest).
+
+        Exact by :meth:`_pulses`' closed form: the pulse ticks in ``(t, T]`` are
+        ``(T >> PULSE_DIV) - (t >> PULSE_DIV)`` and make ``(acc + |V| * pulses) >> 11``
+        steps, as long as the velocity stands: before the next ramp tick, or while fewer
+        steps than :meth:`_steady_steps` promises are made; and short of the nearest step
+        that matters (:meth:`_stop_distance`: the target, REF_MISS at 0, the compare
+        position, a board mark).  A ramp, a powered-down chip or a motor at rest (whose
+        readings its caller keeps anyway) gives nothing."""
+        v = self.v
+        vi = (v if v > 0 else -v) >> 8
+        if vi == 0 or self.powered_down:
+            return [], 0
+        if self.mode < MODE_VELOCITY and vi <= self.v_min and self.x_actual == self.x_target:
+            return [], 0  # the law's abrupt stop at the target comes at the next pulse tick
+        steady = self._steady_steps()
+        last_tick = FAR
+        if steady is None:
+            last_tick = self.ramp_next - 1  # the next ramp tick may change the velocity
+            bound = FAR
+        else:
+            bound = FAR if steady < 0 else steady
+        direction = 1 if v > 0 else -1
+        limit = self._stop_distance(direction)[0]
+        if limit < bound:
+            bound = limit
+        pulse_div, t, acc, x = self.pulse_div, self.t, self.acc, self.x_actual
+        before = t >> pulse_div
+        positions = []
+        for tick in ticks:
+            steps = (acc + vi * ((tick >> pulse_div) - before)) >> 11
+            if tick > last_tick or steps >= bound:
+                break
+            positions.append((x + steps * direction) & MASK24)
+        return positions, self.v_actual & 0xFFF
 
     # == steady stretches ======================================================================
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 from abc import abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from math import isqrt
 from typing import cast
 
@@ -180,6 +180,34 @@ class TMC42xDriver(ChipDriver):
         self.position = position
         self._x_last = x
         return position
+
+    def readings_at(self, ticks: Iterable[int]) -> tuple[list[int], int]:
+        """AP 1 at each of the first ``ticks`` the engine reaches at a standing velocity
+        (:meth:`MotorEngine.steady_readings`) and AP 3 there, read as :meth:`read_position`
+        and :meth:`actual_speed` read them, where a read changes nothing else
+        (:meth:`MotorEngine.reads_are_quiet`); the last position counts as read."""
+        chip = self.chip
+        if not chip.reads_are_quiet():
+            return [], 0
+        xs, v_bits = chip.steady_readings(ticks)
+        if not xs:
+            return [], 0
+        v = signed(v_bits, 12)
+        return self._counted(xs), -self._to_speed(-v) if v < 0 else self._to_speed(v)
+
+    def _counted(self, xs: list[int]) -> list[int]:
+        """AP 1 after each of the X_ACTUAL reads ``xs`` in turn (:meth:`read_position`'s
+        32-bit count across 24-bit wraps), the last one kept as read."""
+        position, last = self.position, self._x_last
+        positions = []
+        for x in xs:
+            position += ((x - last + HALF24) & MASK24) - HALF24
+            if not INT32_MIN <= position <= INT32_MAX:
+                position = to_int32(position)
+            positions.append(position)
+            last = x
+        self.position, self._x_last = position, last
+        return positions
 
     def _v_actual(self) -> int:
         return signed(self._read(Reg.V_ACTUAL), 12)

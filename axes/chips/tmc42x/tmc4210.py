@@ -91,6 +91,11 @@ class TMC4210(MotorEngine):
         """Continue with the state a clone reached (one chip, one motor: the clone itself)."""
         return twin
 
+    def reads_are_quiet(self) -> bool:
+        """:meth:`spi_data`'s read of an axis register only wakes the chip and clears CDGW,
+        and with SDO_INT it is a whole frame."""
+        return not (self.powered_down or self.cdgw or self.if_config & SDO_INT)
+
     # == derived state =========================================================================
 
     @property

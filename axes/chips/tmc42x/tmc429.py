@@ -168,6 +168,12 @@ class TMC429Motor(MotorEngine):
         """The 24 data bits of the chip's answer to a datagram (the driver's reads)."""
         return self.chip.spi_data(frame)
 
+    def reads_are_quiet(self) -> bool:
+        """A frame wakes every motor of the chip and ends a cover or capture under way (CDGW:
+        a frame may send the chain datagram, :meth:`TMC429._service_chain`)."""
+        chip = self.chip
+        return not chip.cdgw and not any(motor.powered_down for motor in chip.motors)
+
     def read(self, reg: Reg | int) -> int:
         """Convenience: the 24 data bits of one of this motor's axis registers."""
         return self.chip.read(motor_address(self.index, reg))

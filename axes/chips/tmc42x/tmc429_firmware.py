@@ -193,6 +193,12 @@ class TMC429Driver(TMC42xDriver):
         self.position = x - ((x & HALF24) << 1)
         return self.position
 
+    def _counted(self, xs: list[int]) -> list[int]:
+        """AP 1 after each of the X_ACTUAL reads ``xs``: each sign-extended, the last kept."""
+        positions = [x - ((x & HALF24) << 1) for x in xs]
+        self._x_last, self.position = xs[-1], positions[-1]
+        return positions
+
     def register_access(self, address: int, value: int | None = None) -> int:
         """Commands 146/147 on a TMC429 axis: addresses 0x00..0x0F are this axis's own motor
         registers (IDX); 0x10..0x7F go to its chip unchanged (the other motors' registers,

@@ -279,7 +279,8 @@ class TMC4361A(RememberedRuns, HomeTracking, EncoderInputs, TurnPromises, ChipMo
             ctx = self._context()
             limit = until - self.t
             plan = ramp.segment_for(ctx)
-            e = ramp.horizon(ctx, HORIZON_TICKS, self._watch(ctx, plan[0]), plan)
+            watched = self._watch(ctx, plan[0])
+            e = ramp.horizon(ctx, HORIZON_TICKS, watched, plan)
             if self.regs.get(Reg.INTR_CONF, 0) & _MOTION_STATE_EVENTS and e > 1:
                 # events that change inside a segment, wanted at once (EVENT at their clock)
                 e = min(e, ramp.motion_state_limit(plan[1], e - 1))
@@ -292,6 +293,9 @@ class TMC4361A(RememberedRuns, HomeTracking, EncoderInputs, TurnPromises, ChipMo
                 ramp.advance(ctx, e - 1, plan)
                 self.t += e - 1
                 self._update_flags()
+                if not watched:  # at rest so far (TZEROWAIT): the clock due may start the
+                    ctx = self._context()  # motor, towards marks the law watches from there
+                    self._watch(ctx, ramp.decide(ctx))
             stop = self._tick(ctx)
             if trace is not None:
                 trace = self._record(trace, t0, p0, used, stop)

@@ -210,8 +210,9 @@ class Ramp(RampLaw):
 
     def _s_segment(self, slope: int, variant: int, reversal: bool) -> Segment | None:
         """An S-ramp stage as a segment: a bow stage (REC, UP, DOWN) changes the gain by its
-        bow quantum on its quantum grid, HOLD and END keep it; an UP stage at its peak, or a
-        crawl that is not the final approach's, is special."""
+        bow quantum on its quantum grid, HOLD and END keep it (so does UP above a lowered
+        AMAX: no quantum is due there); an UP stage at its peak, or a crawl that is not the
+        final approach's, is special."""
         stage = self.stage
         j_rec, j_up, j_down, g_max, _, _, _ = self.slope_constants(slope, variant, reversal)
         if stage == Stage.CRAWL:
@@ -219,7 +220,9 @@ class Ramp(RampLaw):
         if stage == Stage.REC:
             return (self.a, slope * j_rec, self.q)
         if stage == Stage.UP:
-            return None if slope * self.a >= g_max else (self.a, slope * j_up, self.q)
+            if slope * self.a > g_max:  # above a lowered AMAX: held, as in HOLD, until DOWN
+                return (self.a, 0, 0)
+            return None if slope * self.a == g_max else (self.a, slope * j_up, self.q)
         if stage in (Stage.HOLD, Stage.END):
             return (self.a, 0, 0)
         if stage == Stage.DOWN:
@@ -418,6 +421,7 @@ class Ramp(RampLaw):
         the arrival in the target step, and the braking decision of a positioning move."""
         kind = action[0]
         best = limit + 1 if kind == A_NORAMP else self._slope_horizon(action, seg, limit)
+        best = self._vmax_limit(seg, best)
         if self.w or seg[0] or seg[1]:
             wanted = list(positions)
             if self.P.positioning:
@@ -428,6 +432,19 @@ class Ramp(RampLaw):
             best = self._braking_limit(seg, action[1], best - 1)
             best = min(best, self._rem_sign_limit(action[1], seg, best - 1))
         return best
+
+    def _vmax_limit(self, seg: Segment, best: int) -> int:
+        """The tick that reaches or passes |VMAX|, or ``best`` if that is later: VEL_REACHED
+        is the speed equal to VMAX, which a speed that only passes through it (a slope that
+        does not end there, e.g. a braking REC stage whose bow is 0) shows for one tick, and
+        the event latches (the law does that tick; within a segment |v| is monotone)."""
+        V, w = self.P.V, self.w
+        if w == V or not (seg[0] or seg[1]):
+            return best
+        state_after = self._state_after
+        if w < V:
+            return first_nonneg(lambda i: state_after(seg, i)[0] - V, best - 1)
+        return first_nonneg(lambda i: V - state_after(seg, i)[0], best - 1)
 
     def _arrival_limit(self, ctx: Context, seg: Segment, best: int) -> int:
         """Inside the target microstep (positioning, moving or about to): the move ends at the
@@ -452,9 +469,9 @@ class Ramp(RampLaw):
         chip's VEL_STATE_F and RAMP_STATE_F show changes without the segment ending: the
         acceleration's sign at the segment's first tick (it applies ``alpha`` from there), or
         at the first quantum of a bow stage started at |a| = 0; the speed leaving 0 on a
-        segment that starts at rest.  (Everywhere else they change only where
-        :meth:`horizon` stops anyway: the chip asks for this only when INTR_CONF wants their
-        events at once.)  ``seg``: the segment ahead (:meth:`segment_for`)."""
+        segment that starts at rest, or landing on 0 on one that falls.  (Everywhere else
+        they change only where :meth:`horizon` stops anyway: the chip asks for this only when
+        INTR_CONF wants their events at once.)  ``seg``: the segment ahead (:meth:`segment_for`)."""
         if seg is None or limit < 1:
             return limit + 1
         alpha, delta, q0 = seg
@@ -467,6 +484,10 @@ class Ramp(RampLaw):
             best = min(best, (Q // 2 - q0) % Q + 1)
         if self.w == 0 and (alpha or delta):
             best = first_nonneg(lambda i: state_after(seg, i)[0] - 1, best - 1)
+        elif self.w > 0 and (alpha < 0 or delta < 0):
+            # the speed landing on 0 exactly: a slope that passes through 0 (BOW2 = BOW4)
+            # goes on, and its horizon stops only below 0 (falling as that horizon assumes)
+            best = first_nonneg(lambda i: -state_after(seg, i)[0], best - 1)
         return best
 
     def start_is_void(self, ctx: Context) -> bool:
