@@ -487,8 +487,12 @@ class LoopSkipper:
         before, after = analysed.before, analysed.after
         registers = tuple((index, value) for index, value in enumerate(before)
                           if after[index] == value)
-        variables = tuple((call.request[1], call.value) for call in analysed.calls
-                          if call.request[0] == OP_GGP and call.request[2] == 2)
+        # the user variables it reads, and those it writes with the value they had (a
+        # timer's handler may have counted one since: the write would change it again)
+        variables = tuple((call.request[1], call.value if call.request[0] == OP_GGP
+                           else call.request[3]) for call in analysed.calls
+                          if call.request[2] == 2 and (call.request[0] == OP_GGP or (
+                              call.request[0] == OP_SGP and call.status == STATUS_OK)))
         everything = before if len(registers) == len(before) else None
         # I16: a pass that repeats whole, its instructions alone in its time, and touches
         # nothing a batch boundary could (no handler in progress): its states, one an
@@ -558,9 +562,12 @@ class LoopSkipper:
         began, index = inside
         if (program.time_ns != began + index * program.instruction_ns
                 or (plan.horizons and program.epoch() != plan.epoch)  # (I9: no command)
-                or program.interrupt_due() or program.registers() != plan.states[index]):
+                or program.interrupt_due() or program.registers() != plan.states[index]
+                or any(program.user_variable(number) != value
+                       for number, value in plan.variables)):
             return  # something intervened: the dispatch loop steps on from here
-        self._glide(plan, began, index, limit)
+        if self._glide(plan, began, index, limit):
+            self.reuses += 1
 
     def _skip(self, period: int, length: int, limit: int,
               horizons: tuple[tuple[int, int], ...], start: int, real_passes: int = 0,
