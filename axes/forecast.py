@@ -349,9 +349,8 @@ class AxisForecast:
         # the end itself often flips (a speed polled to 0 at arrival); where it has turned by
         # then, the turn is usually earlier (the top speed reached): no use looking there
         if high - start.t > 2 and (turns is None or not turns(end_chip)):
-            before = start.clone()
-            before.run(high - 1, LOOKAHEAD_BUDGET)
-            if before.t == high - 1 and not compares_otherwise(before):
+            before = self._clock_before(start, end_chip)
+            if before is not None and not compares_otherwise(before):
                 return before.ns_at(high)  # both tests are false, then true: the end flips
         low = start.clone()
         while high - low.t > 1:
