@@ -366,31 +366,25 @@ class _ModuleSampler:
                     kept = None
                 if resting or instant + step >= end:
                     break  # at rest, untouched up to the last instant: it reads the same
-                velocity = status.velocity
-                column.append(new(Sample, (
-                    instant / NS_PER_S, slot, index, status.position, velocity,
-                    0.0 if previous is None else (velocity - previous) / dt_s,
-                    status.current, status.target, int(status.position_reached),
-                    int(status.left_switch), int(status.right_switch), int(status.home_switch))))
-                previous = velocity
-                instant += step
-                # the instants before the last at once where the core has a closed form
-                # (Axis.samples_at: a steady run); the last one the plain way, so the axis
-                # ends where it does sampled one by one
-                before_last = (end - instant) // step - 1
+                # the instants after this one and before the last at once where the core has a
+                # closed form (Axis.samples_at: a steady run); the last one the plain way, so
+                # the axis ends where it does sampled one by one
+                statuses = [status]
+                before_last = (end - instant - step) // step - 1
                 if before_last > 0 and recorder.closed_forms:
-                    stretch = axis.samples_at(instant, step, before_last)
+                    stretch = axis.samples_at(instant + step, step, before_last)
                     recorder.at_once += len(stretch)
-                    for status in stretch:
-                        velocity = status.velocity
-                        column.append(new(Sample, (
-                            instant / NS_PER_S, slot, index, status.position, velocity,
-                            0.0 if previous is None else (velocity - previous) / dt_s,
-                            status.current, status.target, int(status.position_reached),
-                            int(status.left_switch), int(status.right_switch),
-                            int(status.home_switch))))
-                        previous = velocity
-                        instant += step
+                    statuses += stretch
+                for status in statuses:
+                    velocity = status.velocity
+                    column.append(new(Sample, (
+                        instant / NS_PER_S, slot, index, status.position, velocity,
+                        0.0 if previous is None else (velocity - previous) / dt_s,
+                        status.current, status.target, int(status.position_reached),
+                        int(status.left_switch), int(status.right_switch),
+                        int(status.home_switch))))
+                    previous = velocity
+                    instant += step
         # the rest of the instants read ``status``: its velocity does not change
         position, velocity, current, target = status[:4]
         reached, left, right, home = (int(status.position_reached), int(status.left_switch),
