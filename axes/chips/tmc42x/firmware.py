@@ -192,8 +192,7 @@ class TMC42xDriver(ChipDriver):
         xs, v_bits = chip.steady_readings(ticks)
         if not xs:
             return [], 0
-        v = signed(v_bits, 12)
-        return self._counted(xs), -self._to_speed(-v) if v < 0 else self._to_speed(v)
+        return self._counted(xs), self._speed_of(signed(v_bits, 12))
 
     def _counted(self, xs: list[int]) -> list[int]:
         """AP 1 after each of the X_ACTUAL reads ``xs`` in turn (:meth:`read_position`'s
@@ -217,7 +216,10 @@ class TMC42xDriver(ChipDriver):
 
     def actual_speed(self) -> int:
         """AP 3: the speed now, in the axis's units (pps, or the chip's units in unit mode 0)."""
-        v = self._v_actual()
+        return self._speed_of(self._v_actual())
+
+    def _speed_of(self, v: int) -> int:
+        """AP 3 for the signed V_ACTUAL ``v`` (the conversion is of the magnitude)."""
         return -self._to_speed(-v) if v < 0 else self._to_speed(v)
 
     def positioning_speed(self, start: ChipModel) -> tuple[Callable[[ChipModel], bool],
