@@ -267,9 +267,10 @@ class Program(Protocol):
 
     def tick_schedule(self, limit: int, period: int, length: int,
                       touched: frozenset[int]) -> TickSchedule | None:
-        """I15: when ``limit`` is the next tick of a timer whose handler only counts and the
-        loop at the PC (passes of ``period`` ns, ``length`` instructions, addressing the user
-        variables ``touched``) may be skipped across its ticks, their schedule; else None."""
+        """I15: when ``limit`` is the next tick of a timer whose handler only counts, before
+        the batch's end, and the loop at the PC (passes of ``period`` ns, ``length``
+        instructions, addressing the user variables ``touched``) may be skipped across its
+        ticks, their schedule; else None (at the batch's end too)."""
         ...
 
     def take_ticks(self, schedule: TickSchedule, instructions: int) -> None:
@@ -391,8 +392,7 @@ class LoopSkipper:
             return False  # I10: a user variable it reads was written since
         self.countdown = 1
         program.replay, program.replay_epoch = plan.answers, plan.epoch  # I13
-        ticks = (program.tick_schedule(limit, plan.period, plan.length, plan.touched)
-                 if limit < program.batch_end_ns else None)  # I15
+        ticks = self._across_ticks(plan, limit)
         if ticks is None and plan.states is not None:  # I16: to the limit's instruction
             if self._glide(plan, program.time_ns, 0, limit):
                 self.reuses += 1
@@ -516,12 +516,16 @@ class LoopSkipper:
         self._keep(analysed, horizons, 0)
         plan, program = self._plan, self.program
         assert plan is not None
-        ticks = (program.tick_schedule(limit, plan.period, plan.length, plan.touched)
-                 if limit < program.batch_end_ns else None)  # I15
+        ticks = self._across_ticks(plan, limit)
         if ticks is None and plan.states is not None:  # I16: to the limit's instruction
             return self._glide(plan, program.time_ns, 0, limit)
         return self._skip(analysed.period, analysed.length, limit, horizons, analysed.start,
                           ticks=ticks)
+
+    def _across_ticks(self, plan: _Plan, limit: int) -> TickSchedule | None:
+        """I15 for the kept plan's loop: the ticks it is skipped across when ``limit`` is a
+        counting timer's tick (the port says; None at the batch's end and otherwise)."""
+        return self.program.tick_schedule(limit, plan.period, plan.length, plan.touched)
 
     def _glide(self, plan: _Plan, began: int, index: int, limit: int) -> int:
         """I16: from instruction ``index`` of a pass of ``plan`` that began at ``began`` (the
