@@ -125,19 +125,11 @@ class TimerCycles:
                 self._give_up_cycles()
             return
         self._cycle_backoff = 1
-        now, port = self.time_ns, self.port
-        address = self.vectors[vector]
-        # each dispatch left out, at its instant (as one run to the observers that take runs)
-        port.program_events(now, period, skipped, "interrupt_taken", vector=vector,
-                            address=address)
+        now = self.time_ns
         self.time_ns = now + skipped * period
         self.executed += skipped * (self.executed - cycle.executed)
-        timer.next_ns += skipped * period
-        self.ticks_skipped += skipped
-        for number, step in cycle.counters.items():
-            value = port.user_variable(number)
-            assert value is not None
-            port.execute(self.time_ns, OP_SGP, number, 2, wrap32(value + skipped * step))
+        self._dispatches_left_out(timer, vector, self.vectors[vector], now, skipped,
+                                  cycle.counters)
 
     def tick_schedule(self, limit: int, period: int, length: int,
                       touched: frozenset[int]) -> TickSchedule | None:
@@ -173,17 +165,26 @@ class TimerCycles:
         taken = schedule.dispatches_before(instructions)
         self.time_ns = schedule.start + (instructions + taken * schedule.handler) * schedule.cost
         self.executed += instructions + taken * schedule.handler
-        if not taken:
-            return
-        timer = self._timers[schedule.vector - interrupts.TIMER_BASE]
-        timer.next_ns += taken * schedule.period
-        self.ticks_skipped += taken
+        if taken:
+            self._dispatches_left_out(
+                self._timers[schedule.vector - interrupts.TIMER_BASE], schedule.vector,
+                schedule.address, schedule.start + schedule.first * schedule.cost, taken,
+                schedule.counters)
+
+    def _dispatches_left_out(self, timer: Timer, vector: int, address: int | None,
+                             first_ns: int, count: int, counters: dict[int, int]) -> None:
+        """``count`` dispatches of ``timer``'s interrupt from ``first_ns`` on, each a period
+        apart, whose handler (at ``address``; None: none, the interrupt dropped) only counts,
+        left out (I12, I15): the timer's next tick, each dispatch's event at its instant (as
+        one run to the observers that take runs) and the counters ``count`` steps on, written
+        at the program's instant (which the caller has moved past them)."""
+        timer.next_ns += count * timer.period_ns
+        self.ticks_skipped += count
         port = self.port
-        if schedule.address is not None:  # each dispatch at its instant (one run, I12)
-            first = schedule.start + schedule.first * schedule.cost
-            port.program_events(first, schedule.period, taken, "interrupt_taken",
-                                vector=schedule.vector, address=schedule.address)
-        for number, step in schedule.counters.items():
+        if address is not None:
+            port.program_events(first_ns, timer.period_ns, count, "interrupt_taken",
+                                vector=vector, address=address)
+        for number, step in counters.items():
             value = port.user_variable(number)
             assert value is not None
-            port.execute(self.time_ns, OP_SGP, number, 2, wrap32(value + taken * step))
+            port.execute(self.time_ns, OP_SGP, number, 2, wrap32(value + count * step))
