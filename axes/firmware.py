@@ -258,6 +258,13 @@ class AxisFirmware(RiggedAxis):
     def _run_chip(self, t_ns: int) -> None:
         chip = self.driver.chip
         until = chip.ticks_at(t_ns)
+        if chip.t < until:
+            copy = self.forecast.copy_on_the_way(chip.t, until)
+            if copy is not None:  # F9 (axes/forecast.py): the forecast ran this way already
+                try:
+                    chip = self.driver.chip = chip.adopt(copy)
+                except StaleLookahead:
+                    pass  # (another motor of its chip wrote to it: run the way)
         while chip.t < until:
             stop = chip.run(until)
             if stop is None:

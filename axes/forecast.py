@@ -70,13 +70,19 @@ F8. A positioning move's speed rises and falls, but its driver may say over whic
     again at VSTART, is a STOPPED instant, which ends every run).  A driver that says
     nothing (S-shaped ramps, which may first take back their acceleration) makes no
     promise: stepped.
+F9. A copy made under the current look-ahead from the chip or a read's copy (F7), run with
+    no marks but the board's own to a clock before the look-ahead's end, is the chip itself
+    at that clock (F1: the same run, and the engines are exact however a run is cut).  So
+    the chip, brought to that clock or past it, goes on from a clone of the copy (a
+    stretch's clock before its end, a search's last copy short of a flip: where a skipped
+    program wakes) instead of running the same way again.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from axes.board import AxisBoard
 from axes.core import ChipDriver, ChipModel, Stop
@@ -87,6 +93,9 @@ from tmcl_spec.parameters import AP, Motion
 #: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
 #: it the look-ahead stops short and the axis looks again from there when that time comes.
 LOOKAHEAD_BUDGET = 2_000
+#: A long look-ahead keeps a copy of the chip at this many points of its run (F9): a read
+#: between them brings the chip from the copy before it, not along the whole way again.
+WAYPOINTS = 8
 #: Moving reads kept per axis (F7): a pass reads one axis a few times; an older read's
 #: crossing is not forecast (no promise), which only costs speed.
 READINGS_KEPT = 8
@@ -99,6 +108,15 @@ class Lookahead:
     chip: ChipModel
     stop: Stop | None  # None: nothing happened up to the horizon
     time_ns: int
+
+
+class StretchEnd(NamedTuple):
+    """Where a run of a copy of the chip stopped: its instant, the copy there, and whether
+    that last tick was a plain one (nothing notable: the speed did not change at once)."""
+
+    time_ns: int
+    chip: ChipModel
+    plain: bool
 
 
 @dataclass(slots=True)
@@ -144,7 +162,7 @@ class ForecastedAxis(Protocol):
 
 
 class AxisForecast:
-    """The look-ahead of one axis, and the forecasts loop skipping asks for (F1-F8)."""
+    """The look-ahead of one axis, and the forecasts loop skipping asks for (F1-F9)."""
 
     def __init__(self, axis: ForecastedAxis, motions: dict[int, Motion]) -> None:
         self._axis = axis
@@ -161,32 +179,66 @@ class AxisForecast:
         self._readings: list[Reading] = []
         #: The last target meeting found for a positioning move's speed: (the look-ahead, the
         #: motor position marked, the read it was searched from, (instant, chip)) (F5, F8).
-        self._met: tuple[Lookahead, int, int, tuple[int, ChipModel]] | None = None
+        self._met: tuple[Lookahead, int, int, StretchEnd] | None = None
         #: The last speed crossing found: (the look-ahead, values, the read's instant, time):
         #: the same answer for a later read it does not precede (F5).
         self._speed_crossing: tuple[Lookahead, tuple[int, ...], int, int] | None = None
         #: A stretch's end (a copy of the chip there) and a copy a clock before it: the same
         #: end comes back from the caches above for every read of a look-ahead (F5)
         self._before_end: tuple[ChipModel, ChipModel] | None = None
+        #: Copies on the chip's way under the look-ahead ``_way_of`` (F9): the look-ahead's
+        #: own run, cut into a few pieces, and the searches' copies short of their answers.
+        self._way: list[ChipModel] = []
+        self._way_of: Lookahead | None = None
 
     def invalidate(self) -> None:
         """Something changed the chip or what it runs into (F1): look again when asked."""
         self.known = False
 
     def lookahead(self) -> Lookahead | None:
-        """Run a copy of the chip to its next notable instant (or the horizon)."""
+        """Run a copy of the chip to its next notable instant (or the horizon); on a long run,
+        a copy at each of a few points on the way is kept (F9)."""
         if self.known:
             return self.cached
         driver = self._axis.driver
         chip = driver.chip
         twin = chip.clone()
         horizon_ns = max(self._axis.present_ns(), chip.ns_at(twin.t)) + driver.horizon_ns()
-        stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
+        until = twin.ticks_at(horizon_ns)
+        way: list[ChipModel] = []
+        for _ in range(WAYPOINTS):  # the budget in pieces: a copy where each one ends
+            stop = twin.run(until, LOOKAHEAD_BUDGET // WAYPOINTS)
+            if stop is not None or twin.t >= until:
+                break
+            way.append(twin.clone())
+        else:
+            way.pop()  # (the last piece's end is the look-ahead's own)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else Lookahead(twin, stop, twin.ns_at(twin.t))
         self.cached = result
         self.known = True
+        self._way, self._way_of = way, result
         return result
+
+    def copy_on_the_way(self, since: int, until: int) -> ChipModel | None:
+        """A clone of the furthest copy kept on the chip's way (F9) after clock ``since`` and
+        no later than ``until``, under the current look-ahead; else None."""
+        if not self.known or self._way_of is not self.cached:
+            return None
+        best = None
+        for copy in self._way:
+            if since < copy.t <= until and (best is None or copy.t > best.t):
+                best = copy
+        return None if best is None else best.clone()
+
+    def _on_the_way_to(self, copy: ChipModel, ahead: Lookahead) -> None:
+        """Keep ``copy`` (F9: made under ``ahead``, the current look-ahead, short of its
+        end); the oldest kept goes when there are more than WAYPOINTS * 2."""
+        if ahead is self._way_of and copy.t < ahead.chip.t:
+            way = self._way
+            if len(way) >= 2 * WAYPOINTS:
+                del way[0]
+            way.append(copy)
 
     # == loop skipping's questions (interpreter/skipping.py I3, I5) ==============================
 
@@ -232,7 +284,10 @@ class AxisForecast:
         if ahead.stop is None or ahead.chip.t - 1 <= chip.t:
             return True
         before = self._clock_before(chip, ahead.chip)
-        return before is not None and axis.driver.speed_on(before.clone()) == axis.actual_speed()
+        if before.t != ahead.chip.t - 1:
+            return False  # (stopped short: no promise)
+        self._on_the_way_to(before, ahead)  # F9
+        return axis.driver.speed_on(before.clone()) == axis.actual_speed()
 
     def _keep_reading(self, number: int, ahead: Lookahead) -> None:
         """Keep a copy of the chip at this read, if it is at the read's instant (F7)."""
@@ -284,7 +339,8 @@ class AxisForecast:
         if self._axis.in_velocity_mode():
             return self._first_time_speed_crosses(values, reading.chip,
                                                   driver.speed_turns(reading.chip),
-                                                  (ahead.time_ns, ahead.chip))  # F4
+                                                  StretchEnd(ahead.time_ns, ahead.chip,
+                                                             ahead.stop is None), ahead)  # F4
         plan = driver.positioning_speed(reading.chip)
         if plan is None:
             return 0
@@ -294,7 +350,8 @@ class AxisForecast:
             return 0  # the target's meeting cannot be marked
         # F8: monotonic between the turns the driver's test finds, up to the target's meeting
         return self._first_time_speed_crosses(values, start, turns,
-                                              self._meeting(start, steps, reading, ahead))
+                                              self._meeting(start, steps, reading, ahead),
+                                              ahead)
 
     def short_of_target(self) -> bool:
         """AP 8 reads 0 now for certain, without bringing the chip up to now: the position
@@ -310,14 +367,15 @@ class AxisForecast:
 
     def _first_time_speed_crosses(self, values: tuple[int, ...], start: ChipModel,
                                   turns: Callable[[ChipModel], bool] | None,
-                                  end: tuple[int, ChipModel]) -> int:
+                                  end: StretchEnd, ahead: Lookahead) -> int:
         """The first time AP 3 compares otherwise with one of ``values`` than on ``start`` (a
         copy of the chip at the read: reaches one, or passes it), or where the speed may
         turn (``turns``, the driver's test: F4, F8), or ``end`` (an instant and a copy of the
         chip there, which the speed is monotonic up to if it does not turn before: the next
         notable instant, or a positioning move's meeting with its target): over a stretch
         where it is monotonic, a copy of the chip is bisected over the clock ticks (one
-        bisection finds whichever comes first: both tests are false, then true)."""
+        bisection finds whichever comes first: both tests are false, then true).  The last
+        copy short of the answer is kept for the chip's own run there (F9)."""
         driver = self._axis.driver
         speed = driver.speed_on(start.clone())
         if speed in values:
@@ -333,26 +391,36 @@ class AxisForecast:
             return any(now == value or (now > value) != side
                        for value, side in zip(values, above, strict=True))
 
-        end_ns, end_chip = end
+        end_ns, end_chip, plain = end
         high = end_chip.t
+        low = start
         if not compares_otherwise(end_chip):
             # the end's own tick may change the speed at once (an arrival at VSTOP or above,
-            # a stop switch): alike there says nothing of the clock before it
-            if high - start.t <= 1:
+            # a stop switch): alike there says nothing of the clock before it; a plain tick
+            # (a look-ahead's horizon or work budget) goes on the same way
+            if plain or high - start.t <= 1:
                 return end_ns
             before = self._clock_before(start, end_chip)
-            if before is None:
-                return 0  # (stopped short: no promise)
             if not compares_otherwise(before):
-                return end_ns
-            end_chip, high = before, high - 1  # it flips before the end: search up to there
+                self._on_the_way_to(before, ahead)  # F9: the program wakes past it
+                if before.t == high - 1:
+                    return end_ns
+                # stopped short (its work budget): alike up to there, the stretch being
+                # monotonic; the next look starts there (the copy is kept)
+                return before.ns_at(before.t + 1)
+            high = before.t  # it flips before the end (or where the copy stopped): search there
         # the end itself often flips (a speed polled to 0 at arrival); where it has turned by
         # then, the turn is usually earlier (the top speed reached): no use looking there
-        if high - start.t > 2 and (turns is None or not turns(end_chip)):
+        elif not plain and high - start.t > 2 and (turns is None or not turns(end_chip)):
             before = self._clock_before(start, end_chip)
-            if before is not None and not compares_otherwise(before):
+            if compares_otherwise(before):
+                high = before.t  # (stopped short of the end, and already otherwise there)
+            elif before.t == high - 1:
+                self._on_the_way_to(before, ahead)  # F9
                 return before.ns_at(high)  # both tests are false, then true: the end flips
-        low = start.clone()
+            else:
+                low = before  # stopped short: alike up to there, the search starts there
+        low = low.clone()
         while high - low.t > 1:
             middle = (low.t + high) // 2
             probe = low.clone()
@@ -365,6 +433,7 @@ class AxisForecast:
                 high = middle
             else:
                 low = probe
+        self._on_the_way_to(low, ahead)  # F9: the clock before the answer
         return low.ns_at(high)
 
     def _first_time_at_position(self, values: tuple[int, ...], ahead: Lookahead,
@@ -399,22 +468,23 @@ class AxisForecast:
         self._crossing = (ahead, values, since, result)
         return result
 
-    def _clock_before(self, start: ChipModel, end: ChipModel) -> ChipModel | None:
+    def _clock_before(self, start: ChipModel, end: ChipModel) -> ChipModel:
         """A copy of ``start`` run to the clock before ``end`` (a later copy of the same run),
-        or None if it stops short; kept for the same ``end``: every chip from ``start`` on
-        to that end passes the same clock."""
+        or as far as its work budget took it (``t`` short of that); kept for the same
+        ``end``: every chip from ``start`` on to that end passes the same clocks, so a later
+        look from no later than the copy goes on from it instead of from its own start."""
         kept = self._before_end
         if kept is not None and kept[0] is end and start.t <= kept[1].t:
-            return kept[1]
+            if kept[1].t == end.t - 1:
+                return kept[1]
+            start = kept[1]  # (stopped short last time: on from there)
         before = start.clone()
         before.run(end.t - 1, LOOKAHEAD_BUDGET)
-        if before.t != end.t - 1:
-            return None
         self._before_end = (end, before)
         return before
 
     def _meeting(self, start: ChipModel, steps: int, reading: Reading,
-                 ahead: Lookahead) -> tuple[int, ChipModel]:
+                 ahead: Lookahead) -> StretchEnd:
         """Where the motor, at ``start`` (a copy at ``reading``), first meets the motor
         position ``steps`` further (F8's end of a stretch), and a copy of the chip there;
         kept for the later reads of the same look-ahead it does not precede (F5), as a move
@@ -429,17 +499,20 @@ class AxisForecast:
         return met
 
     def _run_to_marks(self, start: ChipModel, marks: list[int],
-                      ahead: Lookahead) -> tuple[int, ChipModel]:
+                      ahead: Lookahead) -> StretchEnd:
         """A copy of ``start`` run with a mark at each of the motor positions ``marks`` up to
-        the look-ahead's end: (the instant it stopped, at the first step that reached one or
-        conservatively at anything else, or the look-ahead's end; the copy there)."""
+        the look-ahead's end: the instant it stopped, at the first step that reached one or
+        conservatively at anything else (its work budget), or the look-ahead's end; the copy
+        there; whether it stopped at a plain tick (its budget, or the end of a look-ahead
+        that did)."""
         twin = start.clone()
         board = self._axis.board
         saved = board.firmware_marks
         board.firmware_marks = saved + marks
         until = twin.ticks_at(ahead.time_ns)
         try:  # it stops early at a mark (or, conservatively, at anything else)
-            twin.run(until, LOOKAHEAD_BUDGET)
+            stop = twin.run(until, LOOKAHEAD_BUDGET)
         finally:
             board.firmware_marks = saved
-        return (twin.ns_at(twin.t) if twin.t < until else ahead.time_ns), twin
+        return StretchEnd(twin.ns_at(twin.t) if twin.t < until else ahead.time_ns, twin,
+                          stop is None)

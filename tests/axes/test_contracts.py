@@ -233,3 +233,56 @@ def test_a_steady_rotation_is_sampled_at_once_across_the_wrap(core: str) -> None
     given = axis.samples_at(NS_PER_S + 1, 1_000_003, 900)
     assert len(given) == 900
     assert given[0].position > 0 > given[-1].position
+
+
+#: The cores whose axes run the TMCL firmware layer (the evaluation board has no forecast).
+FIRMWARE_CORES = [core for core in CORES if issubclass(axis_class(core), AxisFirmware)]
+
+
+def _long_brake(axis: AxisFirmware) -> None:
+    """A move whose ramps outlast a look-ahead's work budget (fast, gently accelerated)."""
+    axis.advance_to(0)
+    axis.set_parameter(AP.MAX_SPEED, axis.get_parameter(AP.MAX_SPEED) * 4)
+    axis.set_parameter(AP.MAX_ACCELERATION, max(1, axis.get_parameter(AP.MAX_ACCELERATION) // 8))
+    axis.move_to(400 * DISTANCE)
+
+
+@pytest.mark.parametrize("core", FIRMWARE_CORES)
+@settings(max_examples=8, deadline=None)
+@given(fractions=st.lists(st.integers(1, 999), max_size=6))
+def test_a_read_inside_a_look_ahead_goes_on_from_its_copies_as_the_chip_itself(
+        core: str, fractions: list[int]) -> None:
+    """F9 (axes/forecast.py): a read between a look-ahead's start and its end (just past each
+    copy kept on its way, and anywhere) brings the chip on from the furthest copy before it,
+    and reads, events and the state are those of an axis that runs the whole way itself."""
+    taken, plain = one_axis(core), one_axis(core)
+    assert isinstance(taken, AxisFirmware) and isinstance(plain, AxisFirmware)
+    plain.forecast.copy_on_the_way = lambda since, until: None  # type: ignore[method-assign]
+    copies = []
+    offer = taken.forecast.copy_on_the_way
+
+    def counted(since: int, until: int) -> ChipModel | None:  # to see the way was taken
+        copy = offer(since, until)
+        copies.append(copy)
+        return copy
+
+    taken.forecast.copy_on_the_way = counted  # type: ignore[method-assign]
+    for axis in (taken, plain):
+        _long_brake(axis)
+    now, ways = 0, 0
+    while (ahead := taken.forecast.lookahead()) is not None:
+        way = [copy.ns_at(copy.t) + 1 for copy in taken.forecast._way]
+        ways += len(way)
+        span = ahead.time_ns - now
+        for instant in sorted({*way, *(now + span * f // 1000 for f in fractions),
+                               ahead.time_ns}):
+            seen = [(advance(axis, now, instant), axis.get_parameter(AP.ACTUAL_POSITION),
+                     axis.get_parameter(AP.ACTUAL_SPEED), axis.status())
+                    for axis in (taken, plain)]
+            assert seen[0] == seen[1], instant
+            now = instant
+    assert taken.get_parameter(AP.ACTUAL_POSITION) == 400 * DISTANCE
+    # the TMC42x ramps run tick by tick past a look-ahead's budget: copies on the way; a
+    # TMC4361A move is a few closed-form segments, all of it within one look-ahead
+    assert ways or core == "tmc4361a"
+    assert any(copy is not None for copy in copies) == bool(ways)

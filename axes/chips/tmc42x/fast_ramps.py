@@ -294,6 +294,8 @@ class RampBatches(MotorSteady):
         key = (self.mode == MODE_SOFT, self.pmul, self.pdiv, a, lo, hi, per_ramp, every, ph, w, D,
                d_floor)
         known = _DESCENTS.get(key)
+        if known is None or known[0] > max_ticks:  # (not ended within max_ticks)
+            known = _DESCENTS.get((*key, max_ticks))  # the same start cut the same way
         if known is not None and known[0] <= max_ticks:
             n, w_before, w, D, mag = known
             d_now = -((-D) >> 11)
@@ -345,10 +347,12 @@ class RampBatches(MotorSteady):
                 break  # far above the curve: a linear slew, the caller's batches
         if n == 0:
             return None
-        if ended:  # by itself or before ``room``, not for want of ticks: the same again
-            if len(_DESCENTS) >= DESCENT_CACHE_SIZE:
-                _DESCENTS.clear()
-            _DESCENTS[key] = (n, w_before, w, D, mag)
+        # ended by itself or before ``room``, not for want of ticks: the same from the same
+        # start; cut by ``max_ticks``: the same from the same start and cut (a look-ahead's
+        # pieces and the reads of a move repeated)
+        if len(_DESCENTS) >= DESCENT_CACHE_SIZE:
+            _DESCENTS.clear()
+        _DESCENTS[key if ended else (*key, max_ticks)] = (n, w_before, w, D, mag)
         d_now = -((-D) >> 11)
         return n, w, (d_now << 11) - D, d - d_now, w - w_before, mag, n // DESCENT_TICKS_PER_WORK
 

@@ -240,10 +240,16 @@ class TMC429Motor(MotorEngine):
             driver.sense = self
         return self
 
-    def _clone_into(self, chip: TMC429) -> TMC429Motor:
+    def _clone_into(self, chip: TMC429, continued: bool) -> TMC429Motor:
+        """This motor in ``chip``, a copy of its chip (``continued``: a copy of an unchanged
+        copy, which names the same origin: then its writes are counted from that one's, and a
+        written copy's copy never fits)."""
         twin = shallow_copy(self)
         twin.chip = chip
-        twin._origin_writes = self.writes
+        if not continued:
+            twin._origin_writes = self.writes
+        elif self.writes != self._origin_writes:
+            twin._origin_writes = -1
         if self.driver is not None:
             twin.driver = self.driver.clone()
             twin.driver.sense = twin
@@ -371,9 +377,13 @@ class TMC429:
         """An independent copy of the chip, its motors and drivers."""
         twin = shallow_copy(self)
         twin.ram = list(self.ram)
-        twin._origin_revision = self.revision
-        twin._origin_chip = self
-        twin.motors = [motor._clone_into(twin) for motor in self.motors]
+        # a copy of an unchanged copy continues the same chip: adopted by that one (F9 in
+        # axes/forecast.py: the chip goes on from a copy of its look-ahead's copy)
+        continued = self._origin_chip is not None and self.revision == self._origin_revision
+        if not continued:
+            twin._origin_revision = self.revision
+            twin._origin_chip = self
+        twin.motors = [motor._clone_into(twin, continued) for motor in self.motors]
         return twin
 
     def advance(self, until: int) -> list[tuple[int, int, Stop]]:
