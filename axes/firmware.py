@@ -758,10 +758,12 @@ class AxisFirmware(RiggedAxis):
 
     def samples_at(self, first_ns: int, step_ns: int, count: int) -> list[AxisSample]:
         """:meth:`sample` at the first of ``count`` instants ``step_ns`` apart from
-        ``first_ns`` on (none before the present), as many as the driver reads in closed form
-        (:meth:`ChipDriver.readings_at`) with nothing else on the way: no event or timer of the
-        axis is due up to them (:meth:`advance_to` would only move the present), and the
-        firmware's passes before them are left out (T2).  The axis ends at the last one as
+        ``first_ns`` on (none before the present), as many as lie before anything else on
+        the way: no event or timer of the axis is due up to them (:meth:`advance_to` would
+        only move the present), and the firmware's passes before them are left out (T2).
+        Each is read in closed form where the driver has one (:meth:`ChipDriver.readings_at`,
+        a standing velocity), else by :meth:`sample` at its instant (a ramp), without the
+        module's and the recorder's round for each.  The axis ends at the last one as
         advance_to leaves it (the chip behind, brought there by the next reading: the law's
         state at an instant is the same however the run to it is cut) and with its passes
         and the driver's last reading where sampling each in turn leaves them.  A prefix,
@@ -777,18 +779,27 @@ class AxisFirmware(RiggedAxis):
         last = min(horizon - 1, tasks.left_out_until(), first_ns + (count - 1) * step_ns)
         if last < first_ns:
             return []
-        ticks_at = self.driver.chip.ticks_at
-        positions, speed = self.driver.readings_at(  # lazily: the driver may stop at the first
-            map(ticks_at, range(first_ns, last + 1, step_ns)))
         left, right, home = self._levels
         target = self._target
         samples = []
         instant = first_ns
-        for position in positions:
-            if tasks.next_pass_ns < instant:
-                tasks.lazy_pass(instant)  # leaves them out (left_out_until)
-            samples.append(AxisSample(position, speed, self.current, target, position == target,
-                                      left, right, home))
+        while True:
+            ticks_at = self.driver.chip.ticks_at
+            positions, speed = self.driver.readings_at(  # lazily: it may stop at the first
+                map(ticks_at, range(instant, last + 1, step_ns)))
+            for position in positions:
+                if tasks.next_pass_ns < instant:
+                    tasks.lazy_pass(instant)  # leaves them out (left_out_until)
+                samples.append(AxisSample(position, speed, self.current, target,
+                                          position == target, left, right, home))
+                instant += step_ns
+            if instant > last:
+                break
+            # no closed form there (a ramp): the sample the plain way, the axis brought to
+            # its instant (nothing is due before the horizon: advance_to would only move the
+            # present), and on with the closed form from there
+            self._now_ns = instant
+            samples.append(self.sample())
             instant += step_ns
         if samples and instant - step_ns > self._now_ns:
             self._now_ns = instant - step_ns

@@ -75,7 +75,9 @@ F9. A copy made under the current look-ahead from the chip or a read's copy (F7)
     at that clock (F1: the same run, and the engines are exact however a run is cut).  So
     the chip, brought to that clock or past it, goes on from a clone of the copy (a
     stretch's clock before its end, a search's last copy short of a flip: where a skipped
-    program wakes) instead of running the same way again.
+    program wakes) instead of running the same way again.  (Copies at a few points of the
+    look-ahead's own run were tried: their clones cost more than they saved, for a run
+    along a brake the engine remembered is cheap.)
 """
 
 from __future__ import annotations
@@ -93,9 +95,8 @@ from tmcl_spec.parameters import AP, Motion
 #: At most this much engine work (ramp ticks not taken in closed form) per look-ahead: past
 #: it the look-ahead stops short and the axis looks again from there when that time comes.
 LOOKAHEAD_BUDGET = 2_000
-#: A long look-ahead keeps a copy of the chip at this many points of its run (F9): a read
-#: between them brings the chip from the copy before it, not along the whole way again.
-WAYPOINTS = 8
+#: Copies on the chip's way kept per look-ahead (F9): a search keeps its last one or two.
+WAY_KEPT = 8
 #: Moving reads kept per axis (F7): a pass reads one axis a few times; an older read's
 #: crossing is not forecast (no promise), which only costs speed.
 READINGS_KEPT = 8
@@ -186,8 +187,8 @@ class AxisForecast:
         #: A stretch's end (a copy of the chip there) and a copy a clock before it: the same
         #: end comes back from the caches above for every read of a look-ahead (F5)
         self._before_end: tuple[ChipModel, ChipModel] | None = None
-        #: Copies on the chip's way under the look-ahead ``_way_of`` (F9): the look-ahead's
-        #: own run, cut into a few pieces, and the searches' copies short of their answers.
+        #: Copies on the chip's way under the look-ahead ``_way_of`` (F9): the searches'
+        #: copies short of their answers.
         self._way: list[ChipModel] = []
         self._way_of: Lookahead | None = None
 
@@ -196,28 +197,19 @@ class AxisForecast:
         self.known = False
 
     def lookahead(self) -> Lookahead | None:
-        """Run a copy of the chip to its next notable instant (or the horizon); on a long run,
-        a copy at each of a few points on the way is kept (F9)."""
+        """Run a copy of the chip to its next notable instant (or the horizon)."""
         if self.known:
             return self.cached
         driver = self._axis.driver
         chip = driver.chip
         twin = chip.clone()
         horizon_ns = max(self._axis.present_ns(), chip.ns_at(twin.t)) + driver.horizon_ns()
-        until = twin.ticks_at(horizon_ns)
-        way: list[ChipModel] = []
-        for _ in range(WAYPOINTS):  # the budget in pieces: a copy where each one ends
-            stop = twin.run(until, LOOKAHEAD_BUDGET // WAYPOINTS)
-            if stop is not None or twin.t >= until:
-                break
-            way.append(twin.clone())
-        else:
-            way.pop()  # (the last piece's end is the look-ahead's own)
+        stop = twin.run(twin.ticks_at(horizon_ns), LOOKAHEAD_BUDGET)
         at_rest = stop is None and twin.at_rest()
         result = None if at_rest else Lookahead(twin, stop, twin.ns_at(twin.t))
         self.cached = result
         self.known = True
-        self._way, self._way_of = way, result
+        self._way, self._way_of = [], result
         return result
 
     def copy_on_the_way(self, since: int, until: int) -> ChipModel | None:
@@ -233,10 +225,10 @@ class AxisForecast:
 
     def _on_the_way_to(self, copy: ChipModel, ahead: Lookahead) -> None:
         """Keep ``copy`` (F9: made under ``ahead``, the current look-ahead, short of its
-        end); the oldest kept goes when there are more than WAYPOINTS * 2."""
+        end); the oldest kept goes when there are more than WAY_KEPT."""
         if ahead is self._way_of and copy.t < ahead.chip.t:
             way = self._way
-            if len(way) >= 2 * WAYPOINTS:
+            if len(way) >= WAY_KEPT:
                 del way[0]
             way.append(copy)
 

@@ -28,7 +28,6 @@ import json
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from itertools import repeat
-from operator import add
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
 
@@ -398,10 +397,10 @@ class _ModuleSampler:
             if times is None:
                 times = self._times = [at / NS_PER_S for at in range(self.first, self.last + 1, step)]
             rest = (slot, index, position, velocity, 0.0, current, target, reached, left, right,
-                    home)
-            column.extend(map(new, repeat(Sample), map(add, zip(
-                times[(instant + step - self.first) // step:(end - self.first) // step]),
-                repeat(rest))))
+                    home)  # (zip makes each row's tuple in C, and reuses it once copied)
+            column.extend(map(new, repeat(Sample), zip(
+                times[(instant + step - self.first) // step:(end - self.first) // step],
+                *map(repeat, rest))))
         recorder._last_velocity[key] = velocity
 
 

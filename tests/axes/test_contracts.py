@@ -249,12 +249,14 @@ def _long_brake(axis: AxisFirmware) -> None:
 
 @pytest.mark.parametrize("core", FIRMWARE_CORES)
 @settings(max_examples=8, deadline=None)
-@given(fractions=st.lists(st.integers(1, 999), max_size=6))
-def test_a_read_inside_a_look_ahead_goes_on_from_its_copies_as_the_chip_itself(
-        core: str, fractions: list[int]) -> None:
-    """F9 (axes/forecast.py): a read between a look-ahead's start and its end (just past each
-    copy kept on its way, and anywhere) brings the chip on from the furthest copy before it,
-    and reads, events and the state are those of an axis that runs the whole way itself."""
+@given(levels=st.lists(st.integers(-10, 1000), min_size=1, max_size=6),
+       pause_ms=st.integers(0, 400))
+def test_a_read_where_a_search_ended_goes_on_from_its_copy_as_the_chip_itself(
+        core: str, levels: list[int], pause_ms: int) -> None:
+    """F9 (axes/forecast.py): a program polling a positioning move's speed (AP 3 against a
+    level, in per mille of the top speed) sleeps until the forecast's answer; the read there
+    brings the chip on from the search's last copy, and reads, events and the state are
+    those of an axis that runs the whole way itself."""
     taken, plain = one_axis(core), one_axis(core)
     assert isinstance(taken, AxisFirmware) and isinstance(plain, AxisFirmware)
     plain.forecast.copy_on_the_way = lambda since, until: None  # type: ignore[method-assign]
@@ -269,20 +271,53 @@ def test_a_read_inside_a_look_ahead_goes_on_from_its_copies_as_the_chip_itself(
     taken.forecast.copy_on_the_way = counted  # type: ignore[method-assign]
     for axis in (taken, plain):
         _long_brake(axis)
-    now, ways = 0, 0
-    while (ahead := taken.forecast.lookahead()) is not None:
-        way = [copy.ns_at(copy.t) + 1 for copy in taken.forecast._way]
-        ways += len(way)
-        span = ahead.time_ns - now
-        for instant in sorted({*way, *(now + span * f // 1000 for f in fractions),
-                               ahead.time_ns}):
-            seen = [(advance(axis, now, instant), axis.get_parameter(AP.ACTUAL_POSITION),
-                     axis.get_parameter(AP.ACTUAL_SPEED), axis.status())
-                    for axis in (taken, plain)]
-            assert seen[0] == seen[1], instant
-            now = instant
-    assert taken.get_parameter(AP.ACTUAL_POSITION) == 400 * DISTANCE
-    # the TMC42x ramps run tick by tick past a look-ahead's budget: copies on the way; a
-    # TMC4361A move is a few closed-form segments, all of it within one look-ahead
-    assert ways or core == "tmc4361a"
-    assert any(copy is not None for copy in copies) == bool(ways)
+    top = taken.get_parameter(AP.MAX_SPEED)
+    now = pause_ms * 1_000_000
+    for level in levels * 3:
+        seen = []
+        for axis in (taken, plain):
+            events = advance(axis, 0 if now == pause_ms * 1_000_000 else now, now)
+            speed = axis.get_parameter(AP.ACTUAL_SPEED)
+            axis.steady_until(AP.ACTUAL_SPEED)  # a moving read: kept for the search
+            seen.append((events, speed, axis.first_time_at(
+                AP.ACTUAL_SPEED, (top * level // 1000,), now)))
+        assert seen[0] == seen[1]
+        answer = seen[0][2]
+        if not now < answer < 90 * NS_PER_S:
+            break  # (no promise, or none before the end)
+        after = [(advance(axis, now, answer), axis.get_parameter(AP.ACTUAL_POSITION),
+                  axis.get_parameter(AP.ACTUAL_SPEED), axis.status())
+                 for axis in (taken, plain)]
+        assert after[0] == after[1], answer
+        now = answer
+    end = [(advance(axis, now, 90 * NS_PER_S), axis.status()) for axis in (taken, plain)]
+    assert end[0] == end[1]
+
+
+@pytest.mark.parametrize("core", FIRMWARE_CORES)
+def test_a_polled_brake_goes_on_from_the_searchs_copies(core: str) -> None:
+    """Not a vacuous F9: the polls of the test above through a whole move (the speed below
+    its top, then at 0) take copies on every core."""
+    axis = one_axis(core)
+    assert isinstance(axis, AxisFirmware)
+    taken = []
+    offer = axis.forecast.copy_on_the_way
+
+    def counted(since: int, until: int) -> ChipModel | None:
+        copy = offer(since, until)
+        taken.append(copy is not None)
+        return copy
+
+    axis.forecast.copy_on_the_way = counted  # type: ignore[method-assign]
+    _long_brake(axis)
+    now = NS_PER_S // 10
+    for level in [900, 0] * 4:
+        advance(axis, now, now)
+        axis.get_parameter(AP.ACTUAL_SPEED)
+        axis.steady_until(AP.ACTUAL_SPEED)
+        answer = axis.first_time_at(AP.ACTUAL_SPEED, (axis.get_parameter(AP.MAX_SPEED) * level
+                                                      // 1000,), now)
+        if not now < answer < 90 * NS_PER_S:
+            break
+        now = answer
+    assert any(taken)
