@@ -58,6 +58,9 @@ _LIMIT_SWITCH_BITS = {AP.RIGHT_LIMIT_SWITCH: (AP.RIGHT_DISABLE, AP.RIGHT_POLARIT
                       AP.LEFT_LIMIT_SWITCH: (AP.LEFT_DISABLE, AP.LEFT_POLARITY)}
 
 
+#: A named tuple made from a plain one without its generated ``__new__`` (a recorder makes
+#: one per axis and sample: half the cost).
+_new_sample = tuple.__new__
 _NO_EVENTS: list[AxisEvent] = []  # advance_to's answer when nothing happened (never appended to)
 
 #: Parameters every TMCL module's table has (the others may be missing and count as off,
@@ -753,8 +756,8 @@ class AxisFirmware(RiggedAxis):
         self.sync()
         left, right, home = self._levels
         position, target = self._position, self._target
-        return AxisSample(position, self.actual_speed(), self.current, target,
-                          position == target, left, right, home)
+        return _new_sample(AxisSample, (position, self.actual_speed(), self.current, target,
+                                        position == target, left, right, home))
 
     def samples_at(self, first_ns: int, step_ns: int, count: int) -> list[AxisSample]:
         """:meth:`sample` at the first of ``count`` instants ``step_ns`` apart from
@@ -790,8 +793,8 @@ class AxisFirmware(RiggedAxis):
             for position in positions:
                 if tasks.next_pass_ns < instant:
                     tasks.lazy_pass(instant)  # leaves them out (left_out_until)
-                samples.append(AxisSample(position, speed, self.current, target,
-                                          position == target, left, right, home))
+                samples.append(_new_sample(AxisSample, (position, speed, self.current, target,
+                                                        position == target, left, right, home)))
                 instant += step_ns
             if instant > last:
                 break

@@ -374,14 +374,11 @@ class _ModuleSampler:
                     stretch = axis.samples_at(instant + step, step, before_last)
                     recorder.at_once += len(stretch)
                     statuses += stretch
-                for status in statuses:
-                    velocity = status.velocity
+                for position, velocity, current, target, reached, left, right, home in statuses:
                     column.append(new(Sample, (
-                        instant / NS_PER_S, slot, index, status.position, velocity,
+                        instant / NS_PER_S, slot, index, position, velocity,
                         0.0 if previous is None else (velocity - previous) / dt_s,
-                        status.current, status.target, int(status.position_reached),
-                        int(status.left_switch), int(status.right_switch),
-                        int(status.home_switch))))
+                        current, target, int(reached), int(left), int(right), int(home))))
                     previous = velocity
                     instant += step
         # the rest of the instants read ``status``: its velocity does not change
