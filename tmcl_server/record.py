@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
 from axes.interface import FOREVER
-from tmcl_server.sample_rows import Sample, SampleColumn, SampleRows, SampleRun
+from tmcl_server.sample_rows import MovingRun, Sample, SampleColumn, SampleRows, SampleRun
 from tmcl_spec.numbers import NS_PER_S, seconds_to_ns
 
 if TYPE_CHECKING:
@@ -322,6 +322,14 @@ class _ModuleSampler:
         finally:
             self._settled = False
 
+    def _span_times(self) -> list[float]:
+        """The span's instants in seconds (a sample's ``t``), made once for all its runs."""
+        times = self._times
+        if times is None:
+            times = self._times = [at / NS_PER_S for at in range(self.first, self.last + 1,
+                                                                self.recorder.step_ns)]
+        return times
+
     def _sample(self, index: int, column: SampleColumn, instant: int, count: int) -> None:
         """Axis ``index`` at ``count`` instants from ``instant`` (no command or event touches
         it before the last of them)."""
@@ -358,13 +366,23 @@ class _ModuleSampler:
                     stretch = axis.samples_at(instant + step, step, before_last)
                     recorder.at_once += len(stretch)
                     statuses += stretch
+                # kept as columns of numbers (MovingRun), a new run where the current, the
+                # target or a switch level changes
+                run: MovingRun | None = None
                 for (position, velocity, current, target, at_target, left_on, right_on,
                      home_on) in statuses:
-                    column.append(new(Sample, (
-                        instant / NS_PER_S, slot, index, position, velocity,
-                        0.0 if previous is None else (velocity - previous) / dt_s,
-                        current, target, int(at_target), int(left_on), int(right_on),
-                        int(home_on))))
+                    fixed = (current, target, left_on, right_on, home_on)
+                    if run is None or fixed != run.fixed:
+                        run = MovingRun(self._span_times(), (instant - self.first) // step,
+                                        slot, index, fixed)
+                        column.add_run(run)
+                        add_position, add_velocity = run.positions.append, run.velocities.append
+                        add_acceleration, add_reached = (run.accelerations.append,
+                                                         run.reached.append)
+                    add_position(position)
+                    add_velocity(velocity)
+                    add_acceleration(0.0 if previous is None else (velocity - previous) / dt_s)
+                    add_reached(at_target)
                     previous = velocity
                     instant += step
         # the rest of the instants read ``status``: its velocity does not change
@@ -375,12 +393,9 @@ class _ModuleSampler:
             instant / NS_PER_S, slot, index, position, velocity,
             0.0 if previous is None else (velocity - previous) / dt_s,
             current, target, reached, left, right, home)))
-        if end > instant + step:  # the times in seconds are the span's, made once for all axes
-            times = self._times
-            if times is None:
-                times = self._times = [at / NS_PER_S for at in range(self.first, self.last + 1, step)]
+        if end > instant + step:
             start = (instant + step - self.first) // step
-            column.add_run(SampleRun(times, start, (end - self.first) // step - start, (
+            column.add_run(SampleRun(self._span_times(), start, (end - self.first) // step - start, (
                 slot, index, position, velocity, 0.0, current, target, reached, left, right,
                 home)))  # one run: its rows are made when read
         recorder._last_velocity[key] = velocity

@@ -4,7 +4,9 @@ Six axes sampled every millisecond are 6,000 rows a simulated second; built as n
 and kept in a list, they cost more than simulating the module (3.6 million rows for ten
 minutes: about 4 CPU seconds and half a gigabyte however they are made), and most of them
 are axes at rest, whose rows differ only in their time.  So an axis's stretch at rest is
-kept as one :class:`SampleRun`, and :class:`SampleRows` makes each row when it is read: a
+kept as one :class:`SampleRun`, a moving axis's samples as arrays of numbers
+(:class:`MovingRun`: kept tuples are objects the garbage collector walks again and again),
+and :class:`SampleRows` makes each row when it is read: a
 test that looks at a few rows pays for a few, and reading them all costs what keeping them
 all did.  The rows read are the same :class:`Sample` tuples, in the same order, as a list
 would hold (tests/tmcl_server/test_record.py compares them with rows sampled one by one).
@@ -12,6 +14,7 @@ would hold (tests/tmcl_server/test_record.py compares them with rows sampled one
 
 from __future__ import annotations
 
+from array import array
 from bisect import bisect_right
 from collections.abc import Iterable, Iterator, Sequence
 from itertools import chain, islice, repeat
@@ -39,34 +42,103 @@ class Sample(NamedTuple):
     home: int
 
 
-class SampleRun:
+class Run:
+    """Consecutive samples of one axis kept as one item of a column (``count`` of them, at
+    ``times[start:]``), made when read."""
+
+    __slots__ = ("start", "times")
+
+    def __init__(self, times: list[float], start: int) -> None:
+        self.times = times
+        self.start = start
+
+    @property
+    def count(self) -> int:
+        raise NotImplementedError
+
+    def samples(self) -> Iterator[Sample]:
+        raise NotImplementedError
+
+    def sample(self, k: int) -> Sample:
+        raise NotImplementedError
+
+    def cut(self, begin: int, end: int) -> Run:
+        """Its samples ``begin`` to ``end`` (exclusive) as a run of their own."""
+        raise NotImplementedError
+
+
+class SampleRun(Run):
     """``count`` samples of one axis that differ only in their time, ``times[start:]``: the
     rest of a sample's fields (``rest``, everything after ``t``) are the same in each."""
 
-    __slots__ = ("count", "rest", "start", "times")
+    __slots__ = ("_count", "rest")
 
     def __init__(self, times: list[float], start: int, count: int,
                  rest: tuple[int, int, int, int, float, int, int, int, int, int, int]) -> None:
-        self.times = times
-        self.start = start
-        self.count = count
+        super().__init__(times, start)
+        self._count = count
         self.rest = rest
+
+    @property
+    def count(self) -> int:
+        return self._count
 
     def samples(self) -> Iterator[Sample]:
         start = self.start
         # (zip makes each row's tuple in C, and reuses it once copied)
-        return map(_new, repeat(Sample), zip(self.times[start:start + self.count],
+        return map(_new, repeat(Sample), zip(self.times[start:start + self._count],
                                              *map(repeat, self.rest), strict=False))
 
     def sample(self, k: int) -> Sample:
         return _new(Sample, (self.times[self.start + k], *self.rest))
 
     def cut(self, begin: int, end: int) -> SampleRun:
-        """Its samples ``begin`` to ``end`` (exclusive) as a run of their own."""
         return SampleRun(self.times, self.start + begin, end - begin, self.rest)
 
 
-Item = Sample | SampleRun
+class MovingRun(Run):
+    """Samples of a moving axis at consecutive instants whose current, target and switch
+    levels are the same (``fixed``): its positions, velocities, accelerations and "reached"
+    flags as arrays of numbers (a recorder at 1 ms keeps a thousand a simulated second per moving axis: as
+    tuples, each is an object the garbage collector walks again and again)."""
+
+    __slots__ = ("accelerations", "axis", "fixed", "module", "positions", "reached", "velocities")
+
+    def __init__(self, times: list[float], start: int, module: int, axis: int,
+                 fixed: tuple[int, int, bool, bool, bool]) -> None:
+        super().__init__(times, start)
+        self.module = module
+        self.axis = axis
+        self.fixed = fixed  # current, target, left, right, home
+        self.positions = array("q")
+        self.velocities = array("q")
+        self.accelerations = array("d")
+        self.reached = array("b")
+
+    @property
+    def count(self) -> int:
+        return len(self.positions)
+
+    def samples(self) -> Iterator[Sample]:
+        return map(self.sample, range(len(self.positions)))
+
+    def sample(self, k: int) -> Sample:
+        current, target, left, right, home = self.fixed
+        return _new(Sample, (self.times[self.start + k], self.module, self.axis,
+                             self.positions[k], self.velocities[k], self.accelerations[k],
+                             current, target, self.reached[k], int(left), int(right),
+                             int(home)))
+
+    def cut(self, begin: int, end: int) -> MovingRun:
+        part = MovingRun(self.times, self.start + begin, self.module, self.axis, self.fixed)
+        part.positions = self.positions[begin:end]
+        part.velocities = self.velocities[begin:end]
+        part.accelerations = self.accelerations[begin:end]
+        part.reached = self.reached[begin:end]
+        return part
+
+
+Item = Sample | Run
 
 
 class SampleColumn(list[Item]):
@@ -79,10 +151,10 @@ class SampleColumn(list[Item]):
         super().__init__()
         self.runs = False
 
-    def add_run(self, run: SampleRun) -> None:
-        if run.count > 0:
-            self.append(run)
-            self.runs = True
+    def add_run(self, run: Run) -> None:
+        """Add ``run`` (a moving run may still grow: it counts as it is when cut)."""
+        self.append(run)
+        self.runs = True
 
     def reset(self) -> None:
         self.clear()
@@ -95,7 +167,7 @@ class SampleColumn(list[Item]):
         items: list[Item] = []
         at = 0
         for item in self:
-            size = item.count if type(item) is SampleRun else 1
+            size = item.count if isinstance(item, Run) else 1
             low, high = max(begin, at), min(end, at + size)
             if low < high:
                 whole = low == at and high == at + size
@@ -109,7 +181,7 @@ class SampleColumn(list[Item]):
 def _samples(items: list[Item], runs: bool) -> Iterator[Sample]:
     if not runs:
         return iter(items)  # type: ignore[arg-type]
-    return chain.from_iterable(item.samples() if isinstance(item, SampleRun) else (item,)
+    return chain.from_iterable(item.samples() if isinstance(item, Run) else (item,)
                                for item in items)
 
 
@@ -117,7 +189,7 @@ def _item_at(items: list[Item], runs: bool, k: int) -> Sample:
     if not runs:
         return items[k]  # type: ignore[return-value]
     for item in items:
-        if type(item) is SampleRun:
+        if isinstance(item, Run):
             if k < item.count:
                 return item.sample(k)
             k -= item.count

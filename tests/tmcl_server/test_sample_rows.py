@@ -7,22 +7,36 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tmcl_server.sample_rows import Sample, SampleColumn, SampleRows, SampleRun
+from tmcl_server.sample_rows import MovingRun, Sample, SampleColumn, SampleRows, SampleRun
 
 
 def _rest(axis: int, level: int) -> tuple[int, int, int, int, float, int, int, int, int, int, int]:
     return (1, axis, level, -level, 0.0, 128, level, 1, 0, 1, 0)
 
 
-#: A column of a span: per instant, a plain sample (False) or a run of this many (an int).
-_pieces = st.lists(st.one_of(st.just(0), st.integers(1, 9)), min_size=1, max_size=8)
+#: A column of a span: a plain sample (0), a run at rest of n samples (n > 0), or a moving
+#: run of -n samples (n < 0).
+_pieces = st.lists(st.integers(-9, 9), min_size=1, max_size=8)
 
 
 def _column(times: list[float], axis: int, pieces: list[int]) -> tuple[SampleColumn, list[Sample]]:
-    """A column made of ``pieces`` (0: one sample; n: a run of n) and the samples it means."""
+    """A column made of ``pieces`` (0: one sample; n > 0: a run at rest of n; n < 0: a moving
+    run of -n, reaching its target at its third sample) and the samples it means."""
     column, plain, at = SampleColumn(), [], 0
     for level, size in enumerate(pieces):
-        if size == 0:
+        if size < 0:
+            run = MovingRun(times, at, 1, axis, (128, level + 2, True, False, True))
+            column.add_run(run)
+            for k in range(-size):
+                position, velocity, acceleration = level + k, 10 * k - level, k / 3
+                run.positions.append(position)
+                run.velocities.append(velocity)
+                run.accelerations.append(acceleration)
+                run.reached.append(position == level + 2)
+                plain.append(Sample(times[at + k], 1, axis, position, velocity, acceleration,
+                                    128, level + 2, int(position == level + 2), 1, 0, 1))
+            at -= size
+        elif size == 0:
             sample = Sample(times[at], *_rest(axis, level))
             column.append(sample)
             plain.append(sample)
@@ -41,7 +55,7 @@ def test_rows_read_as_the_list_of_their_samples(spans: list[tuple[int, list[int]
                                                 appended: int, cuts: list[int]) -> None:
     rows, plain = SampleRows(), []
     for axes, pieces, cut in spans:
-        instants = sum(size or 1 for size in pieces)
+        instants = sum(abs(size) or 1 for size in pieces)
         times = [k / 1000 for k in range(instants)]
         columns = [_column(times, axis, pieces) for axis in range(axes)]
         begin = min(cut, instants - 1)  # a part of the span handed on, as the recorder does
