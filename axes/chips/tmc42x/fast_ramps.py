@@ -40,6 +40,7 @@ from axes.chips.tmc42x.registers import (
     MODE_VELOCITY,
     SOFT_STOP,
     V_RANGE,
+    sdiff24,
 )
 from axes.core import Stop
 from axes.search import first_true
@@ -526,16 +527,79 @@ class RampBatches(MotorSteady):
         that matters (:meth:`_stop_distance`: the target, REF_MISS at 0, the compare
         position, a board mark), and a falling speed stays above zero (where a velocity-mode
         ramp stops or turns, or a move brakes along the curve, the plain path reads)."""
+        aim = self._slew_aim()
+        if aim is None:
+            return None
+        direction, w, hold, last = aim
         a = self.a_max
-        mode = self.mode
         rd, pd = self.ramp_div, self.pulse_div
         t, nr = self.t, self.ramp_next
-        if a == 0 or mode == MODE_HOLD or nr != (t >> rd) + 1 << rd:
-            return None  # (mid-tick bookkeeping of the engine: not a state of the law)
+        room, _ = self._stop_distance(direction)
+        period = 1 << rd
+        rising = hold > w
+        lands = -(-abs(hold - w) // a) if hold > 0 else FAR  # the tick that reaches ``hold``
+        plan = self._pulse_plan(nr)
+        acc, tp = self.acc, t >> pd
+        head = acc + (((nr - 1) >> pd) - tp) * (w >> 8)  # the pulses before ramp_next
+        held = hold >> 8
+        held_from = 0  # once held: the accumulator's total is held_from + pulses * held
+        if lands < FAR:
+            held_from = (head + self._slew_sum(lands - 1, w, rising, plan)
+                         - ((nr + (lands - 1) * period - 1) >> pd) * held)
+
+        def total_at(tick: int, k: int) -> int:
+            """The accumulator's total at ``tick``, ``k`` ramp ticks after ``t``."""
+            if k >= lands:  # (the pulses since the landing tick at the held speed)
+                return held_from + (tick >> pd) * held
+            if k:
+                pulses = (tick >> pd) - ((nr + (k - 1) * period - 1) >> pd)
+                u = w + k * a if rising else w - k * a
+                return head + self._slew_sum(k - 1, w, rising, plan) + pulses * (u >> 8)
+            return acc + ((tick >> pd) - tp) * (w >> 8)
+
+        if self.mode != MODE_VELOCITY:
+            d = sdiff24(self.x_target, self.x_actual) * direction
+            v_min, v_max = self.v_min, self.v_max
+
+            def fits(j: int) -> bool:
+                """Ramp tick j finds the motor short of ``room`` and its ramp target (the
+                clamped curve there) at or above the speed it sets."""
+                before = total_at(nr + (j - 1) * period - 1, j - 1) >> 11
+                if before >= room:
+                    return False
+                u = hold if j >= lands else w + j * a
+                return min(max(self._curve(d - before), v_min), v_max) << 8 >= u
+
+            if not fits(1):
+                return None  # (braking along the curve, most often: no search)
+            last = first_true(lambda j: not fits(j), 1 << 40) - 1
+        xs: list[int] = []
+        vs: list[int] = []
+        x, base = self.x_actual, t >> rd
+        for tick in ticks:
+            k = (tick >> rd) - base  # ramp ticks in (t, tick]
+            if k > last:
+                break
+            steps = total_at(tick, k) >> 11
+            if steps >= room:
+                break
+            xs.append((x + steps * direction) & MASK24)
+            u = hold if k >= lands else w + k * a if rising else w - k * a
+            vs.append(((u >> 8) * direction) & 0xFFF)
+        return xs, vs
+
+    def _slew_aim(self) -> tuple[int, int, int, int] | None:
+        """Where a slew from now heads, if the motor may be on one (:meth:`_slew_readings`):
+        (direction of travel, speed along it, the ramp target along it (1/256 units) it
+        lands on and holds, the last ramp tick it may take: FAR, or short of zero), or None.
+        Positioning, the target is V_MAX (the curve may end the slew sooner)."""
+        a = self.a_max
+        mode = self.mode
+        rd = self.ramp_div
+        if a == 0 or mode == MODE_HOLD or self.ramp_next != (self.t >> rd) + 1 << rd:
+            return None  # (or mid-tick bookkeeping of the engine: not a state of the law)
         v = self.v
-        rising = True
-        last = FAR  # the last ramp tick (counted from 1) the slew may take
-        d = 0
+        last = FAR
         if mode == MODE_VELOCITY:
             vt = max(-self.v_max, min(self.v_max, self.v_target))
             direction = (v > 0) - (v < 0) or (vt > 0) - (vt < 0)
@@ -545,11 +609,10 @@ class RampBatches(MotorSteady):
             hold = vt * direction << 8
             if hold == w:
                 return None
-            rising = hold > w
             if hold <= 0:  # slowing to zero, to stop or turn there: up to a speed above it
                 last = (w - 1) // a
         else:
-            dx = ((self.x_target - self.x_actual + HALF24) & MASK24) - HALF24  # sdiff24
+            dx = sdiff24(self.x_target, self.x_actual)
             if not dx:
                 return None
             direction = 1 if dx > 0 else -1
@@ -557,63 +620,9 @@ class RampBatches(MotorSteady):
             hold = self.v_max << 8
             if not 0 <= w < hold:
                 return None  # away from the target, or above V_MAX: braking
-            d = dx * direction
         if last == 0 or self._switch_in_play(direction):
             return None
-        room, _ = self._stop_distance(direction)
-        period = 1 << rd
-        lands = -(-abs(hold - w) // a) if hold > 0 else FAR  # the tick that reaches ``hold``
-        plan = self._pulse_plan(nr)
-        acc, tp = self.acc, t >> pd
-        head = acc + (((nr - 1) >> pd) - tp) * (w >> 8)  # the pulses before ramp_next
-
-        def periods(m: int) -> int:
-            """The accumulator's gain over the ramp periods of ticks 1..m."""
-            if m < lands:
-                return self._slew_sum(m, w, rising, plan)
-            held = ((nr + m * period - 1) >> pd) - ((nr + (lands - 1) * period - 1) >> pd)
-            return self._slew_sum(lands - 1, w, rising, plan) + held * (hold >> 8)
-
-        def speed(j: int) -> int:
-            """The speed ramp tick j sets."""
-            if j >= lands:
-                return hold
-            return w + j * a if rising else w - j * a
-
-        if mode != MODE_VELOCITY:
-            v_min, v_max = self.v_min, self.v_max
-
-            def fits(j: int) -> bool:
-                """Ramp tick j finds the motor short of ``room`` and its target at or above
-                the speed it sets."""
-                before = (head + periods(j - 1)) >> 11
-                if before >= room:
-                    return False
-                return min(max(self._curve(d - before), v_min), v_max) << 8 >= speed(j)
-
-            last = first_true(lambda j: not fits(j), 1 << 40) - 1
-            if last == 0:
-                return None
-        xs: list[int] = []
-        vs: list[int] = []
-        x, base = self.x_actual, t >> rd
-        for tick in ticks:
-            k = (tick >> rd) - base  # ramp ticks in (t, tick]
-            if k > last:
-                break
-            if k == 0:
-                u = w
-                total = acc + ((tick >> pd) - tp) * (w >> 8)
-            else:
-                u = speed(k)
-                pulses = (tick >> pd) - ((nr + (k - 1) * period - 1) >> pd)
-                total = head + periods(k - 1) + pulses * (u >> 8)
-            steps = total >> 11
-            if steps >= room:
-                break
-            xs.append((x + steps * direction) & MASK24)
-            vs.append(((u >> 8) * direction) & 0xFFF)
-        return xs, vs
+        return direction, w, hold, last
 
     # == full-A_MAX slew =======================================================================
 
