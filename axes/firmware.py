@@ -770,8 +770,7 @@ class AxisFirmware(RiggedAxis):
         axis ends at the last one as advance_to leaves it (the chip behind, brought there by
         the next reading: the law's state at an instant is the same however the run to it is
         cut) and with its passes and the driver's last reading where sampling each in turn
-        leaves them.  A prefix,
-        perhaps empty: the caller samples the rest the plain way."""
+        leaves them.  A prefix, perhaps empty: the caller samples the rest the plain way."""
         tasks = self.tasks
         if self._pending or tasks.stall_watch:  # a stall check's instant moves with the present
             return []
@@ -799,9 +798,9 @@ class AxisFirmware(RiggedAxis):
                 instant += step_ns
             if instant > last:
                 break
-            # no closed form there (a curved ramp): the sample the plain way, the axis brought to
-            # its instant (nothing is due before the horizon: advance_to would only move the
-            # present), and on with the closed form from there
+            # no closed form there (braking along the curve, say): the sample the plain way,
+            # the axis brought to its instant (nothing is due before the horizon: advance_to
+            # would only move the present), and on with the closed form from there
             self._now_ns = instant
             samples.append(self.sample())
             instant += step_ns
