@@ -570,8 +570,6 @@ class RampBatches(MotorSteady):
                 u = hold if j >= lands else w + j * a
                 return min(max(self._curve(d - before), v_min), v_max) << 8 >= u
 
-            if not fits(1):
-                return None  # (braking along the curve, most often: no search)
             last = first_true(lambda j: not fits(j), 1 << 40) - 1
         xs: list[int] = []
         vs: list[int] = []
@@ -592,7 +590,8 @@ class RampBatches(MotorSteady):
         """Where a slew from now heads, if the motor may be on one (:meth:`_slew_readings`):
         (direction of travel, speed along it, the ramp target along it (1/256 units) it
         lands on and holds, the last ramp tick it may take: FAR, or short of zero), or None.
-        Positioning, the target is V_MAX (the curve may end the slew sooner)."""
+        Positioning, the target is V_MAX (the curve may end the slew sooner, or at once:
+        None)."""
         a = self.a_max
         mode = self.mode
         rd = self.ramp_div
@@ -620,6 +619,15 @@ class RampBatches(MotorSteady):
             hold = self.v_max << 8
             if not 0 <= w < hold:
                 return None  # away from the target, or above V_MAX: braking
+            # the first ramp tick's target below its speed: braking along the curve (most
+            # often), turned away before anything else is worked out
+            pd = self.pulse_div
+            before = (self.acc + (((self.ramp_next - 1) >> pd) - (self.t >> pd))
+                      * (w >> 8)) >> 11
+            d = dx * direction
+            if before >= d or min(max(self._curve(d - before), self.v_min),
+                                  self.v_max) << 8 < min(w + a, hold):
+                return None
         if last == 0 or self._switch_in_play(direction):
             return None
         return direction, w, hold, last
