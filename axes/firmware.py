@@ -17,6 +17,7 @@ is explained in docs/motion.md.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Mapping
 
 from axes import stallguard
@@ -264,10 +265,9 @@ class AxisFirmware(RiggedAxis):
         if chip.t < until:
             copy = self.forecast.copy_on_the_way(chip.t, until)
             if copy is not None:  # F9 (axes/forecast.py): the forecast ran this way already
-                try:
+                # (stale: another motor of its chip wrote to it since; then run the way)
+                with contextlib.suppress(StaleLookahead):
                     chip = self.driver.chip = chip.adopt(copy)
-                except StaleLookahead:
-                    pass  # (another motor of its chip wrote to it: run the way)
         while chip.t < until:
             stop = chip.run(until)
             if stop is None:

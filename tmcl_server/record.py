@@ -27,11 +27,11 @@ import csv
 import json
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from itertools import repeat
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from axes.interface import FOREVER
+from tmcl_server.sample_rows import Sample, SampleColumn, SampleRows, SampleRun
 from tmcl_spec.numbers import NS_PER_S, seconds_to_ns
 
 if TYPE_CHECKING:
@@ -41,25 +41,6 @@ if TYPE_CHECKING:
 
 #: Default sample interval (seconds of simulated time).
 DEFAULT_RESOLUTION_S = 0.01
-
-
-class Sample(NamedTuple):
-    """One axis at one instant of simulated time (a named tuple: a recorder builds one per
-    axis and instant, a thousand a simulated second at 1 ms for each axis, and a tuple costs
-    a tenth of a frozen dataclass to build)."""
-
-    t: float  # simulated seconds
-    module: int  # the module's address (slot)
-    axis: int
-    position: int
-    velocity: int
-    acceleration: float  # velocity units per second, over the last sample interval
-    current: int
-    target: int
-    reached: int
-    left: int
-    right: int
-    home: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,7 +86,8 @@ class Recorder:
         self.on_sample = on_sample
         self.on_mark = on_mark
         self.keep = keep
-        self.rows: list[Sample] = []
+        #: Kept compactly (an axis at rest is one run), each row made when read.
+        self.rows = SampleRows()
         self.marks: list[Mark] = []
         self.next_ns = simulation.now_ns
         #: Instants a real clock made the recorder skip (it could not keep up).
@@ -143,7 +125,7 @@ class Recorder:
         self.catch_up(now)  # the first sample, if the start is an instant
         return self
 
-    def stop(self) -> list[Sample]:
+    def stop(self) -> SampleRows:
         """Record up to the present, detach, and return the samples."""
         if self.simulation.recorder is self:
             self.catch_up(self.simulation.now_ns)
@@ -228,22 +210,24 @@ class Recorder:
     def _hand_on(self, samplers: list[_ModuleSampler], upto: int) -> None:
         """Keep and pass on the samples of the instants before index ``upto`` of the span
         not handed on yet: instant by instant, module by module, axis by axis."""
-        columns = [rows for sampler in samplers for rows in sampler.columns]
+        columns = [column for sampler in samplers for column in sampler.columns]
         done = samplers[0].handed
         if upto <= done:
             return
-        span = zip(*(rows[done:upto] for rows in columns), strict=True)
+        pieces = [column.cut(done, upto) for column in columns]
+        runs = [column.runs for column in columns]
         for sampler in samplers:
             sampler.handed = upto
         if self.keep and self.on_sample is None:
-            self.rows.extend(sample for row in span for sample in row)
+            self.rows.add_span(upto - done, pieces, runs)  # the rows are made when read
             return
-        for row in span:
-            for sample in row:
-                if self.keep:
-                    self.rows.append(sample)
-                if self.on_sample is not None:
-                    self.on_sample(sample)
+        span = SampleRows()
+        span.add_span(upto - done, pieces, runs)
+        for sample in span:
+            if self.keep:
+                self.rows.append(sample)
+            if self.on_sample is not None:
+                self.on_sample(sample)
 
     def _before_mark(self, time_ns: int) -> None:
         """A mark at ``time_ns`` is about to be passed on: the samples before it go first."""
@@ -282,7 +266,7 @@ class _ModuleSampler:
         self.indices = recorder._axes_of(module)
         self.due = [FOREVER] * len(module.axes)
         #: Per recorded axis (in ``indices`` order), its samples of the span so far.
-        self.columns: list[list[Sample]] = [[] for _ in self.indices]
+        self.columns = [SampleColumn() for _ in self.indices]
         self._column = dict(zip(self.indices, self.columns, strict=True))
         self.first = first
         self.last = last
@@ -298,7 +282,7 @@ class _ModuleSampler:
         self.first, self.last, self.handed = first, last, 0
         self._times = None
         for index, column in zip(self.indices, self.columns, strict=True):
-            column.clear()
+            column.reset()
             self.due[index] = first
 
     def taken_before(self, t_ns: int) -> int:
@@ -338,7 +322,7 @@ class _ModuleSampler:
         finally:
             self._settled = False
 
-    def _sample(self, index: int, column: list[Sample], instant: int, count: int) -> None:
+    def _sample(self, index: int, column: SampleColumn, instant: int, count: int) -> None:
         """Axis ``index`` at ``count`` instants from ``instant`` (no command or event touches
         it before the last of them)."""
         recorder = self.recorder
@@ -374,11 +358,13 @@ class _ModuleSampler:
                     stretch = axis.samples_at(instant + step, step, before_last)
                     recorder.at_once += len(stretch)
                     statuses += stretch
-                for position, velocity, current, target, reached, left, right, home in statuses:
+                for (position, velocity, current, target, at_target, left_on, right_on,
+                     home_on) in statuses:
                     column.append(new(Sample, (
                         instant / NS_PER_S, slot, index, position, velocity,
                         0.0 if previous is None else (velocity - previous) / dt_s,
-                        current, target, int(reached), int(left), int(right), int(home))))
+                        current, target, int(at_target), int(left_on), int(right_on),
+                        int(home_on))))
                     previous = velocity
                     instant += step
         # the rest of the instants read ``status``: its velocity does not change
@@ -393,11 +379,10 @@ class _ModuleSampler:
             times = self._times
             if times is None:
                 times = self._times = [at / NS_PER_S for at in range(self.first, self.last + 1, step)]
-            rest = (slot, index, position, velocity, 0.0, current, target, reached, left, right,
-                    home)  # (zip makes each row's tuple in C, and reuses it once copied)
-            column.extend(map(new, repeat(Sample), zip(
-                times[(instant + step - self.first) // step:(end - self.first) // step],
-                *map(repeat, rest))))
+            start = (instant + step - self.first) // step
+            column.add_run(SampleRun(times, start, (end - self.first) // step - start, (
+                slot, index, position, velocity, 0.0, current, target, reached, left, right,
+                home)))  # one run: its rows are made when read
         recorder._last_velocity[key] = velocity
 
 
@@ -416,7 +401,7 @@ class Recording:
         self._settle = settle
 
     @property
-    def rows(self) -> list[Sample]:
+    def rows(self) -> SampleRows:
         self._settle()
         return self._recorder.rows
 
@@ -425,7 +410,7 @@ class Recording:
         self._settle()
         return self._recorder.marks
 
-    def stop(self) -> list[Sample]:
+    def stop(self) -> SampleRows:
         return self._call(self._recorder.stop)
 
     def __enter__(self) -> Recording:
