@@ -250,15 +250,17 @@ class ChipDriver(ABC):
     def actual_speed(self) -> int:
         """AP 3: signed speed now."""
 
-    def readings_at(self, ticks: Iterable[int]) -> tuple[list[int], int]:
-        """AP 1 at each of a prefix of ``ticks`` (the chip's ticks, ascending, none before its
-        present) and AP 3 there (the same at all of them), exactly as :meth:`read_position`
-        and :meth:`actual_speed` would read them from the chip brought to each, without
-        bringing it there: where the chip's motion has a closed form and a read changes
-        nothing but what it answers.  The positions count as read (:attr:`position` is the
-        last one's).  A recorder's samples of a moving axis (AxisFirmware.samples_at); a
-        driver without a closed form gives none (the caller runs the chip)."""
-        return [], 0
+    def readings_at(self, ticks: Iterable[int]) -> tuple[list[int], list[int]]:
+        """AP 1 and AP 3 at each of a prefix of ``ticks`` (the chip's ticks, ascending, none
+        before its present), exactly as :meth:`read_position` and :meth:`actual_speed` would
+        read them from the chip brought to each, without bringing it there: where the
+        chip's motion has a closed form (a standing velocity, or a ramp whose speed moves
+        the same amount each ramp tick) and a read changes nothing but what it answers.
+        The prefix stops at the first tick the driver cannot give exactly.  The positions
+        count as read (:attr:`position` is the last one's).  A recorder's samples of a
+        moving axis (AxisFirmware.samples_at); a driver without a closed form gives none
+        (the caller runs the chip)."""
+        return [], []
 
     def speed_on(self, chip: ChipModel) -> int:
         """AP 3 as the firmware would read it from ``chip``, a look-ahead copy of its own (to

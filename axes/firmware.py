@@ -764,13 +764,13 @@ class AxisFirmware(RiggedAxis):
         ``first_ns`` on (none before the present), as many as lie before anything else on
         the way: no event or timer of the axis is due up to them (:meth:`advance_to` would
         only move the present), and the firmware's passes before them are left out (T2).
-        Each is read in closed form where the driver has one (:meth:`ChipDriver.readings_at`,
-        a standing velocity), else by :meth:`sample` at its instant (a ramp), without the
-        module's and the recorder's round for each.  The axis ends at the last one as
-        advance_to leaves it (the chip behind, brought there by the next reading: the law's
-        state at an instant is the same however the run to it is cut) and with its passes
-        and the driver's last reading where sampling each in turn leaves them.  A prefix,
-        perhaps empty: the caller samples the rest the plain way."""
+        Each is read in closed form where the driver has one (:meth:`ChipDriver.readings_at`:
+        a standing velocity, a linear slew), else by :meth:`sample` at its instant (braking
+        along a curve, say), without the module's and the recorder's round for each.  The
+        axis ends at the last one as advance_to leaves it (the chip behind, brought there by
+        the next reading: the law's state at an instant is the same however the run to it is
+        cut) and with its passes and the driver's last reading where sampling each in turn
+        leaves them.  A prefix, perhaps empty: the caller samples the rest the plain way."""
         tasks = self.tasks
         if self._pending or tasks.stall_watch:  # a stall check's instant moves with the present
             return []
@@ -788,9 +788,9 @@ class AxisFirmware(RiggedAxis):
         instant = first_ns
         while True:
             ticks_at = self.driver.chip.ticks_at
-            positions, speed = self.driver.readings_at(  # lazily: it may stop at the first
+            positions, speeds = self.driver.readings_at(  # lazily: it may stop at the first
                 map(ticks_at, range(instant, last + 1, step_ns)))
-            for position in positions:
+            for position, speed in zip(positions, speeds, strict=True):
                 if tasks.next_pass_ns < instant:
                     tasks.lazy_pass(instant)  # leaves them out (left_out_until)
                 samples.append(_new_sample(AxisSample, (position, speed, self.current, target,
@@ -798,9 +798,9 @@ class AxisFirmware(RiggedAxis):
                 instant += step_ns
             if instant > last:
                 break
-            # no closed form there (a ramp): the sample the plain way, the axis brought to
-            # its instant (nothing is due before the horizon: advance_to would only move the
-            # present), and on with the closed form from there
+            # no closed form there (braking along the curve, say): the sample the plain way,
+            # the axis brought to its instant (nothing is due before the horizon: advance_to
+            # would only move the present), and on with the closed form from there
             self._now_ns = instant
             samples.append(self.sample())
             instant += step_ns

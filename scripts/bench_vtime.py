@@ -7,7 +7,7 @@ polled against a threshold >= 200 x; a 1 ms timer interrupt >= 100 x; six axes i
 program-driven back-and-forth moves, one simulated hour, <= 0.5 s of wall time on every core.
 
     .venv/bin/python scripts/bench_vtime.py [--seconds S] [--repeat N] [--only NAME,...]
-                                            [--compare DIR]
+                                            [--compare DIR ...]
 
 Each shape runs ``--seconds`` of simulated time (default 600, ten minutes; the six-axis shape
 one hour) with loop skipping on (the default) and, with the same program and world, in the
@@ -16,7 +16,8 @@ seconds when it would take long (its rate is what matters).  Both runs must end 
 state (the program's registers, user variables, axis positions, events): the benchmark says so.
 
 ``--compare DIR`` also runs each shape's skipping run on another checkout's code (a baseline
-worktree), in a child process between this code's runs, and prints its rate below.
+worktree), in a child process between this code's runs, and prints its rate below; given
+more than once, each baseline's in turn.
 
 Times are the process's CPU time (``time.process_time``): on a machine shared with other work
 the wall clock also counts the others' turns; alone, the two agree.
@@ -558,9 +559,10 @@ def main() -> int:
                              "takes less)")
     parser.add_argument("--repeat", type=int, default=3, help="runs of each; the median counts")
     parser.add_argument("--only", default="", help="comma-separated shape names")
-    parser.add_argument("--compare", metavar="DIR", default="",
+    parser.add_argument("--compare", metavar="DIR", action="append", default=[],
                         help="also run each shape's skipping run on another checkout's code "
-                             "(a child process, alternating with this one's runs)")
+                             "(a child process, alternating with this one's runs); may be "
+                             "given more than once (each baseline in the same runs)")
     parser.add_argument("--compare-cpu", type=float, default=20.0,
                         help="CPU seconds a compared run may take (default 20): where the "
                              "compared code would take longer over the shape's span (it "
@@ -576,8 +578,9 @@ def main() -> int:
         (shape,) = [shape for shape in SHAPES if shape.name in chosen]
         print(run(shape, shape.seconds or args.seconds, False)[0])
         return 0
-    if args.compare and not Path(args.compare, "interpreter").is_dir():
-        parser.error(f"--compare {args.compare}: not a tmcl-sim checkout")
+    for checkout in args.compare:
+        if not Path(checkout, "interpreter").is_dir():
+            parser.error(f"--compare {checkout}: not a tmcl-sim checkout")
     failed = False
     print(f"code: {args.code}")
     print(f"{'shape':<14} {'skipping':>16} {'stepping':>16} {'ratio':>8}  goal      same state")
@@ -585,16 +588,19 @@ def main() -> int:
         if chosen and shape.name not in chosen:
             continue
         seconds = shape.seconds or args.seconds
-        fast, compared = [], []
-        compared_seconds = seconds
-        if args.compare:  # a short run first: how long the whole span would take it
+        fast = []
+        compared: dict[str, list[float]] = {checkout: [] for checkout in args.compare}
+        compared_seconds = dict.fromkeys(args.compare, seconds)
+        for checkout in args.compare:  # a short run first: how long the whole span would take
             short = min(seconds, args.reference_seconds)
-            rate_there = short / _compared_run(args.compare, shape.name, short)
-            compared_seconds = min(seconds, max(short, round(args.compare_cpu * rate_there)))
+            rate_there = short / _compared_run(checkout, shape.name, short)
+            compared_seconds[checkout] = min(seconds,
+                                             max(short, round(args.compare_cpu * rate_there)))
         for _ in range(args.repeat):  # alternating with the compared code's runs
             fast.append(run(shape, seconds, False))
-            if args.compare:
-                compared.append(_compared_run(args.compare, shape.name, compared_seconds))
+            for checkout in args.compare:
+                compared[checkout].append(_compared_run(checkout, shape.name,
+                                                        compared_seconds[checkout]))
         wall = statistics.median(w for w, _ in fast)
         ref_seconds = min(seconds, args.reference_seconds)
         slow = [run(shape, ref_seconds, True) for _ in range(args.repeat)]
@@ -618,13 +624,13 @@ def main() -> int:
         failed |= not met or same != "yes"
         print(f"{shape.name:<14} {shown:>16} {ref_shown:>16} {rate / ref_rate:>7.1f}x  "
               f"{goal:<9} {'met' if met else 'NOT MET'}; {same}")
-        if compared:
-            base = statistics.median(compared) * seconds / compared_seconds
+        for checkout, times in compared.items():
+            base = statistics.median(times) * seconds / compared_seconds[checkout]
             base_shown = (f"{base:.3f} s/{seconds / 3600:.0f} h" if shape.wall_goal
                           else f"{seconds / base:,.0f} x")
-            span = "" if compared_seconds == seconds else f", over {compared_seconds:g} s"
-            print(f"{'':<14} {base_shown:>16}  (skipping, {args.compare}, the same "
-                  f"runs{span})")
+            span = ("" if compared_seconds[checkout] == seconds
+                    else f", over {compared_seconds[checkout]:g} s")
+            print(f"{'':<14} {base_shown:>16}  (skipping, {checkout}, the same runs{span})")
     return 1 if failed else 0
 
 

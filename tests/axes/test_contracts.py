@@ -204,8 +204,14 @@ def test_samples_at_once_are_the_samples_one_by_one(core: str, speed: int, step_
         advance(axis, 0, NS_PER_S)  # at speed (or still ramping at 7,000)
         axis.set_parameter(AP.ACTUAL_POSITION, start)  # short of the wrap
         axis.sample()  # as a recorder's first instant: the chip brought to the present
+    _sampled_at_once_and_one_by_one(twins, NS_PER_S + offset_ns, step_ns, count)
+
+
+def _sampled_at_once_and_one_by_one(twins: list[Axis], first: int, step_ns: int,
+                                    count: int) -> list:
+    """``samples_at`` on the first twin, each sample the second's brought to its instant and
+    sampled, and both going on alike afterwards (events, status, AP 1)."""
     at_once, one_by_one = twins
-    first = NS_PER_S + offset_ns
     given = at_once.samples_at(first, step_ns, count)
     assert len(given) <= count
     for k, sample in enumerate(given):
@@ -217,6 +223,66 @@ def test_samples_at_once_are_the_samples_one_by_one(core: str, speed: int, step_
     assert at_once.status() == one_by_one.status()
     assert at_once.get_parameter(AP.ACTUAL_POSITION) == one_by_one.get_parameter(
         AP.ACTUAL_POSITION)
+    return given
+
+
+def _ramp_ahead(axis: Axis, kind: str, sign: int, wrap: int) -> None:
+    """A ramp under way: from rest towards the position's wrap, a reversal through zero, a
+    stop (each started at 1 s), or a long positioning move (up, cruise, the curve)."""
+    axis.advance_to(0)
+    if kind == "rotate":
+        axis.set_parameter(AP.ACTUAL_POSITION, sign * (wrap - 300))
+        advance(axis, 0, NS_PER_S)
+        axis.rotate(sign * 2 * SPEED)
+    elif kind == "move":
+        _long_brake(axis, sign * 40 * DISTANCE)
+        advance(axis, 0, NS_PER_S)
+    else:
+        axis.rotate(sign * 3 * SPEED)
+        advance(axis, 0, NS_PER_S)
+        if kind == "reverse":
+            axis.rotate(-sign * 3 * SPEED)
+        else:
+            axis.stop()
+    advance(axis, NS_PER_S, _RAMPING)  # past the firmware's timer after a command
+    axis.sample()  # as a recorder's first instant: the chip brought to the present
+
+
+#: Where _ramp_ahead leaves the axis: 5 ms into the ramp.
+_RAMPING = NS_PER_S + 5_000_000
+
+
+@pytest.mark.parametrize("core", CORES)
+@settings(max_examples=12, deadline=None)
+@given(kind=st.sampled_from(["rotate", "move", "reverse", "stop"]), sign=st.sampled_from([1, -1]),
+       step_ns=st.one_of(st.integers(1, 3_000_000), st.just(1_000_000)),
+       count=st.integers(1, 400), offset_ns=st.integers(0, 3_000_000))
+def test_samples_at_once_through_ramps_are_the_samples_one_by_one(
+        core: str, kind: str, sign: int, step_ns: int, count: int, offset_ns: int) -> None:
+    """Axis.samples_at through ramps (a TMC42x core reads a linear slew in closed form, a
+    speed per sample; the rest the plain way): the same samples as one by one, AP 1 across
+    its wrap while the axis accelerates, a reversal through zero, a stop, a positioning
+    move's acceleration, cruise and braking."""
+    wrap = _WRAPS.get(core, 1 << 31)
+    twins = [one_axis(core), one_axis(core)]
+    for axis in twins:
+        _ramp_ahead(axis, kind, sign, wrap)
+    _sampled_at_once_and_one_by_one(twins, _RAMPING + offset_ns, step_ns, count)
+
+
+@pytest.mark.parametrize("core", ["tmc4210", "tmc429"])
+def test_an_acceleration_is_sampled_at_once_across_the_wrap(core: str) -> None:
+    """Not a vacuous prefix: on the TMC42x cores a rotation's acceleration from rest gives
+    every instant (each its own speed, rising), the position through its wrap."""
+    wrap = _WRAPS.get(core, 1 << 31)
+    twins = [one_axis(core), one_axis(core)]
+    for axis in twins:
+        _ramp_ahead(axis, "rotate", 1, wrap)
+    given = _sampled_at_once_and_one_by_one(twins, _RAMPING + 1, 1_000_003, 200)
+    assert len(given) == 200
+    assert given[0].position > 0 > given[-1].position
+    speeds = [sample.velocity for sample in given]
+    assert speeds == sorted(speeds) and len(set(speeds)) > 10  # (at speed after 13-36 ms)
 
 
 @pytest.mark.parametrize("core", ["tmc4210", "tmc429"])
@@ -239,12 +305,12 @@ def test_a_steady_rotation_is_sampled_at_once_across_the_wrap(core: str) -> None
 FIRMWARE_CORES = [core for core in CORES if issubclass(axis_class(core), AxisFirmware)]
 
 
-def _long_brake(axis: AxisFirmware) -> None:
+def _long_brake(axis: Axis, target: int = 400 * DISTANCE) -> None:
     """A move whose ramps outlast a look-ahead's work budget (fast, gently accelerated)."""
     axis.advance_to(0)
     axis.set_parameter(AP.MAX_SPEED, axis.get_parameter(AP.MAX_SPEED) * 4)
     axis.set_parameter(AP.MAX_ACCELERATION, max(1, axis.get_parameter(AP.MAX_ACCELERATION) // 8))
-    axis.move_to(400 * DISTANCE)
+    axis.move_to(target)
 
 
 @pytest.mark.parametrize("core", FIRMWARE_CORES)

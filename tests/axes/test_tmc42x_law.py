@@ -190,19 +190,24 @@ def test_the_laws_ticks_stop_where_a_move_ends() -> None:
     assert walled.motor_position == 400 and walled.v == 0  # active: a hard stop at once
 
 
-def _hold_readings(state: dict, board: _Strip | None, offsets: list[int]) -> list[int]:
-    """``steady_readings`` at ticks ``offsets`` apart from the motor's present: the motor
-    unchanged, and each reading the law's, the law's ticks stopping nowhere on the way."""
+def _hold_readings(state: dict, board: _Strip | None, ticks: list[int]) -> list[int]:
+    """``readings`` at ``ticks`` (ascending, none before the motor's present): the motor
+    unchanged, and each reading the law's (X_ACTUAL and V_ACTUAL), the law's ticks stopping
+    nowhere on the way."""
     chip = _chip(state, board)
     before = _state(chip)
-    ticks = list(accumulate(offsets, initial=chip.t))[1:]
-    positions, v_bits = chip.steady_readings(iter(ticks))
+    positions, v_bits = chip.readings(iter(ticks))
     assert _state(chip) == before  # nothing ran, nothing was read
+    assert len(positions) == len(v_bits) <= len(ticks)
     law = chip.clone()
-    for tick, position in zip(ticks, positions, strict=False):  # a prefix of them
+    for tick, position, bits in zip(ticks, positions, v_bits, strict=False):  # a prefix
         assert law.step(tick) is None, f"a notable instant before tick {tick}"
-        assert (law.t, law.x_actual, law.v_actual & 0xFFF) == (tick, position, v_bits)
+        assert (law.t, law.x_actual, law.v_actual & 0xFFF) == (tick, position, bits)
     return positions
+
+
+def _ticks_after(start: int, offsets: list[int]) -> list[int]:
+    return list(accumulate(offsets, initial=start))[1:]
 
 
 #: A cruise in velocity mode at V 1000 (PULSE_DIV 2): X_ACTUAL across its 24-bit wrap.
@@ -226,18 +231,105 @@ _CRUISE = {"v_min": 0, "v_max": 1000, "a_max": 10, "pmul": 128, "pdiv": 0, "puls
 @given(state=motor_states, board=boards,
        offsets=st.lists(st.one_of(st.integers(0, 40), st.integers(0, 6000)), min_size=1,
                         max_size=12))
-def test_steady_readings_are_the_laws_positions(state: dict, board: _Strip | None,
-                                                offsets: list[int]) -> None:
-    """A recorder's samples of a steady stretch at once (MotorSteady.steady_readings): from
-    any register state (ramps, hold mode, A_MAX 0, switches and their tolerance window, marks,
-    the compare position, REF_MISS, targets across the 24-bit wrap) and at any ticks (odd
-    ones, repeated ones), every X_ACTUAL and V_ACTUAL it gives is the law's at its tick, no
-    notable instant lies before it, and the motor is left as it was."""
-    _hold_readings(state, board, offsets)
+def test_readings_are_the_laws_positions_and_speeds(state: dict, board: _Strip | None,
+                                                    offsets: list[int]) -> None:
+    """A recorder's samples at once (MotorEngine.readings): from any register state (ramps,
+    hold mode, A_MAX 0, switches and their tolerance window, marks, the compare position,
+    REF_MISS, targets across the 24-bit wrap) and at any ticks (odd ones, repeated ones),
+    every X_ACTUAL and V_ACTUAL it gives is the law's at its tick, no notable instant lies
+    before it, and the motor is left as it was."""
+    _hold_readings(state, board, _ticks_after(state["t"], offsets))
 
 
 def test_steady_readings_give_a_whole_cruise_across_the_wrap() -> None:
     """Not a vacuous prefix: a cruise gives every tick asked, X_ACTUAL wrapping past 2**24."""
-    positions = _hold_readings(_CRUISE, None, [0, 1, 3, 7, 101, 4095, 3, 9000])
+    positions = _hold_readings(_CRUISE, None, _ticks_after(5, [0, 1, 3, 7, 101, 4095, 3, 9000]))
     assert len(positions) == 8
     assert positions[0] > HALF24 > positions[-1]  # through the wrap
+
+
+#: States on a full-A_MAX slew, or near one: starting from rest or at speed, towards a
+#: velocity-mode target (up, down, through zero) or a far positioning target (up to V_MAX,
+#: or until the curve takes over), with slow and fast dividers both ways round.
+slew_states = st.fixed_dictionaries({
+    "v_min": st.one_of(st.just(0), st.integers(0, 60), st.just(2047)),
+    "v_max": st.one_of(st.sampled_from([1, 255, 256, 2047]), st.integers(1, 2047)),
+    "a_max": st.one_of(st.sampled_from([1, 2, 255, 256, 257, 2047]), st.integers(1, 2047)),
+    "pmul": st.integers(128, 255), "pdiv": st.integers(0, 13),
+    "pulse_div": st.integers(0, 6), "ramp_div": st.integers(0, 6),
+    "mode": st.sampled_from([RampMode.RAMP, RampMode.SOFT, RampMode.VELOCITY]),
+    "x_actual": _positions,
+    "x_target": st.one_of(_positions, st.integers(-HALF24, HALF24 - 1)),
+    "v": st.one_of(st.just(0), _speeds, st.integers(-3000, 3000)),
+    "v_target": st.one_of(st.integers(-2048, 2047), st.sampled_from([0, 1, -1, 2047, -2048])),
+    "acc": st.integers(0, 2047),
+    "dx_ref_tolerance": st.sampled_from([0, 300]),
+    "ref_conf": st.sampled_from([0, 0x400, 0x300]),  # hard, soft, both stops off
+    "int_mask": st.sampled_from([0, 0xFF]), "latch_pending": st.booleans(),
+    "usrs": st.integers(0, 7), "pos_comp": _positions, "pos_comp_on": st.booleans(),
+    "inv_ref": st.just(False), "right_wired": st.booleans(), "steps_out": st.booleans(),
+    "t": st.integers(0, 300),
+})
+#: Sample ticks: (gap, where it lands: anywhere, on a ramp tick, on a pulse tick, or the tick
+#: before either), the gaps short and long.
+sample_gaps = st.lists(st.tuples(st.one_of(st.integers(0, 40), st.integers(0, 3000),
+                                           st.integers(0, 60_000)),
+                                 st.sampled_from(["free", "ramp", "pulse", "ramp-1", "pulse-1"])),
+                       min_size=1, max_size=40)
+
+
+def _aligned_ticks(state: dict, gaps: list[tuple[int, str]]) -> list[int]:
+    """The ticks ``gaps`` say, each moved onto the ramp or pulse grid (or just before it)."""
+    tick = state["t"]
+    ticks = []
+    for gap, where in gaps:
+        tick += gap
+        if where != "free":
+            grain = 1 << state["ramp_div" if where.startswith("ramp") else "pulse_div"]
+            aligned = -(-tick // grain) * grain - where.endswith("-1")
+            tick = max(tick, aligned)
+        ticks.append(tick)
+    return ticks
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(state={**_CRUISE, "v": 0, "v_target": 1000, "x_actual": MASK24 - 400, "a_max": 3,
+                "ramp_div": 0, "pulse_div": 0}, board=None,
+         gaps=[(97, "free")] * 40)  # from rest to speed, across the wrap, onto the target
+@example(state={**_CRUISE, "v": 0, "mode": RampMode.RAMP, "x_actual": 0, "x_target": 900_000,
+                "v_max": 2047, "a_max": 1, "ramp_div": 2, "pulse_div": 5}, board=None,
+         gaps=[(1, "ramp"), (0, "ramp-1"), (1, "pulse")] * 10)  # PULSE_DIV > RAMP_DIV
+@example(state={**_CRUISE, "v": -(500 << 8), "v_target": 200, "a_max": 700, "ramp_div": 5,
+                "pulse_div": 1}, board=None, gaps=[(31, "ramp")] * 30)  # down through zero
+@given(state=slew_states, board=boards, gaps=sample_gaps)
+def test_readings_across_a_slew_are_the_laws(state: dict, board: _Strip | None,
+                                              gaps: list[tuple[int, str]]) -> None:
+    """The readings of a ramp (the speed moving by A_MAX each ramp tick, up or down, onto
+    V_MAX or a velocity-mode target and held there, or until the positioning curve takes
+    over), at ticks on the ramp and pulse grid and just before it, are the law's, with
+    switches, marks, the compare position and REF_MISS on the way."""
+    _hold_readings(state, board, _aligned_ticks(state, gaps))
+
+
+def test_a_whole_acceleration_is_read_at_once() -> None:
+    """Not a vacuous prefix: a move from rest gives every sample of its acceleration to V_MAX
+    (each with its own speed) and of the cruise after it, up to the ramp tick where braking
+    along the curve begins (the plain path reads there); a rotation's slew down through
+    zero gives every sample short of its last 1/256 of speed."""
+    move = {**_CRUISE, "v": 0, "mode": RampMode.RAMP, "x_actual": MASK24 - 5000,
+            "x_target": 50_000, "v_max": 2000, "a_max": 40, "ramp_div": 4, "pulse_div": 3,
+            "pmul": 200, "pdiv": 6, "acc": 0}
+    law = _chip(move, None)
+    while law.step(law.t + 16) is None and law.v >= law.a_actual >= 0:  # ramp tick by tick
+        pass
+    braking = law.t  # the first ramp tick whose speed falls (V_MAX after 204,800 ticks)
+    assert 400_000 < braking < 600_000
+    ticks = _ticks_after(5, [1600] * 400)
+    given = _hold_readings(move, None, ticks)
+    assert len(given) == sum(tick < braking for tick in ticks)
+    assert given[0] > HALF24 > given[-1]  # X_ACTUAL across its wrap
+    speeds = _chip(move, None).readings(iter(ticks))[1]
+    assert len(set(speeds[:128])) == 128  # a speed per sample on the way up
+    turning = {**_CRUISE, "v": 900 << 8, "v_target": -900, "a_max": 256, "ramp_div": 3}
+    readings = _hold_readings(turning, None, _ticks_after(5, [1] * 8 * 901))
+    assert len(readings) == 8 * 900 - 6  # ticks 6.. up to the ramp tick (8 * 900) that sets 0

@@ -77,7 +77,7 @@ class MotorEngine(RampBatches, ChipModel):
     def reads_are_quiet(self) -> bool:
         """A read of an axis register over SPI would change nothing now but what it answers
         (no chip woken from power-down, no status bit cleared, no datagram sent on): a
-        reading computed without the read (:meth:`steady_readings`) leaves the chip as the
+        reading computed without the read (:meth:`readings`) leaves the chip as the
         read would.  A chip that cannot tell says no."""
         return False
 

@@ -17,12 +17,14 @@ caller's ``room``), so no ``Stop`` of the law falls inside a batch except at its
 * :meth:`RampBatches._fast_brake`: slowing by A_MAX until nearly stopped (a reversal, a move
   too fast to stop at its target, a soft stop at a switch);
 * :meth:`RampBatches._fast`: one ramp tick per loop turn with its pulses counted in bulk,
-  trying the batches above on the way.
+  trying the batches above on the way;
+* :meth:`RampBatches.readings`: X_ACTUAL and V_ACTUAL at given ticks without running the
+  motor, across a standing velocity or a full-A_MAX slew (a recorder's samples of a ramp).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from functools import lru_cache
 from math import isqrt
 
@@ -32,11 +34,13 @@ from axes.chips.tmc42x.registers import (
     DISTANCE_LIMIT,
     HALF24,
     MASK24,
+    MODE_HOLD,
     MODE_RAMP,
     MODE_SOFT,
     MODE_VELOCITY,
     SOFT_STOP,
     V_RANGE,
+    sdiff24,
 )
 from axes.core import Stop
 from axes.search import first_true
@@ -485,6 +489,148 @@ class RampBatches(MotorSteady):
             return 0  # still at the target at the last tick
         mag = min(max(self._curve(d + before), self.v_min), self.v_max)
         return -mag * travel
+
+    # == readings without running ==============================================================
+
+    def readings(self, ticks: Iterable[int]) -> tuple[list[int], list[int]]:
+        """X_ACTUAL and V_ACTUAL (the 12 bits a read returns) at each of ``ticks`` (ascending,
+        none before ``t``) as :meth:`run` would leave them there, for a prefix of them that
+        the motor reaches with nothing notable on the way: at a standing velocity
+        (:meth:`steady_readings`) or across a full-A_MAX slew (:meth:`_slew_readings`).  The
+        state does not change (the caller runs the engine for the rest)."""
+        if self.powered_down:
+            return [], []
+        steady = self._steady_steps()
+        if steady is None:
+            slew = self._slew_readings(ticks)
+            if slew is not None:
+                return slew
+        xs, v_bits = self.steady_readings(ticks, steady)
+        return xs, [v_bits] * len(xs)
+
+    def _slew_readings(self, ticks: Iterable[int]) -> tuple[list[int], list[int]] | None:
+        """:meth:`readings` across ramp ticks that each move the speed by A_MAX towards its
+        ramp target, then hold it where it lands if the target stands (V_MAX, or a
+        velocity-mode target): None, before it takes a tick, if the motor is not on such a
+        slew (the caller reads a standing velocity up to the next ramp tick).
+
+        Exact by the law's own arithmetic: the ramp tick ``j`` after ``t`` (at
+        ``ramp_next + (j - 1) * 2**RAMP_DIV``) sets the speed ``u_j = w + j * A_MAX`` (down:
+        ``w - j * A_MAX``) as long as that does not pass the ramp target, else the target;
+        the pulse ticks between it and the next add ``u_j >> 8`` each to the accumulator
+        (:meth:`_slew_sum`: floor sums), and a step is a carry out of its 11 bits.  The ramp
+        target stays where it is in velocity mode (no switch ahead in play: then nothing is
+        read this way); positioning, it is the clamped curve where the motor is at the tick,
+        which only falls as the motor nears the target while ``u_j`` only rises: the slew
+        holds up to the first tick whose target is below ``u_j`` (a search over a monotone
+        test, as :meth:`_linear_batch`'s).  No tick is given past a step onto a position
+        that matters (:meth:`_stop_distance`: the target, REF_MISS at 0, the compare
+        position, a board mark), and a falling speed stays above zero (where a velocity-mode
+        ramp stops or turns, or a move brakes along the curve, the plain path reads)."""
+        aim = self._slew_aim()
+        if aim is None:
+            return None
+        direction, w, hold, last = aim
+        a = self.a_max
+        rd, pd = self.ramp_div, self.pulse_div
+        t, nr = self.t, self.ramp_next
+        room, _ = self._stop_distance(direction)
+        period = 1 << rd
+        rising = hold > w
+        lands = -(-abs(hold - w) // a) if hold > 0 else FAR  # the tick that reaches ``hold``
+        plan = self._pulse_plan(nr)
+        acc, tp = self.acc, t >> pd
+        head = acc + (((nr - 1) >> pd) - tp) * (w >> 8)  # the pulses before ramp_next
+        held = hold >> 8
+        held_from = 0  # once held: the accumulator's total is held_from + pulses * held
+        if lands < FAR:
+            held_from = (head + self._slew_sum(lands - 1, w, rising, plan)
+                         - ((nr + (lands - 1) * period - 1) >> pd) * held)
+
+        def total_at(tick: int, k: int) -> int:
+            """The accumulator's total at ``tick``, ``k`` ramp ticks after ``t``."""
+            if k >= lands:  # (the pulses since the landing tick at the held speed)
+                return held_from + (tick >> pd) * held
+            if k:
+                pulses = (tick >> pd) - ((nr + (k - 1) * period - 1) >> pd)
+                u = w + k * a if rising else w - k * a
+                return head + self._slew_sum(k - 1, w, rising, plan) + pulses * (u >> 8)
+            return acc + ((tick >> pd) - tp) * (w >> 8)
+
+        if self.mode != MODE_VELOCITY:
+            d = sdiff24(self.x_target, self.x_actual) * direction
+            v_min, v_max = self.v_min, self.v_max
+
+            def fits(j: int) -> bool:
+                """Ramp tick j finds the motor short of ``room`` and its ramp target (the
+                clamped curve there) at or above the speed it sets."""
+                before = total_at(nr + (j - 1) * period - 1, j - 1) >> 11
+                if before >= room:
+                    return False
+                u = hold if j >= lands else w + j * a
+                return min(max(self._curve(d - before), v_min), v_max) << 8 >= u
+
+            last = first_true(lambda j: not fits(j), 1 << 40) - 1
+        xs: list[int] = []
+        vs: list[int] = []
+        x, base = self.x_actual, t >> rd
+        for tick in ticks:
+            k = (tick >> rd) - base  # ramp ticks in (t, tick]
+            if k > last:
+                break
+            steps = total_at(tick, k) >> 11
+            if steps >= room:
+                break
+            xs.append((x + steps * direction) & MASK24)
+            u = hold if k >= lands else w + k * a if rising else w - k * a
+            vs.append(((u >> 8) * direction) & 0xFFF)
+        return xs, vs
+
+    def _slew_aim(self) -> tuple[int, int, int, int] | None:
+        """Where a slew from now heads, if the motor may be on one (:meth:`_slew_readings`):
+        (direction of travel, speed along it, the ramp target along it (1/256 units) it
+        lands on and holds, the last ramp tick it may take: FAR, or short of zero), or None.
+        Positioning, the target is V_MAX (the curve may end the slew sooner, or at once:
+        None)."""
+        a = self.a_max
+        mode = self.mode
+        rd = self.ramp_div
+        if a == 0 or mode == MODE_HOLD or self.ramp_next != (self.t >> rd) + 1 << rd:
+            return None  # (or mid-tick bookkeeping of the engine: not a state of the law)
+        v = self.v
+        last = FAR
+        if mode == MODE_VELOCITY:
+            vt = max(-self.v_max, min(self.v_max, self.v_target))
+            direction = (v > 0) - (v < 0) or (vt > 0) - (vt < 0)
+            if not direction:
+                return None
+            w = v * direction
+            hold = vt * direction << 8
+            if hold == w:
+                return None
+            if hold <= 0:  # slowing to zero, to stop or turn there: up to a speed above it
+                last = (w - 1) // a
+        else:
+            dx = sdiff24(self.x_target, self.x_actual)
+            if not dx:
+                return None
+            direction = 1 if dx > 0 else -1
+            w = v * direction
+            hold = self.v_max << 8
+            if not 0 <= w < hold:
+                return None  # away from the target, or above V_MAX: braking
+            # the first ramp tick's target below its speed: braking along the curve (most
+            # often), turned away before anything else is worked out
+            pd = self.pulse_div
+            before = (self.acc + (((self.ramp_next - 1) >> pd) - (self.t >> pd))
+                      * (w >> 8)) >> 11
+            d = dx * direction
+            if before >= d or min(max(self._curve(d - before), self.v_min),
+                                  self.v_max) << 8 < min(w + a, hold):
+                return None
+        if last == 0 or self._switch_in_play(direction):
+            return None
+        return direction, w, hold, last
 
     # == full-A_MAX slew =======================================================================
 

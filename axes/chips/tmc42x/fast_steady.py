@@ -13,7 +13,9 @@ it stops at the tick where the law's :meth:`~MotorLaw.tick` returns a ``Stop``.
   of the curve, A_MAX = 0, the tolerance window of a switch ahead): the engine then runs
   ``_pulses`` over the whole stretch and writes what its last ramp tick would have written;
 * :meth:`MotorSteady._slew_steps`: the steps of ``k`` ramp ticks of full-A_MAX slew (floor
-  sums), the building block of :mod:`axes.chips.tmc42x.fast_ramps`.
+  sums), the building block of :mod:`axes.chips.tmc42x.fast_ramps`;
+* :meth:`MotorSteady.steady_readings`: X_ACTUAL at given ticks of a steady stretch without
+  running it (a recorder's samples, :meth:`RampBatches.readings`).
 """
 
 from __future__ import annotations
@@ -153,26 +155,26 @@ class MotorSteady(MotorLaw):
                 self.t = t_end
                 return None
 
-    def steady_readings(self, ticks: Iterable[int]) -> tuple[list[int], int]:
+    def steady_readings(self, ticks: Iterable[int], steady: int | None
+                        ) -> tuple[list[int], int]:
         """X_ACTUAL at each of ``ticks`` (ascending, none before ``t``) as :meth:`run` would
         leave it there, and V_ACTUAL (the 12 bits a read returns), for the first of them
         that the motor reaches at its present velocity without a notable step: a prefix,
         perhaps empty; the state does not change (the caller runs the engine for the rest).
+        ``steady`` is :meth:`_steady_steps`' answer now; the chip is powered.
 
         Exact by :meth:`_pulses`' closed form: the pulse ticks in ``(t, T]`` are
         ``(T >> PULSE_DIV) - (t >> PULSE_DIV)`` and make ``(acc + |V| * pulses) >> 11``
         steps, as long as the velocity stands: before the next ramp tick, or while fewer
-        steps than :meth:`_steady_steps` promises are made; and short of the nearest step
-        that matters (:meth:`_stop_distance`: the target, REF_MISS at 0, the compare
-        position, a board mark).  A ramp, a powered-down chip or a motor at rest (whose
-        readings its caller keeps anyway) gives nothing."""
+        steps than ``steady`` promises are made; and short of the nearest step that matters
+        (:meth:`_stop_distance`: the target, REF_MISS at 0, the compare position, a board
+        mark).  A motor at rest (whose readings its caller keeps anyway) gives nothing."""
         v = self.v
         vi = (v if v > 0 else -v) >> 8
-        if vi == 0 or self.powered_down:
+        if vi == 0:
             return [], 0
         if self.mode < MODE_VELOCITY and vi <= self.v_min and self.x_actual == self.x_target:
             return [], 0  # the law's abrupt stop at the target comes at the next pulse tick
-        steady = self._steady_steps()
         last_tick = FAR
         if steady is None:
             last_tick = self.ramp_next - 1  # the next ramp tick may change the velocity
@@ -338,16 +340,19 @@ class MotorSteady(MotorLaw):
                     plan: tuple[int, int, int]) -> tuple[int, int]:
         """(steps, accumulator) after ``k`` ramp ticks that each change the speed ``w`` by
         A_MAX (up if ``rising``), pulses as ``plan`` says (floor sums, not a loop)."""
+        total = acc + self._slew_sum(k, w, rising, plan)
+        return total >> 11, total & 2047
+
+    def _slew_sum(self, k: int, w: int, rising: bool, plan: tuple[int, int, int]) -> int:
+        """What the pulses of ``k`` ramp periods of full-A_MAX slew from the speed ``w`` add
+        to the accumulator (each pulse the integer part of the speed its period's ramp tick
+        set; the speeds stay >= 0): a floor sum over the pulses ``plan`` places."""
         per_ramp, every, phase = plan
         pulses = 0 if k <= phase else (k - 1 - phase) // every + 1
         if pulses == 0:
-            return acc >> 11, acc & 2047
+            return 0
         a = self.a_max
         if rising:
-            speeds = floor_sum(pulses, 256, every * a, w + (phase + 1) * a)
-        else:
-            speeds = floor_sum(pulses, 256, every * a,
-                               w - (phase + 1 + (pulses - 1) * every) * a)
-        total = acc + per_ramp * speeds
-        return total >> 11, total & 2047
-
+            return per_ramp * floor_sum(pulses, 256, every * a, w + (phase + 1) * a)
+        return per_ramp * floor_sum(pulses, 256, every * a,
+                                    w - (phase + 1 + (pulses - 1) * every) * a)

@@ -181,18 +181,25 @@ class TMC42xDriver(ChipDriver):
         self._x_last = x
         return position
 
-    def readings_at(self, ticks: Iterable[int]) -> tuple[list[int], int]:
-        """AP 1 at each of the first ``ticks`` the engine reaches at a standing velocity
-        (:meth:`MotorEngine.steady_readings`) and AP 3 there, read as :meth:`read_position`
-        and :meth:`actual_speed` read them, where a read changes nothing else
-        (:meth:`MotorEngine.reads_are_quiet`); the last position counts as read."""
+    def readings_at(self, ticks: Iterable[int]) -> tuple[list[int], list[int]]:
+        """AP 1 and AP 3 at each of the first ``ticks`` the engine reaches at a standing
+        velocity or across a full-A_MAX slew (:meth:`MotorEngine.readings`), read as
+        :meth:`read_position` and :meth:`actual_speed` read them, where a read changes
+        nothing else (:meth:`MotorEngine.reads_are_quiet`); the last position counts as
+        read."""
         chip = self.chip
         if not chip.reads_are_quiet():
-            return [], 0
-        xs, v_bits = chip.steady_readings(ticks)
+            return [], []
+        xs, v_bits = chip.readings(ticks)
         if not xs:
-            return [], 0
-        return self._counted(xs), self._speed_of(signed(v_bits, 12))
+            return [], []
+        speeds = []
+        bits = speed = -1
+        for read in v_bits:  # (a ramp's speeds repeat: one conversion per distinct one)
+            if read != bits:
+                bits, speed = read, self._speed_of(signed(read, 12))
+            speeds.append(speed)
+        return self._counted(xs), speeds
 
     def _counted(self, xs: list[int]) -> list[int]:
         """AP 1 after each of the X_ACTUAL reads ``xs`` in turn (:meth:`read_position`'s
