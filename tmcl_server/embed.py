@@ -9,17 +9,20 @@
 The server runs on its own event loop in a background thread; :meth:`SimulatorThread.call`
 runs a function on that loop, so the models are only ever touched from one thread.
 
-:meth:`SimulatorThread.advance` waits for that thread, as a call does (so a frame the test
-sent before it is served first, as it always was), but without ``call``'s re-planning of
-every module.  ``advance(s, wait=False)`` does not wait (issue 33, item 6: a hand-off costs
-tens of µs of CPU, so a test advancing in 1 ms steps ran at 11 x real time whatever the
-simulation had to do): it adds the time to what is owed and returns, and the loop applies
-all that is owed in one ``advance`` before anything else reaches the simulation: a
-:meth:`call`, a request on any transport (``Simulation.settle``), a recording's rows, the
-stop.  One advance of the sum ends as the steps would (virtual time is exact however it is
-cut, docs/scheduling.md), and whatever the test does next sees it applied; what it cannot
-order is a frame sent before the call that the loop has not read yet (a fire-and-forget
-frame): it may be served after the time owed.
+:meth:`SimulatorThread.advance` with a transport endpoint waits for that thread, as a call
+does (so a frame the test sent before it is served first, as it always was), but without
+``call``'s re-planning of every module.  ``advance(s, wait=False)`` does not wait (issue 33,
+item 6: a hand-off costs tens of µs of CPU, so a test advancing in 1 ms steps ran at 11 x
+real time whatever the simulation had to do): it adds the time to what is owed and returns,
+and the loop applies all that is owed in one ``advance`` before anything else reaches the
+simulation: a :meth:`call`, a request on any transport (``Simulation.settle``), a
+recording's rows, the stop.  One advance of the sum ends as the steps would (virtual time is exact
+however it is cut, docs/scheduling.md), and whatever the test does next sees it applied;
+what it cannot order is a frame sent before the call that the loop has not read yet (a
+fire-and-forget frame): it may be served after the time owed.  Without any transport (no
+endpoint, no CAN bus) no frame can be in flight, so there the default does not wait either:
+only what goes through :meth:`call` reaches the simulation, and it applies what is owed
+first.
 """
 
 from __future__ import annotations
@@ -89,6 +92,9 @@ class SimulatorThread:
         self._owed_ns = 0
         self._owed_queued = False
         self._owed_error: BaseException | None = None
+        #: A transport (an endpoint, the CAN bus) could carry a frame the test sent before an
+        #: advance, which waiting serves first (set once started).
+        self._carries_frames = True
 
     # -- lifecycle ----------------------------------------------------------------------------
 
@@ -111,6 +117,7 @@ class SimulatorThread:
             self.server = Server(self.config)
             self.server.simulation.settle = self._pay
             self.endpoints = await self.server.start()
+            self._carries_frames = bool(self.server.transports) or bool(self.endpoints)
         except BaseException as exc:
             self._ready.set_exception(exc)
             return
@@ -119,11 +126,20 @@ class SimulatorThread:
         await self.server.stop()
 
     def stop(self) -> None:
+        """Apply the time :meth:`advance` owes (a program may store to the EEPROM in it),
+        stop the server and its thread; an error applying that time is raised here."""
         if self._loop is not None and self.server is not None and self._thread is not None:
             if self._thread.is_alive():
-                self._loop.call_soon_threadsafe(self.server.request_stop)
+                server = self.server
+
+                def pay_and_stop() -> None:
+                    self._pay()
+                    server.request_stop()
+
+                self._loop.call_soon_threadsafe(pay_and_stop)
             self._thread.join(timeout=30)
         self._thread = None
+        self._raise_owed_error()
 
     @property
     def running(self) -> bool:
@@ -198,13 +214,15 @@ class SimulatorThread:
         """The module object itself: only touch it through :meth:`call`."""
         return self.call(self.simulation.module, address)
 
-    def advance(self, seconds: float, wait: bool = True) -> None:
+    def advance(self, seconds: float, wait: bool | None = None) -> None:
         """Move the virtual clock forward, handling every event on the way.
 
         ``wait=False`` (from the test's thread) returns at once: the time is owed, and
         applied on the loop before anything else reaches the simulation (the module
         docstring); a frame the test sent before the call that the loop has not read yet is
-        then served after that time, where waiting serves it first."""
+        then served after that time, where waiting serves it first.  ``wait=None`` (the
+        default) waits where a transport could carry such a frame (an endpoint, the CAN
+        bus), and does not where none can."""
         loop = self._loop
         assert loop is not None, "simulator not started"
         simulation = self.simulation
@@ -217,6 +235,8 @@ class SimulatorThread:
         if step < 0:
             raise ValueError("virtual time cannot go backwards")
         self._raise_owed_error()
+        if wait is None:
+            wait = self._carries_frames
         if wait:  # (no notify_changed, as call() does: advancing changes nothing outside)
             def run() -> None:
                 self._pay()

@@ -1,7 +1,8 @@
 """``SimulatorThread.advance(s, wait=False)`` from the test's thread owes the time and
 returns at once; the loop applies it before anything else reaches the simulation
 (tmcl_server/embed.py; issue 33, item 6: each call used to wait for a hand-off to the loop's
-thread, which ``wait=True``, the default, still does)."""
+thread, which the default still does where a transport could carry a frame, and not where
+none can)."""
 
 from __future__ import annotations
 
@@ -42,6 +43,38 @@ def test_advance_returns_without_waiting_for_the_loop() -> None:
         assert not freed.is_set()  # every call returned while the loop was held
         release.set()
         assert sim.call(lambda: sim.simulation.now_ns) == 100 * MS
+
+
+def test_without_a_transport_the_default_does_not_wait_and_the_stop_applies_what_is_owed(
+        tmp_path) -> None:
+    """No endpoint, no CAN bus: no frame can be in flight, so advance() owes by default (the
+    steps return while the loop is held); with an endpoint it waits as before.  The stop
+    applies what is owed: a program's store to the EEPROM in that time is kept."""
+    source = "WAIT TICKS, 0, 50\nSGP 0, 2, 7\nSTGP 0, 2\nSTOP"
+    with SimulatorThread(clock="virtual", state_dir=str(tmp_path)) as sim:
+        def load() -> None:
+            module = sim.simulation.modules[0]
+            for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
+                        (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
+                module.execute(Request(1, *ins))
+
+        sim.call(load)
+        release, freed = _blocked(sim)
+        for _ in range(600):
+            sim.advance(0.001)
+        assert not freed.is_set()  # owed, not waited for
+        release.set()
+    with SimulatorThread(clock="virtual", state_dir=str(tmp_path)) as again:
+        assert again.call(lambda: again.simulation.modules[0].globals[2][0]) == 7
+    with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"]) as sim:
+        release, freed = _blocked(sim)
+        done = threading.Event()
+        waiting = threading.Thread(target=lambda: (sim.advance(0.001), done.set()))
+        waiting.start()
+        assert not done.wait(0.2)  # waits for the held loop: a frame sent before is served first
+        release.set()
+        waiting.join(timeout=10)
+        assert done.is_set()
 
 
 def test_time_owed_is_applied_before_a_request_and_a_recording_is_read() -> None:
