@@ -643,13 +643,17 @@ def test_braking_batches_are_the_reference_ramp_ticks(
     steps_to_interest = max(1, round(room * distance))
     plan = chip._pulse_plan(chip.ramp_next)
     fast_ramps._DESCENTS.clear()
+    fast_ramps._CUT_DESCENTS.clear()
     down = chip._descend(w, distance, acc, steps_to_interest, max_ticks, plan)
     # remembered, whether it ended or was cut by max_ticks: the same again; a shorter cut is
     # not the remembered one, but what it computes afresh
     assert chip._descend(w, distance, acc, steps_to_interest, max_ticks, plan) == down
+    if down is not None and down[0] >= fast_ramps.CUT_DESCENT_MIN_TICKS:
+        assert fast_ramps._DESCENTS or fast_ramps._CUT_DESCENTS, "not remembered"
     if down is not None and down[0] > 1:
         shorter = chip._descend(w, distance, acc, steps_to_interest, down[0] - 1, plan)
         fast_ramps._DESCENTS.clear()
+        fast_ramps._CUT_DESCENTS.clear()
         assert shorter == chip._descend(w, distance, acc, steps_to_interest, down[0] - 1, plan)
         assert shorter is not None and shorter[0] == down[0] - 1
     ref = _reference_for(chip)

@@ -48,6 +48,13 @@ from axes.search import first_true
 #: Braking runs remembered (_descend): a program's repeated moves brake from the same states.
 DESCENT_CACHE_SIZE = 4096
 _DESCENTS: dict[tuple[int, ...], tuple[int, int, int, int, int]] = {}
+#: Braking runs cut short by their tick limit, remembered apart (a look-ahead's budget and a
+#: program's reads cut a repeated move's brake the same way each time; a real clock's cuts
+#: never repeat, and must not push the whole runs out): at least this many ticks, at most
+#: CUT_DESCENT_CACHE_SIZE of them.
+CUT_DESCENT_MIN_TICKS = 64
+CUT_DESCENT_CACHE_SIZE = 1024
+_CUT_DESCENTS: dict[tuple[int, ...], tuple[int, int, int, int, int]] = {}
 #: Ramp ticks of _descend that count as one unit of work (a loop turn of the general path).
 DESCENT_TICKS_PER_WORK = 4
 #: A batch of ramp ticks: (ticks, speed, accumulator, steps, A_ACTUAL along the travel, ramp
@@ -299,7 +306,7 @@ class RampBatches(MotorSteady):
                d_floor)
         known = _DESCENTS.get(key)
         if known is None or known[0] > max_ticks:  # (not ended within max_ticks)
-            known = _DESCENTS.get((*key, max_ticks))  # the same start cut the same way
+            known = _CUT_DESCENTS.get((*key, max_ticks))  # the same start cut the same way
         if known is not None and known[0] <= max_ticks:
             n, w_before, w, D, mag = known
             d_now = -((-D) >> 11)
@@ -352,11 +359,15 @@ class RampBatches(MotorSteady):
         if n == 0:
             return None
         # ended by itself or before ``room``, not for want of ticks: the same from the same
-        # start; cut by ``max_ticks``: the same from the same start and cut (a look-ahead's
-        # pieces and the reads of a move repeated)
-        if len(_DESCENTS) >= DESCENT_CACHE_SIZE:
-            _DESCENTS.clear()
-        _DESCENTS[key if ended else (*key, max_ticks)] = (n, w_before, w, D, mag)
+        # start; cut by ``max_ticks``: the same from the same start and cut
+        if ended:
+            if len(_DESCENTS) >= DESCENT_CACHE_SIZE:
+                _DESCENTS.clear()
+            _DESCENTS[key] = (n, w_before, w, D, mag)
+        elif n >= CUT_DESCENT_MIN_TICKS:
+            if len(_CUT_DESCENTS) >= CUT_DESCENT_CACHE_SIZE:
+                _CUT_DESCENTS.clear()
+            _CUT_DESCENTS[(*key, max_ticks)] = (n, w_before, w, D, mag)
         d_now = -((-D) >> 11)
         return n, w, (d_now << 11) - D, d - d_now, w - w_before, mag, n // DESCENT_TICKS_PER_WORK
 
