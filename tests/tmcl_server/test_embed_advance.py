@@ -33,6 +33,17 @@ def _blocked(sim: SimulatorThread) -> tuple[threading.Event, threading.Event]:
     return release, freed
 
 
+def _start_program(sim: SimulatorThread, source: str) -> None:
+    """Download ``source`` to module 1 and run it (on the simulator's thread)."""
+    def load() -> None:
+        module = sim.simulation.modules[0]
+        for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
+                    (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
+            module.execute(Request(1, *ins))
+
+    sim.call(load)
+
+
 def test_advance_returns_without_waiting_for_the_loop() -> None:
     """A hundred 1 ms steps while the loop is busy with something else return before the loop
     is free (they used to wait for it, one hand-off each); the next call sees all of them."""
@@ -52,13 +63,7 @@ def test_without_a_transport_the_default_does_not_wait_and_the_stop_applies_what
     applies what is owed: a program's store to the EEPROM in that time is kept."""
     source = "WAIT TICKS, 0, 50\nSGP 0, 2, 7\nSTGP 0, 2\nSTOP"
     with SimulatorThread(clock="virtual", state_dir=str(tmp_path)) as sim:
-        def load() -> None:
-            module = sim.simulation.modules[0]
-            for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
-                        (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
-                module.execute(Request(1, *ins))
-
-        sim.call(load)
+        _start_program(sim, source)
         release, freed = _blocked(sim)
         for _ in range(600):
             sim.advance(0.001)
@@ -83,13 +88,7 @@ def test_time_owed_is_applied_before_a_request_and_a_recording_is_read() -> None
     would give, and so do the recording's rows."""
     source = "Loop:\nWAIT TICKS, 0, 1\nGGP 0, 2\nCALC ADD, 1\nAGP 0, 2\nJA Loop"
     with SimulatorThread(clock="virtual", tcp=["127.0.0.1:0"]) as sim:
-        def load() -> None:
-            module = sim.simulation.modules[0]
-            for ins in [(Opcode.ENTER_DOWNLOAD_MODE, 0, 0, 0), *assemble(source).instructions,
-                        (Opcode.EXIT_DOWNLOAD_MODE, 0, 0, 0), (Opcode.RUN_APPLICATION, 0, 0, 0)]:
-                module.execute(Request(1, *ins))
-
-        sim.call(load)
+        _start_program(sim, source)
         recording = sim.record(0.01, axes=[0])
         for step in [0.001] * 500 + [0.00037] * 1000 + [0.13]:
             sim.advance(step, wait=False)
