@@ -6,17 +6,17 @@ minutes: about 4 CPU seconds and half a gigabyte however they are made), and mos
 are axes at rest, whose rows differ only in their time.  So an axis's stretch at rest is
 kept as one :class:`SampleRun`, a moving axis's samples as arrays of numbers
 (:class:`MovingRun`: kept tuples are objects the garbage collector walks again and again),
-and :class:`SampleRows` makes each row when it is read: a
-test that looks at a few rows pays for a few, and reading them all costs what keeping them
-all did.  The rows read are the same :class:`Sample` tuples, in the same order, as a list
-would hold (tests/tmcl_server/test_record.py compares them with rows sampled one by one).
+and :class:`SampleRows` makes each row when it is read: a test that looks at a few rows pays
+for a few, and reading them all costs what keeping them all did.  The rows read are the
+same :class:`Sample` tuples, in the same order, as a list would hold
+(tests/tmcl_server/test_record.py compares them with rows sampled one by one).
 """
 
 from __future__ import annotations
 
 from array import array
 from bisect import bisect_right
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from itertools import chain, islice, repeat
 from typing import NamedTuple, overload
 
@@ -99,8 +99,8 @@ class SampleRun(Run):
 class MovingRun(Run):
     """Samples of a moving axis at consecutive instants whose current, target and switch
     levels are the same (``fixed``): its positions, velocities, accelerations and "reached"
-    flags as arrays of numbers (a recorder at 1 ms keeps a thousand a simulated second per moving axis: as
-    tuples, each is an object the garbage collector walks again and again)."""
+    flags as arrays of numbers (a recorder at 1 ms keeps a thousand a simulated second per
+    moving axis: as tuples, each is an object the garbage collector walks again and again)."""
 
     __slots__ = ("accelerations", "axis", "fixed", "module", "positions", "reached", "velocities")
 
@@ -201,11 +201,10 @@ def _item_at(items: list[Item], runs: bool, k: int) -> Sample:
 
 
 class _Span(NamedTuple):
-    """Rows of ``instants`` instants, one column per recorded axis (instant by instant, then
+    """Rows from ``first_row`` on, one column per recorded axis (instant by instant, then
     column by column); ``runs[c]``: column ``c`` may hold runs."""
 
     first_row: int
-    instants: int
     columns: list[list[Item]]
     runs: list[bool]
 
@@ -232,7 +231,7 @@ class SampleRows(Sequence[Sample]):
     def add_span(self, instants: int, columns: list[list[Item]], runs: list[bool]) -> None:
         if instants <= 0 or not columns:
             return
-        self._spans.append(_Span(self._length, instants, columns, runs))
+        self._spans.append(_Span(self._length, columns, runs))
         self._starts.append(self._length)
         self._length += instants * len(columns)  # last: a reader on another thread sees
         # no row before its span is there
@@ -240,16 +239,10 @@ class SampleRows(Sequence[Sample]):
     def append(self, sample: Sample) -> None:
         spans = self._spans
         if spans and len(spans[-1].columns) == 1 and not spans[-1].runs[0]:
-            last = spans[-1]
-            last.columns[0].append(sample)
-            spans[-1] = last._replace(instants=last.instants + 1)
+            spans[-1].columns[0].append(sample)  # (one column: its rows are the span's)
             self._length += 1
         else:
             self.add_span(1, [[sample]], [False])
-
-    def extend(self, samples: Iterable[Sample]) -> None:
-        for sample in samples:
-            self.append(sample)
 
     def __len__(self) -> int:
         return self._length
