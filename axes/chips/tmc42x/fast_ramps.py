@@ -550,8 +550,7 @@ class RampBatches(MotorSteady):
         rising = hold > w
         lands = -(-abs(hold - w) // a) if hold > 0 else FAR  # the tick that reaches ``hold``
         plan = self._pulse_plan(nr)
-        acc, tp = self.acc, t >> pd
-        head = acc + (((nr - 1) >> pd) - tp) * (w >> 8)  # the pulses before ramp_next
+        head = self._standing_total(nr - 1, w)  # the pulses before ramp_next
         held = hold >> 8
         held_from = 0  # once held: the accumulator's total is held_from + pulses * held
         if lands < FAR:
@@ -566,7 +565,7 @@ class RampBatches(MotorSteady):
                 pulses = (tick >> pd) - ((nr + (k - 1) * period - 1) >> pd)
                 u = w + k * a if rising else w - k * a
                 return head + self._slew_sum(k - 1, w, rising, plan) + pulses * (u >> 8)
-            return acc + ((tick >> pd) - tp) * (w >> 8)
+            return self._standing_total(tick, w)
 
         if self.mode != MODE_VELOCITY:
             d = sdiff24(self.x_target, self.x_actual) * direction
@@ -596,6 +595,13 @@ class RampBatches(MotorSteady):
             u = hold if k >= lands else w + k * a if rising else w - k * a
             vs.append(((u >> 8) * direction) & 0xFFF)
         return xs, vs
+
+    def _standing_total(self, tick: int, w: int) -> int:
+        """The accumulator's total at ``tick`` (no later than the next ramp tick's eve) with
+        the speed ``w`` (1/256 units) standing: each pulse tick since ``t`` adds its integer
+        part (as :meth:`steady_readings`' loop, written out there for speed)."""
+        pd = self.pulse_div
+        return self.acc + ((tick >> pd) - (self.t >> pd)) * (w >> 8)
 
     def _slew_aim(self) -> tuple[int, int, int, int] | None:
         """Where a slew from now heads, if the motor may be on one (:meth:`_slew_readings`):
@@ -632,9 +638,7 @@ class RampBatches(MotorSteady):
                 return None  # away from the target, or above V_MAX: braking
             # the first ramp tick's target below its speed: braking along the curve (most
             # often), turned away before anything else is worked out
-            pd = self.pulse_div
-            before = (self.acc + (((self.ramp_next - 1) >> pd) - (self.t >> pd))
-                      * (w >> 8)) >> 11
+            before = self._standing_total(self.ramp_next - 1, w) >> 11
             d = dx * direction
             if before >= d or min(max(self._curve(d - before), self.v_min),
                                   self.v_max) << 8 < min(w + a, hold):
